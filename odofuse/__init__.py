@@ -1,0 +1,3 @@
+"""odofuse: probabilistic state estimation for wheeled mobile robots."""
+
+__version__ = "0.1.0"

@@ -1,0 +1,62 @@
+"""Trajectories and estimator results: what every estimator returns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A time-stamped sequence of planar poses with optional world-frame covariances.
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Time stamps in seconds, non-decreasing.
+    poses : ndarray, shape (N, 3)
+        ``[x, y, theta]`` in the world frame (m, m, rad), theta wrapped to [-pi, pi).
+    covariances : ndarray, shape (N, 3, 3), optional
+        Pose covariances over ``[x, y, theta]`` in the world frame.
+    """
+
+    t: np.ndarray
+    poses: np.ndarray
+    covariances: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=float)
+        poses = np.asarray(self.poses, dtype=float)
+        if t.ndim != 1 or poses.shape != (t.size, 3):
+            raise ValueError(f"Trajectory needs t (N,) and poses (N, 3); got {t.shape}, {poses.shape}")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "poses", poses)
+        if self.covariances is not None:
+            cov = np.asarray(self.covariances, dtype=float)
+            if cov.shape != (t.size, 3, 3):
+                raise ValueError(f"covariances must be (N, 3, 3); got {cov.shape}")
+            object.__setattr__(self, "covariances", cov)
+
+    def __len__(self) -> int:
+        return self.t.size
+
+    @property
+    def xy(self) -> np.ndarray:
+        """Positions, shape (N, 2)."""
+        return self.poses[:, :2]
+
+
+@dataclass(frozen=True)
+class EstimateResult:
+    """What an estimator returns: the trajectory plus bookkeeping for ``metrics.json``.
+
+    ``used``/``rejected`` count measurements per sensor stream; ``extra`` holds estimator
+    specific results (calibration estimates, landmark positions, ...), JSON-serialisable.
+    """
+
+    estimator: str
+    trajectory: Trajectory
+    used: dict[str, int] = field(default_factory=dict)
+    rejected: dict[str, int] = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
