@@ -1,0 +1,38 @@
+"""Built-in datasets read from the installed gtsam package (never copied into odofuse).
+
+``builtin:plaza1`` / ``builtin:plaza2``: the Plaza lawn-mower robot (Djugash et al.) shipped
+in ``gtsam/Data``: odometry increments (``DR``: t, ds, dtheta), ranges to 4 surveyed beacons
+(``TD``: t, -, beacon id, range), beacon positions (``TL``) and ground truth (``GT``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from odofuse.errors import InputError
+from odofuse.io.log import SensorLog, Stream
+
+BUILTINS = ("plaza1", "plaza2")
+
+
+def load_builtin(name: str) -> SensorLog:
+    """Load a built-in dataset by name (``"plaza1"`` or ``"plaza2"``, with or without ``builtin:``)."""
+    import gtsam
+    import scipy.io
+
+    key = name.removeprefix("builtin:").lower()
+    if key not in BUILTINS:
+        raise InputError(f"unknown built-in dataset '{name}'; known: {', '.join(BUILTINS)}")
+    path = gtsam.findExampleDataFile(f"{key.capitalize()}_.mat")
+    mat = scipy.io.loadmat(path)
+    dr, td, tl, gt = (np.asarray(mat[k], dtype=float) for k in ("DR", "TD", "TL", "GT"))
+    source = f"builtin:{key} ({path})"
+    streams = {
+        "odometry": Stream("odometry", source, dr[:, 0], ("ds", "dtheta"), dr[:, 1:3]),
+        "ranges": Stream("ranges", source, td[:, 0], ("id", "range"), td[:, 2:4]),
+    }
+    landmarks = {int(row[0]): row[1:3].copy() for row in tl}
+    groundtruth = Stream("groundtruth", source, gt[:, 0], ("x", "y", "theta"), gt[:, 1:4])
+    # The dataset's dead-reckoned path (DRp) starts at the published initial pose.
+    initial = np.asarray(mat["DRp"][0, 1:4], dtype=float)
+    return SensorLog(source, streams, landmarks, groundtruth, {}, initial)

@@ -1,0 +1,74 @@
+"""The in-memory form of a log: named, validated time series in SI units."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Stream:
+    """One sensor stream: time stamps and named value columns.
+
+    Parameters
+    ----------
+    name : str
+        Stream name (``"wheels"``, ``"odometry"``, ``"ranges"``, ...).
+    source : str
+        Where it came from (file path), for error messages.
+    t : ndarray, shape (N,)
+        Time stamps in seconds, non-decreasing.
+    columns : tuple of str
+        Value column names (without ``t``).
+    values : ndarray, shape (N, C)
+        Values in SI units.
+    """
+
+    name: str
+    source: str
+    t: np.ndarray
+    columns: tuple[str, ...]
+    values: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=float).reshape(-1)
+        values = np.asarray(self.values, dtype=float).reshape(t.size, len(self.columns))
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "columns", tuple(self.columns))
+
+    def __len__(self) -> int:
+        return self.t.size
+
+    def __getitem__(self, column: str) -> np.ndarray:
+        try:
+            return self.values[:, self.columns.index(column)]
+        except ValueError:
+            raise KeyError(f"{self.source}: stream '{self.name}' has no column '{column}'") from None
+
+    def row(self, i: int) -> dict[str, float]:
+        """Row ``i`` as ``{"t": ..., column: value, ...}``."""
+        out = {"t": float(self.t[i])}
+        out.update(zip(self.columns, map(float, self.values[i])))
+        return out
+
+
+@dataclass(frozen=True)
+class SensorLog:
+    """A whole log: streams by name, the landmark map, optional ground truth and repairs.
+
+    ``groundtruth`` has columns ``("x", "y", "theta")`` and is never fed to an estimator.
+    ``repairs`` counts documented repairs (``"wheels.duplicate_t"``, ``"wheels.rollover"``...).
+    ``initial_pose`` is the dataset's own published start pose when it has one (m, m, rad).
+    """
+
+    source: str
+    streams: dict[str, Stream]
+    landmarks: dict[int, np.ndarray] = field(default_factory=dict)
+    groundtruth: Stream | None = None
+    repairs: dict[str, int] = field(default_factory=dict)
+    initial_pose: np.ndarray | None = None
+
+    def has(self, name: str) -> bool:
+        return name in self.streams and len(self.streams[name]) > 0
