@@ -1,0 +1,322 @@
+"""Motion models: integrators, the odometry error model and dead reckoning.
+
+One :class:`MotionModel` (drive + error model + integrator) serves every back end: the EKF/UKF
+prediction, the particle filter's sampling and the factor graph's odometry factors all call it.
+
+Integrators (Politecnico slides ``003_73fced8ec7c15fe5.txt``, Modern Robotics 13.35-13.36 in
+``000_96a7e9c96987202e.txt``), for a step's body twist ``[omega, v_x, v_y]`` (Delta t = 1):
+
+* ``euler``: the body moves by ``[v_x, v_y]`` along the heading at the step start;
+* ``rk2``: the same along the mid-step heading ``theta + omega/2`` (Siegwart's model in
+  ``004_f4547100a083f338.txt`` is this one with ``v_y = 0``);
+* ``exact``: the twist exponential (arc of a circle about the ICR).
+
+Error model (Siegwart & Nourbakhsh ch. 5): each wheel's travel ``ds_i`` has variance
+``k_i |ds_i|`` (m^2 per m), uncorrelated between wheels; steering inputs have a constant
+variance. ``Sigma_p' = F_p Sigma_p F_p^T + F_u Sigma_u F_u^T``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from odofuse import se2
+
+INTEGRATORS = ("euler", "rk2", "exact")
+
+
+def body_increment(twist, integrator: str = "exact", jacobian: bool = True):
+    """Relative pose moved by one step of a body twist, and its Jacobian.
+
+    Parameters
+    ----------
+    twist : array_like, shape (..., 3)
+        ``[omega, v_x, v_y]`` over the step (rad, m, m).
+    integrator : {"euler", "rk2", "exact"}
+    jacobian : bool
+        Also compute the Jacobian (skip it on pose-only paths).
+
+    Returns
+    -------
+    delta : ndarray, shape (..., 3)
+        ``[dx, dy, dtheta]`` in the body frame at the step start.
+    J_delta_twist : ndarray, shape (..., 3, 3), or None when ``jacobian`` is false
+    """
+    tw = np.asarray(twist, dtype=float)
+    if integrator == "exact":
+        return se2.exp(tw), (se2.J_exp(tw) if jacobian else None)
+    w, vx, vy = tw[..., 0], tw[..., 1], tw[..., 2]
+    if integrator == "euler" and not jacobian:
+        return np.stack([vx, vy, w], -1), None
+    if integrator == "rk2" and not jacobian:
+        c, s = np.cos(0.5 * w), np.sin(0.5 * w)
+        return np.stack([c * vx - s * vy, s * vx + c * vy, w], -1), None
+    J = np.zeros(tw.shape[:-1] + (3, 3))
+    J[..., 2, 0] = 1.0
+    if integrator == "euler":
+        J[..., 0, 1] = 1.0
+        J[..., 1, 2] = 1.0
+        return np.stack([vx, vy, w], -1), J
+    if integrator == "rk2":
+        c, s = np.cos(0.5 * w), np.sin(0.5 * w)
+        J[..., 0, 0] = 0.5 * (-s * vx - c * vy)
+        J[..., 1, 0] = 0.5 * (c * vx - s * vy)
+        J[..., 0, 1], J[..., 0, 2] = c, -s
+        J[..., 1, 1], J[..., 1, 2] = s, c
+        return np.stack([c * vx - s * vy, s * vx + c * vy, w], -1), J
+    raise ValueError(f"unknown integrator '{integrator}'; use one of {', '.join(INTEGRATORS)}")
+
+
+def integrate(pose, twist, integrator: str = "exact"):
+    """One integration step in the world frame.
+
+    Returns
+    -------
+    pose_new : ndarray, shape (..., 3)
+    F_p : ndarray, shape (..., 3, 3)
+        Jacobian w.r.t. the pose (Siegwart's ``F_p``).
+    J_pose_twist : ndarray, shape (..., 3, 3)
+        Jacobian of the new pose w.r.t. the twist ``[omega, v_x, v_y]``.
+    """
+    delta, J_delta_twist = body_increment(twist, integrator)
+    F_p, J_b = se2.J_compose(pose, delta)
+    return se2.compose(pose, delta), F_p, J_b @ J_delta_twist
+
+
+@dataclass(frozen=True)
+class OdometryErrorModel:
+    """Per-input variances of one odometry step (Siegwart & Nourbakhsh ch. 5, generalised).
+
+    ``var(u_i) = (k_i |travel_i| ) / scale_i^2 + floor_i`` for wheel inputs (``travel`` in
+    metres, ``scale`` = metres per input unit, the wheel radius for wheel angles), and
+    ``floor_i`` alone for inputs with zero scale (steering angles).
+
+    Parameters
+    ----------
+    k : tuple of float
+        ``k_i`` in m^2 per metre travelled, one per drive input (0 for steering inputs).
+    floor : tuple of float
+        Constant variance per input and step, in the input's units squared.
+    """
+
+    k: tuple[float, ...]
+    floor: tuple[float, ...]
+
+    def variances(self, drive, u) -> np.ndarray:
+        """Input variances, shape ``(..., n)``."""
+        scale = np.asarray(drive.travel_scale(), dtype=float)
+        travel = np.abs(drive.travel(u))
+        safe = np.where(scale > 0, scale, 1.0)
+        wheel = np.where(scale > 0, np.asarray(self.k) * travel / safe**2, 0.0)
+        return wheel + np.asarray(self.floor)
+
+
+@dataclass(frozen=True)
+class MotionModel:
+    """Drive model + error model + integrator: the single motion model of every back end."""
+
+    drive: object
+    errors: OdometryErrorModel
+    integrator: str = "exact"
+
+    def __post_init__(self) -> None:
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(
+                f"unknown integrator '{self.integrator}'; use one of {', '.join(INTEGRATORS)}"
+            )
+        n = len(self.drive.input_names)
+        if len(self.errors.k) != n or len(self.errors.floor) != n:
+            raise ValueError(
+                f"error model needs {n} k and floor values for inputs {self.drive.input_names}"
+            )
+
+    def increment(self, u) -> tuple[np.ndarray, np.ndarray]:
+        """Body-frame relative pose of one step and its Jacobian ``J_delta_u`` ``(..., 3, n)``."""
+        delta, J_delta_twist = body_increment(self.drive.twist(u), self.integrator)
+        return delta, J_delta_twist @ self.drive.J_twist_u(u)
+
+    def input_cov(self, u) -> np.ndarray:
+        """``Sigma_u``: diagonal covariance of the inputs of one step, shape ``(n, n)``."""
+        return np.diag(self.errors.variances(self.drive, u))
+
+    def predict(self, pose, P, u):
+        """One prediction step with covariance propagation.
+
+        Returns
+        -------
+        pose_new : ndarray (3,)
+        P_new : ndarray (3, 3)
+            ``F_p P F_p^T + F_u Sigma_u F_u^T`` (world frame).
+        F_p : ndarray (3, 3)
+        F_u : ndarray (3, n)
+        """
+        delta, J_delta_u = self.increment(u)
+        F_p, J_b = se2.J_compose(pose, delta)
+        F_u = J_b @ J_delta_u
+        var = self.errors.variances(self.drive, u)
+        P_new = F_p @ P @ F_p.T + (F_u * var) @ F_u.T
+        return se2.compose(pose, delta), 0.5 * (P_new + P_new.T), F_p, F_u
+
+    def relative(self, U) -> tuple[np.ndarray, np.ndarray]:
+        """Pre-integrate steps ``U`` ``(N, n)`` into one relative pose and its covariance.
+
+        Returns
+        -------
+        delta : ndarray (3,)
+            Relative pose of the last step's end in the first step's start frame.
+        cov_body : ndarray (3, 3)
+            Its covariance in GTSAM's ``Pose2`` tangent convention (body frame at the end),
+            ready for ``BetweenFactorPose2``.
+        """
+        U = np.atleast_2d(np.asarray(U, dtype=float))
+        poses, covs = dead_reckon(self, np.zeros(3), np.zeros((3, 3)), U)
+        return poses[-1], se2.cov_world_to_body(poses[-1], covs[-1])
+
+
+def _cumulative_poses(pose0, delta):
+    """Poses after each of the body increments ``delta`` (N, 3), and the step-start headings."""
+    theta = np.empty(delta.shape[0] + 1)
+    theta[0] = pose0[2]
+    np.cumsum(delta[:, 2], out=theta[1:])
+    theta[1:] += pose0[2]
+    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
+    poses = np.empty((delta.shape[0] + 1, 3))
+    poses[0, :2] = pose0[:2]
+    np.cumsum(c * delta[:, 0] - s * delta[:, 1], out=poses[1:, 0])
+    np.cumsum(s * delta[:, 0] + c * delta[:, 1], out=poses[1:, 1])
+    poses[1:, :2] += pose0[:2]
+    poses[:, 2] = se2.wrap(theta)
+    return poses, c, s
+
+
+# Block length of the closed-form covariance recursion. Within a block, positions are taken
+# relative to the block's first pose so the prefix sums stay small and cancellation is bounded.
+_COV_BLOCK = 8192
+
+
+def dead_reckon(model: MotionModel, pose0, P0, U, with_cov: bool = True):
+    """Dead reckoning over a whole array of steps, vectorised.
+
+    Because every step's ``F_p = I + E(d_k)`` (``E`` adds the world displacement ``d_k`` to the
+    theta column) and ``E(a) E(b) = 0``, the product of the ``F_p`` from step ``j`` to ``n`` is
+    ``I + E(p_n - p_j)``. The covariance recursion
+    ``P_n = Phi(n, m) P_m Phi(n, m)^T + sum_j Phi(n, j+1) Q_j Phi(n, j+1)^T`` then becomes
+    prefix sums over each block. The result equals the step-by-step ``MotionModel.predict``
+    loop to rounding error.
+
+    Parameters
+    ----------
+    model : MotionModel
+    pose0 : array_like (3,)
+    P0 : array_like (3, 3)
+    U : array_like (N, n)
+        Drive inputs of each step.
+    with_cov : bool
+        Also propagate covariances.
+
+    Returns
+    -------
+    poses : ndarray (N+1, 3)
+        The initial pose and the pose after each step.
+    covs : ndarray (N+1, 3, 3) or None
+    """
+    pose0 = np.asarray(pose0, dtype=float)
+    U = np.asarray(U, dtype=float).reshape(-1, len(model.drive.input_names))
+    twist = model.drive.twist(U)
+    delta, J_delta_twist = body_increment(twist, model.integrator, jacobian=with_cov)
+    poses, c, s = _cumulative_poses(pose0, delta)
+    if not with_cov:
+        return poses, None
+    n_steps = U.shape[0]
+    # Q_k = F_u Sigma_u F_u^T with F_u = blockdiag(R(theta_k), 1) J_delta_twist J_twist_u.
+    J_delta_u = J_delta_twist @ model.drive.J_twist_u(U)
+    F_u = J_delta_u.copy()
+    F_u[:, 0, :] = c[:, None] * J_delta_u[:, 0, :] - s[:, None] * J_delta_u[:, 1, :]
+    F_u[:, 1, :] = s[:, None] * J_delta_u[:, 0, :] + c[:, None] * J_delta_u[:, 1, :]
+    var = model.errors.variances(model.drive, U)
+    Q = (F_u * var[:, None, :]) @ np.swapaxes(F_u, 1, 2)
+    covs = np.empty((n_steps + 1, 3, 3))
+    covs[0] = P0
+    P_m = np.asarray(P0, dtype=float)
+    for m in range(0, n_steps, _COV_BLOCK):
+        stop = min(m + _COV_BLOCK, n_steps)
+        rel = poses[m + 1 : stop + 1, :2] - poses[m, :2]  # p_{j+1} - p_m for j in block
+        f = np.column_stack([-rel[:, 1], rel[:, 0], np.zeros(len(rel))])  # L(p_{j+1} - p_m)
+        Qb = Q[m:stop]
+        q = Qb[:, 2, :]
+        q22 = Qb[:, 2, 2]
+        S0 = np.cumsum(Qb, axis=0)
+        Sq = np.cumsum(q, axis=0)
+        Sfq = np.cumsum(f[:, :, None] * q[:, None, :], axis=0)
+        S22 = np.cumsum(q22)
+        Sf22 = np.cumsum(f * q22[:, None], axis=0)
+        Sff = np.cumsum(f[:, :, None] * f[:, None, :] * q22[:, None, None], axis=0)
+        e = f  # e_n = L(p_n - p_m) for the block's end points n = j + 1
+        outer = lambda a, b: a[:, :, None] * b[:, None, :]  # noqa: E731
+        # sum_j Phi(n, j+1) Q_j Phi(n, j+1)^T with e_j = e_n - f_j
+        mixed = outer(e, Sq) - Sfq
+        acc = (
+            S0
+            + mixed
+            + np.swapaxes(mixed, 1, 2)
+            + outer(e, e) * S22[:, None, None]
+            - outer(e, Sf22)
+            - outer(Sf22, e)
+            + Sff
+        )
+        # Phi(n, m) P_m Phi(n, m)^T
+        p2 = P_m[2, :]
+        init = (
+            P_m
+            + outer(e, np.broadcast_to(p2, e.shape))
+            + outer(np.broadcast_to(p2, e.shape), e)
+            + outer(e, e) * P_m[2, 2]
+        )
+        block = init + acc
+        covs[m + 1 : stop + 1] = 0.5 * (block + np.swapaxes(block, 1, 2))
+        P_m = covs[stop]
+    return poses, covs
+
+
+def error_model_from_config(drive, motion: dict) -> OdometryErrorModel:
+    """Build the error model from a config ``motion`` block.
+
+    Keys: ``k_r``/``k_l`` (differential and skid-steer: right/left wheel), or ``k`` (a number
+    for every wheel input, or a list per input), ``var_floor`` (a number or a list per input;
+    default 0), ``steer_sigma`` (rad, steering inputs; default 0.01).
+    """
+    names = tuple(drive.input_names)
+    n = len(names)
+    scale = np.asarray(drive.travel_scale(), dtype=float)
+    if "k" in motion:
+        k = np.broadcast_to(np.asarray(motion["k"], dtype=float), (n,)).copy()
+    else:
+        k = np.full(n, 1.0e-4)
+    if "k_r" in motion or "k_l" in motion:
+        if names[:2] != ("left", "right"):
+            raise ValueError(f"k_r/k_l apply to left/right wheels; this drive's inputs are {names}")
+        k[0] = float(motion.get("k_l", k[0]))
+        k[1] = float(motion.get("k_r", k[1]))
+    floor = np.broadcast_to(np.asarray(motion.get("var_floor", 0.0), dtype=float), (n,)).copy()
+    steer_var = float(motion.get("steer_sigma", 0.01)) ** 2
+    floor = np.where(scale > 0, floor, floor + steer_var)
+    k = np.where(scale > 0, k, 0.0)
+    return OdometryErrorModel(tuple(map(float, k)), tuple(map(float, floor)))
+
+
+GEOMETRY_EXCLUDE = ("drive", "encoder")
+
+
+def motion_model_from_config(config) -> MotionModel:
+    """The run's :class:`MotionModel` from ``config.robot`` and ``config.motion``."""
+    from odofuse.drives import make_drive
+
+    robot = dict(config.robot)
+    geometry = {k: v for k, v in robot.items() if k not in GEOMETRY_EXCLUDE}
+    drive = make_drive(robot["drive"], **geometry)
+    motion = dict(config.motion or {})
+    return MotionModel(
+        drive, error_model_from_config(drive, motion), motion.get("integrator", "exact")
+    )
