@@ -34,7 +34,7 @@ def load_object(spec: str, what: str = "object"):
 
 
 def get_estimator(name: str):
-    """The ``run(log, config)`` function of estimator ``name`` (a table key or ``module:function``)."""
+    """The ``run(log, config)`` of estimator ``name`` (a table key or ``module:function``)."""
     spec = ESTIMATORS.get(name, name)
     if ":" not in spec:
         raise ConfigError(f"unknown estimator '{name}'; known: {', '.join(ESTIMATORS)}",

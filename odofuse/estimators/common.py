@@ -1,0 +1,67 @@
+"""What every estimator needs from a log and a config: odometry inputs and the initial state."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from odofuse.errors import ConfigError, InputError
+
+DEFAULT_INITIAL_SIGMA = (0.1, 0.1, 0.05)
+
+
+def odometry_stream_name(model) -> str:
+    """``"odometry"`` for the ``increments`` drive (odometry.csv), else ``"wheels"``."""
+    return "odometry" if model.drive.name == "increments" else "wheels"
+
+
+def odometry_inputs(log, model) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step drive inputs of a log and the times of the poses they lead to.
+
+    For ``wheels.csv`` (cumulative wheel angles, rad, and steering angles) step ``k`` goes from
+    row ``k`` to row ``k+1``: wheel inputs are the differences, steering inputs the mean of the
+    two rows. For ``odometry.csv`` (increments since the previous row) row ``k``'s increment
+    ends at ``t_k``; the initial pose is placed one nominal period before the first row.
+
+    Returns
+    -------
+    t : ndarray (N+1,)
+        Times of the initial pose and of the pose after each step.
+    U : ndarray (N, n)
+        Drive inputs per step, in the order of ``model.drive.input_names``.
+    """
+    name = odometry_stream_name(model)
+    if name not in log.streams or len(log.streams[name]) == 0:
+        raise InputError(f"the '{model.drive.name}' drive needs a non-empty {name}.csv stream",
+                         file=log.source)
+    stream = log.streams[name]
+    missing = [c for c in model.drive.input_names if c not in stream.columns]
+    if missing:
+        raise InputError(f"missing column(s) {', '.join(missing)} for the '{model.drive.name}' "
+                         f"drive (has {', '.join(stream.columns)})", file=stream.source, row=1,
+                         column=missing[0])
+    cols = [stream.columns.index(c) for c in model.drive.input_names]
+    values = stream.values[:, cols]
+    if name == "odometry":
+        period = float(np.median(np.diff(stream.t))) if len(stream) > 1 else 0.0
+        return np.concatenate([[stream.t[0] - period], stream.t]), values
+    if len(stream) < 2:
+        raise InputError("wheels.csv needs at least two rows to form a step", file=stream.source)
+    steering = np.asarray(model.drive.travel_scale()) == 0
+    U = np.where(steering, 0.5 * (values[:-1] + values[1:]), np.diff(values, axis=0))
+    return stream.t.copy(), U
+
+
+def initial_state(config, log) -> tuple[np.ndarray, np.ndarray]:
+    """Initial pose and covariance: ``config.initial`` or the log's own start pose, else 0."""
+    initial = dict(config.initial or {})
+    if "pose" in initial:
+        pose = np.asarray(initial["pose"], dtype=float)
+    elif log.initial_pose is not None:
+        pose = np.asarray(log.initial_pose, dtype=float)
+    else:
+        pose = np.zeros(3)
+    sigma = np.asarray(initial.get("sigma", DEFAULT_INITIAL_SIGMA), dtype=float)
+    if pose.shape != (3,) or sigma.shape != (3,) or not np.all(np.isfinite(np.r_[pose, sigma])):
+        raise ConfigError("initial.pose and initial.sigma must be 3 finite numbers",
+                          file=config.source, key="initial")
+    return pose, np.diag(sigma**2)
