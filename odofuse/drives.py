@@ -50,6 +50,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from odofuse.errors import ConfigError
+from odofuse.se2 import wrap
 
 __all__ = [
     "DRIVES",
@@ -73,11 +74,6 @@ _REACH_TOL = 1e-9
 
 
 # --------------------------------------------------------------------------- helpers
-def _wrap(a):
-    """Wrap angles to ``[-pi, pi)`` (same convention as ``odofuse.se2.wrap``)."""
-    return (np.asarray(a, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def _as_batch(x, n: int, what: str, names: Sequence[str]) -> tuple[np.ndarray, bool]:
     """Return ``x`` as a float ``(N, n)`` array and whether it was a single ``(n,)`` row."""
     a = np.asarray(x, dtype=float)
@@ -1082,6 +1078,6 @@ def turn_drive_turn(start_pose, goal_pose) -> np.ndarray:
         heading = p0[2]
     else:
         heading = math.atan2(dy, dx)
-    turn1 = float(_wrap(heading - p0[2]))
-    turn2 = float(_wrap(p1[2] - heading))
+    turn1 = float(wrap(heading - p0[2]))
+    turn2 = float(wrap(p1[2] - heading))
     return np.array([[turn1, 0.0, 0.0], [0.0, dist, 0.0], [turn2, 0.0, 0.0]])

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from odofuse import drives
 from odofuse.drives import (
     DRIVES,
     Ackermann,
@@ -495,21 +494,55 @@ def test_make_drive_registry_and_errors():
         make_drive("odofuse.drives:Nope")
 
 
-# ---------------------------------------------------------------- turn-drive-turn
-def _compose(pose, twist):
-    """Exact SE(2) integration of a constant body twist (MR 13.35 / 13.36), local oracle."""
-    w, vx, vy = twist
-    if w == 0.0:
-        dxb, dyb = vx, vy
+# ---------------------------------------------------------------- closed loops, integrated
+def _stadium(drive, rng):
+    """Reachable body twists of a closed stadium: straight, half turn, straight, half turn.
+
+    A half turn (total rotation pi about the body-frame ICR c) moves the origin by 2c and
+    reverses the heading; after the second straight and half turn the displacements cancel.
+    """
+    if isinstance(drive, SkidSteer):
+        u_turn = np.array([1.0, 2.0])  # turning with x_G != 0 has v_y = -x_G omega
     else:
-        dxb = (vx * math.sin(w) + vy * (math.cos(w) - 1)) / w
-        dyb = (vy * math.sin(w) + vx * (1 - math.cos(w))) / w
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    th = (pose[2] + w + math.pi) % (2 * math.pi) - math.pi
-    return np.array([pose[0] + c * dxb - s * dyb, pose[1] + s * dxb + c * dyb, th])
+        u_turn = drive.inverse([0.2, 0.4, 0.0])
+    turn = drive.twist(u_turn)
+    k = 9
+    turn = turn * (math.pi / k) / turn[0]  # k equal steps of pi / k
+    speeds = rng.uniform(0.05, 0.5, 5)
+    straight = [np.array([0.0, v, 0.0]) for v in speeds]
+    return straight + [turn] * k + straight[::-1] + [turn] * k
 
 
+@pytest.mark.parametrize("key", sorted(ALL))
+def test_noise_free_closed_loop_returns_to_start(key):
+    """Twists -> inverse kinematics -> wheel inputs -> twist -> motion.integrate(exact)."""
+    from odofuse import motion, se2
+
+    drive = ALL[key]
+    rng = np.random.default_rng(12)
+    twists = _stadium(drive, rng)
+    if drive.degree_of_mobility == 3:  # strafe a square and spin on the spot as well
+        a = 0.3
+        twists += [np.array(t) for t in ([0, a, 0], [0, 0, a], [0.5, 0, 0], [-0.5, 0, 0])]
+        twists += [np.array(t) for t in ([0, -a, 0], [0, 0, -a])]
+    U = drive.inverse(np.array(twists))
+    start = np.array([1.5, -2.0, 3.0])
+    pose = start
+    for u in U:
+        pose = motion.integrate(pose, drive.twist(u), "exact")[0]
+    assert np.hypot(*(pose[:2] - start[:2])) < 1e-9
+    assert abs(se2.wrap(pose[2] - start[2])) < 1e-9
+    # and the loop is not trivial: it goes somewhere in between
+    mid = start
+    for u in U[: len(U) // 2]:
+        mid = motion.integrate(mid, drive.twist(u), "exact")[0]
+    assert np.hypot(*(mid[:2] - start[:2])) > 0.5
+
+
+# ---------------------------------------------------------------- turn-drive-turn
 def test_turn_drive_turn_reaches_goal():
+    from odofuse import motion, se2
+
     rng = np.random.default_rng(10)
     for _ in range(20):
         start = np.array([*rng.uniform(-5, 5, 2), rng.uniform(-math.pi, math.pi)])
@@ -521,9 +554,9 @@ def test_turn_drive_turn_reaches_goal():
         assert (np.abs(segs[[0, 2], 0]) <= math.pi).all()
         pose = start
         for t in segs:
-            pose = _compose(pose, t)
+            pose = motion.integrate(pose, t, "exact")[0]
         np.testing.assert_allclose(pose[:2], goal[:2], atol=1e-12)
-        assert abs(drives._wrap(pose[2] - goal[2])) < 1e-12
+        assert abs(se2.wrap(pose[2] - goal[2])) < 1e-12
     np.testing.assert_allclose(
         turn_drive_turn([1, 1, 0.5], [1, 1, -0.5]), [[0, 0, 0], [0, 0, 0], [-1, 0, 0]]
     )
