@@ -320,3 +320,67 @@ def motion_model_from_config(config) -> MotionModel:
     return MotionModel(
         drive, error_model_from_config(drive, motion), motion.get("integrator", "exact")
     )
+
+
+@dataclass(frozen=True)
+class ThrunOdometryModel:
+    """Thrun, Burgard & Fox's odometry motion model (Probabilistic Robotics, Table 5.6).
+
+    A relative motion is decomposed into a rotation ``rot1``, a translation ``trans`` and a
+    rotation ``rot2``. Convention: the ``alpha`` parameters weight **variances**, as in the
+    book and nav2 AMCL (MRPT weights standard deviations instead)::
+
+        var(rot1)  = a1 rot1^2 + a2 trans^2
+        var(trans) = a3 trans^2 + a4 (rot1^2 + rot2^2)
+        var(rot2)  = a1 rot2^2 + a2 trans^2
+    """
+
+    alphas: tuple[float, float, float, float]
+
+    @staticmethod
+    def decompose(delta) -> np.ndarray:
+        """``[rot1, trans, rot2]`` of body-frame relative poses ``delta`` ``(..., 3)``."""
+        d = np.asarray(delta, dtype=float)
+        trans = np.hypot(d[..., 0], d[..., 1])
+        rot1 = np.where(trans > 0, np.arctan2(d[..., 1], d[..., 0]), 0.0)
+        return np.stack([rot1, trans, se2.wrap(d[..., 2] - rot1)], -1)
+
+    @staticmethod
+    def recompose(rtr) -> np.ndarray:
+        """Inverse of :meth:`decompose`: body-frame relative pose of ``[rot1, trans, rot2]``."""
+        r = np.asarray(rtr, dtype=float)
+        return np.stack(
+            [
+                r[..., 1] * np.cos(r[..., 0]),
+                r[..., 1] * np.sin(r[..., 0]),
+                se2.wrap(r[..., 0] + r[..., 2]),
+            ],
+            -1,
+        )
+
+    def variances(self, rtr) -> np.ndarray:
+        """Variances of ``[rot1, trans, rot2]``, shape ``(..., 3)``."""
+        a1, a2, a3, a4 = self.alphas
+        r = np.asarray(rtr, dtype=float)
+        r1, t, r2 = r[..., 0] ** 2, r[..., 1] ** 2, r[..., 2] ** 2
+        return np.stack([a1 * r1 + a2 * t, a3 * t + a4 * (r1 + r2), a1 * r2 + a2 * t], -1)
+
+    def sample(self, rng: np.random.Generator, poses, delta) -> np.ndarray:
+        """Move each of ``poses`` ``(N, 3)`` by a noisy copy of ``delta`` (one draw each)."""
+        poses = np.atleast_2d(np.asarray(poses, dtype=float))
+        rtr = self.decompose(delta)
+        noisy = rtr + rng.normal(size=poses.shape) * np.sqrt(self.variances(rtr))
+        return se2.compose(poses, self.recompose(noisy))
+
+    def covariance(self, pose, P, delta) -> tuple[np.ndarray, np.ndarray]:
+        """Linearised propagation: new pose and ``F_p P F_p^T + F_r Sigma_rtr F_r^T``."""
+        rtr = self.decompose(delta)
+        r1, t, _ = rtr
+        a = pose[2] + r1
+        F_r = np.array(
+            [[-t * np.sin(a), np.cos(a), 0.0], [t * np.cos(a), np.sin(a), 0.0], [1.0, 0.0, 1.0]]
+        )
+        new = se2.compose(pose, self.recompose(rtr))
+        F_p, _ = se2.J_compose(pose, self.recompose(rtr))
+        P_new = F_p @ P @ F_p.T + (F_r * self.variances(rtr)) @ F_r.T
+        return new, 0.5 * (P_new + P_new.T)
