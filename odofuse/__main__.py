@@ -1,0 +1,7 @@
+"""`python -m odofuse`: the odofuse command line."""
+
+import sys
+
+from odofuse.cli import main
+
+sys.exit(main())

@@ -1,0 +1,335 @@
+"""The ``odofuse`` command (shared spec section 4).
+
+Subcommands live in :data:`COMMANDS` (name -> ``(add_arguments, handler)``); a module
+``odofuse.teaching_cli`` with a ``register(commands)`` function, if present, adds its own
+(simulate, demo, calibrate). Every handler gets the parsed ``argparse.Namespace`` and returns an
+exit status. Bad input (:class:`odofuse.errors.OdofuseError`, missing files) is printed as one
+line ``odofuse: error: <message>`` on stderr with exit status 2, never as a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import json
+import math
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from odofuse.errors import OdofuseError
+
+#: Estimators compared by ``odofuse run`` without a config, each with its packaged config.
+DEFAULT_ESTIMATORS = ("dead_reckoning", "ekf", "ukf", "smoother")
+DEFAULT_DATASET = "plaza1"
+DEFAULT_OUT = "odofuse-out"
+
+Handler = Callable[[argparse.Namespace], int]
+COMMANDS: dict[str, tuple[Callable[[argparse.ArgumentParser], None], Handler]] = {}
+
+
+def command(name: str, add_arguments: Callable[[argparse.ArgumentParser], None]):
+    """Decorator registering ``handler`` as subcommand ``name`` in :data:`COMMANDS`."""
+
+    def deco(handler: Handler) -> Handler:
+        COMMANDS[name] = (add_arguments, handler)
+        return handler
+
+    return deco
+
+
+def default_config_path(estimator: str, dataset: str = DEFAULT_DATASET) -> Path:
+    """Path of the packaged config ``odofuse/default_configs/<dataset>-<estimator>.yaml``."""
+    from importlib.resources import files
+
+    return Path(str(files("odofuse") / "default_configs" / f"{dataset}-{estimator}.yaml"))
+
+
+def default_config(estimator: str, dataset: str = DEFAULT_DATASET):
+    """The packaged default :class:`odofuse.config.RunConfig` for ``estimator``."""
+    from odofuse.config import load_config
+
+    path = default_config_path(estimator, dataset)
+    if not path.exists():
+        from odofuse.errors import ConfigError
+
+        raise ConfigError(f"no packaged default config for estimator '{estimator}'", str(path))
+    return load_config(path)
+
+
+def progress(iterable, **kw):
+    """tqdm progress bar on stderr, silent when stderr is not a terminal."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, file=sys.stderr, disable=not sys.stderr.isatty(), **kw)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
+
+
+# --------------------------------------------------------------------------------------- run
+def _run_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "config",
+        nargs="?",
+        help="run config (YAML); omitted: the embedded default "
+        f"(builtin:{DEFAULT_DATASET} with {', '.join(DEFAULT_ESTIMATORS)})",
+    )
+    p.add_argument(
+        "-o", "--out", help=f"output folder (default: the config's output or '{DEFAULT_OUT}')"
+    )
+    p.add_argument("--estimator", help="override the config's estimator")
+
+
+def run_one(config, log, out_dir: Path) -> dict:
+    """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics."""
+    from odofuse.estimators import run_estimator
+    from odofuse.evaluation import metrics
+    from odofuse.outputs import write_outputs
+
+    t0 = time.perf_counter()
+    result = run_estimator(config.estimator, log, config)
+    runtime = time.perf_counter() - t0
+    m = metrics(result, log, runtime)
+    m["log"] = config.log
+    m["config"] = config.source
+    write_outputs(out_dir, result, m, log)
+    return m
+
+
+def _fmt(v) -> str:
+    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.3f}"
+
+
+def print_table(rows: list[dict], file=None) -> None:
+    """Print the comparison table: estimator, position RMSE, final error, runtime, status."""
+    file = file or sys.stdout
+    head = ("estimator", "position RMSE [m]", "final error [m]", "runtime [s]", "status")
+    table = [head] + [
+        (
+            r["estimator"],
+            _fmt(r.get("ate_rmse_m")),
+            _fmt(r.get("final_error_m")),
+            _fmt(r.get("runtime_s")),
+            r.get("status", "ok"),
+        )
+        for r in rows
+    ]
+    widths = [max(len(row[i]) for row in table) for i in range(len(head) - 1)]
+    for row in table:
+        pairs = enumerate(zip(row[:-1], widths, strict=True))
+        cells = [c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in pairs]
+        print("  ".join(cells + [row[-1]]), file=file)
+
+
+@command("run", _run_args)
+def cmd_run(args: argparse.Namespace) -> int:
+    """Run an estimator on a log (or compare the default estimators on Plaza1)."""
+    from odofuse.config import load_config
+    from odofuse.io.loader import load_log_for
+
+    if args.config:
+        config = load_config(args.config)
+        if args.estimator:
+            config = dataclasses.replace(config, estimator=args.estimator)
+        log = load_log_for(config)
+        out = Path(args.out or config.output or DEFAULT_OUT)
+        m = run_one(config, log, out)
+        print_table([m])
+        print(f"outputs in {out}/")
+        return 0
+    names = [args.estimator] if args.estimator else list(DEFAULT_ESTIMATORS)
+    configs = {}
+    for name in names:
+        configs[name] = (
+            default_config(name)
+            if name in DEFAULT_ESTIMATORS
+            else dataclasses.replace(default_config(DEFAULT_ESTIMATORS[0]), estimator=name)
+        )
+    log = load_log_for(next(iter(configs.values())))
+    out = Path(args.out or DEFAULT_OUT)
+    rows, failed = [], 0
+    for name in progress(names, desc="estimators", unit="run"):
+        try:
+            rows.append(run_one(configs[name], log, out / name))
+        except Exception as exc:  # one failing estimator must not hide the others
+            failed += 1
+            rows.append({"estimator": name, "status": f"failed: {_one_line(exc)}"})
+    print(
+        f"builtin:{DEFAULT_DATASET}: {len(log.streams['odometry'])} odometry steps, "
+        f"{len(log.streams['ranges'])} ranges to {len(log.landmarks)} beacons"
+    )
+    print_table(rows)
+    print(f"outputs in {out}/<estimator>/")
+    return 1 if failed else 0
+
+
+# ------------------------------------------------------------------------------------ export
+def _export_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", help="builtin:NAME (plaza1, plaza2), or any readable log")
+    p.add_argument("dir", help="folder to write the CSV log into")
+
+
+@command("export", _export_args)
+def cmd_export(args: argparse.Namespace) -> int:
+    """Export a built-in dataset (or any log) as a CSV log folder."""
+    from odofuse.io.csvlog import write_csv_log
+    from odofuse.io.loader import load_log
+
+    log = load_log(args.log)
+    paths, changes = write_csv_log(log, args.dir)
+    for p in paths:
+        print(p)
+    for k, v in sorted(changes.items()):
+        print(f"note: {k} = {v}")
+    if log.initial_pose is not None:
+        x, y, th = (float(v) for v in log.initial_pose)
+        print(
+            f"initial pose of the dataset: [{x:.6g}, {y:.6g}, {th:.6g}] "
+            f"(put it in initial.pose of a config)"
+        )
+    return 0
+
+
+# -------------------------------------------------------------------------------------- eval
+def _eval_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("estimate", help="trajectory.csv, a run folder, or a TUM file")
+    p.add_argument("groundtruth", help="groundtruth.csv, trajectory.csv or a TUM file")
+    p.add_argument("--align", action="store_true", help="rigid 2-D alignment before the ATE")
+    p.add_argument("--delta", type=float, default=10.0, help="RPE segment length (default 10)")
+    p.add_argument("--unit", choices=("m", "s"), default="m", help="RPE delta unit (m or s)")
+    p.add_argument("--json", action="store_true", help="print the numbers as JSON")
+
+
+@command("eval", _eval_args)
+def cmd_eval(args: argparse.Namespace) -> int:
+    """Compare an estimated trajectory with ground truth (ATE, RPE, NEES)."""
+    from odofuse.evaluation import ate, nees, rpe
+    from odofuse.outputs import read_trajectory
+
+    est = read_trajectory(args.estimate)
+    gt = read_trajectory(args.groundtruth)
+    a = ate(est, gt, align=args.align)
+    r = rpe(est, gt, args.delta, args.unit)
+    out = {
+        "poses": int(a.errors.size),
+        "aligned": a.aligned,
+        "ate_rmse_m": a.rmse_m,
+        "ate_mean_m": a.mean_m,
+        "ate_max_m": a.max_m,
+        "final_error_m": a.final_m,
+        "heading_rmse_rad": a.rot_rmse_rad,
+        f"rpe_trans_m_per_{args.delta:g}{args.unit}": r.trans_rmse_m,
+        f"rpe_rot_rad_per_{args.delta:g}{args.unit}": r.rot_rmse_rad,
+    }
+    n = nees(est, gt) if not args.align else math.nan
+    if not math.isnan(n):
+        out["nees_mean"] = n
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    k: (None if isinstance(v, float) and math.isnan(v) else v)
+                    for k, v in out.items()
+                },
+                indent=2,
+            )
+        )
+    else:
+        w = max(map(len, out))
+        for k, v in out.items():
+            print(f"{k.ljust(w)}  {v:.6g}" if isinstance(v, float) else f"{k.ljust(w)}  {v}")
+    return 0
+
+
+# -------------------------------------------------------------------------------------- plot
+def _plot_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run_dir", help="a run's output folder (with trajectory.csv)")
+    p.add_argument(
+        "--log", help="log for ground truth and landmarks (default: the one named in metrics.json)"
+    )
+    p.add_argument("-o", "--out", help="PNG to write (default RUN_DIR/trajectory.png)")
+
+
+@command("plot", _plot_args)
+def cmd_plot(args: argparse.Namespace) -> int:
+    """Draw a run's trajectory (with ground truth and beacons when the log is known)."""
+    from odofuse.io.loader import load_log
+    from odofuse.outputs import read_trajectory_csv
+    from odofuse.plotting import plot_run
+    from odofuse.trajectory import EstimateResult
+
+    run_dir = Path(args.run_dir)
+    traj = read_trajectory_csv(run_dir / "trajectory.csv")
+    meta = {}
+    if (run_dir / "metrics.json").exists():
+        meta = json.loads((run_dir / "metrics.json").read_text(encoding="utf-8"))
+    spec = args.log or meta.get("log")
+    log = load_log(spec) if spec else None
+    out = plot_run(
+        args.out or run_dir / "trajectory.png",
+        EstimateResult(meta.get("estimator", "estimate"), traj),
+        log,
+    )
+    print(out)
+    return 0
+
+
+# -------------------------------------------------------------------------------------- main
+def _register_plugins() -> None:
+    try:
+        mod = importlib.import_module("odofuse.teaching_cli")
+    except ModuleNotFoundError as exc:
+        if exc.name != "odofuse.teaching_cli":
+            raise
+        return
+    mod.register(COMMANDS)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand of :data:`COMMANDS`."""
+    from odofuse import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="odofuse",
+        description="Probabilistic state estimation for wheeled mobile robots. "
+        "Run `odofuse run` for a comparison on a real dataset.",
+    )
+    parser.add_argument("--version", action="version", version=f"odofuse {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (add_arguments, handler) in COMMANDS.items():
+        doc = (handler.__doc__ or "").strip().splitlines()
+        p = sub.add_parser(name, help=doc[0] if doc else None, description=doc[0] if doc else None)
+        add_arguments(p)
+        p.set_defaults(_handler=handler)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``odofuse`` console script; returns the exit status."""
+    _register_plugins()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_handler", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._handler(args) or 0)
+    except OdofuseError as exc:
+        print(f"odofuse: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"odofuse: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("odofuse: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,319 @@
+"""Accuracy and consistency of an estimate against ground truth: ATE, RPE, NEES, alignment.
+
+Definitions follow Sturm et al. (TUM RGB-D benchmark, as implemented by evo) restricted to SE(2):
+
+* **ATE** (absolute trajectory error): position error ``|p_est(t) - p_gt(t)|`` at each estimate
+  time, ground truth interpolated in time (positions linearly, headings on the circle),
+  optionally after a rigid 2-D alignment (:func:`align_se2`); reported as RMSE.
+* **RPE** (relative pose error) over a distance or time ``delta``:
+  ``E_ij = (gt_i^-1 gt_j)^-1 (est_i^-1 est_j)``, translation ``|E_ij.xy|`` and rotation
+  ``|wrap(E_ij.theta)|``, RMSE over all pairs.
+* **NEES** (normalised estimation error squared, Bar-Shalom; Thrun ch. 3 for the Gaussian):
+  ``e^T P^-1 e`` with ``e = [x, y, wrap(theta)]_est - [x, y, theta]_gt`` in the world frame and
+  ``P`` the world-frame covariance; for a consistent 3-D estimate its mean is 3.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from odofuse.errors import InputError
+from odofuse.trajectory import EstimateResult, Trajectory
+
+_TWO_PI = 2.0 * math.pi
+
+
+def _wrap(a):
+    return (np.asarray(a, dtype=float) + math.pi) % _TWO_PI - math.pi
+
+
+def trajectory_from_stream(stream) -> Trajectory:
+    """A ``Trajectory`` from a stream with columns ``x, y, theta`` (e.g. ground truth)."""
+    return Trajectory(stream.t, np.column_stack([stream["x"], stream["y"], stream["theta"]]))
+
+
+def align_se2(est_xy, gt_xy) -> tuple[np.ndarray, np.ndarray, float]:
+    """Rigid 2-D alignment (Umeyama/Kabsch without scale) of ``est_xy`` onto ``gt_xy``.
+
+    Parameters
+    ----------
+    est_xy, gt_xy : array_like, shape (N, 2)
+        Corresponding positions (m), N >= 2.
+
+    Returns
+    -------
+    R : ndarray, shape (2, 2)
+        Rotation, ``det R = +1``.
+    t : ndarray, shape (2,)
+        Translation (m).
+    angle : float
+        Rotation angle of ``R`` (rad).
+
+    ``R @ est + t`` minimises ``sum |R est_i + t - gt_i|^2`` (Umeyama 1991, eqs. 38-42 with
+    ``c = 1``).
+    """
+    a = np.asarray(est_xy, dtype=float)
+    b = np.asarray(gt_xy, dtype=float)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 2 or a.shape[0] < 2:
+        raise ValueError(f"align_se2 needs two (N, 2) arrays with N >= 2; got {a.shape}, {b.shape}")
+    ma, mb = a.mean(axis=0), b.mean(axis=0)
+    cov = (b - mb).T @ (a - ma)
+    u, _, vt = np.linalg.svd(cov)
+    s = np.diag([1.0, np.sign(np.linalg.det(u) * np.linalg.det(vt)) or 1.0])
+    r = u @ s @ vt
+    t = mb - r @ ma
+    return r, t, math.atan2(r[1, 0], r[0, 0])
+
+
+def apply_alignment(traj: Trajectory, r: np.ndarray, t: np.ndarray) -> Trajectory:
+    """``traj`` moved by the rigid transform (R, t): positions ``R p + t``, headings ``+ angle``.
+
+    Covariances are rotated as ``J P J^T`` with ``J = blockdiag(R, 1)``.
+    """
+    angle = math.atan2(r[1, 0], r[0, 0])
+    xy = traj.xy @ r.T + t
+    poses = np.column_stack([xy, _wrap(traj.poses[:, 2] + angle)])
+    covs = None
+    if traj.covariances is not None:
+        j = np.eye(3)
+        j[:2, :2] = r
+        covs = j @ traj.covariances @ j.T
+    return Trajectory(traj.t, poses, covs)
+
+
+def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
+    """Poses of ``traj`` at times ``t`` (inside its time span), shape (M, 3).
+
+    Positions are interpolated linearly; headings along the shorter arc between neighbours.
+    """
+    t = np.asarray(t, dtype=float)
+    tt = traj.t
+    if tt.size == 1:
+        return np.repeat(traj.poses[:1], t.size, axis=0)
+    k = np.clip(np.searchsorted(tt, t, side="right") - 1, 0, tt.size - 2)
+    dt = tt[k + 1] - tt[k]
+    a = np.where(dt > 0, (t - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)
+    p0, p1 = traj.poses[k], traj.poses[k + 1]
+    xy = p0[:, :2] + a[:, None] * (p1[:, :2] - p0[:, :2])
+    th = _wrap(p0[:, 2] + a * _wrap(p1[:, 2] - p0[:, 2]))
+    return np.column_stack([xy, th])
+
+
+def associate(est: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of estimate poses inside the ground-truth time span and the interpolated truth.
+
+    Returns ``(idx (M,), gt_poses (M, 3))``; raises ``InputError`` when they do not overlap.
+    """
+    tol = 1e-9 * max(1.0, abs(float(gt.t[-1])))
+    idx = np.flatnonzero((est.t >= gt.t[0] - tol) & (est.t <= gt.t[-1] + tol))
+    if idx.size == 0:
+        raise InputError(
+            f"estimate times [{est.t[0]:.6g}, {est.t[-1]:.6g}] s do not overlap the "
+            f"ground truth [{gt.t[0]:.6g}, {gt.t[-1]:.6g}] s"
+        )
+    return idx, interpolate_poses(gt, np.clip(est.t[idx], gt.t[0], gt.t[-1]))
+
+
+@dataclass(frozen=True)
+class ATE:
+    """Absolute trajectory error (positions in m, headings in rad).
+
+    ``errors`` (M,) are the position errors at the M estimate times inside the ground truth.
+    """
+
+    rmse_m: float
+    mean_m: float
+    max_m: float
+    final_m: float
+    rot_rmse_rad: float
+    errors: np.ndarray
+    aligned: bool
+
+
+def ate(est: Trajectory, gt: Trajectory, align: bool = False) -> ATE:
+    """Absolute trajectory error of ``est`` against ``gt``.
+
+    Parameters
+    ----------
+    est, gt : Trajectory
+        Estimate and ground truth (same world frame unless ``align``).
+    align : bool
+        First align the estimate positions rigidly onto the truth (:func:`align_se2`).
+
+    Returns
+    -------
+    ATE
+    """
+    idx, g = associate(est, gt)
+    e = Trajectory(est.t[idx], est.poses[idx])
+    if align:
+        if idx.size < 2:
+            raise InputError("alignment needs at least two poses that overlap the ground truth")
+        r, t, _ = align_se2(e.xy, g[:, :2])
+        e = apply_alignment(e, r, t)
+    d = np.linalg.norm(e.xy - g[:, :2], axis=1)
+    rot = _wrap(e.poses[:, 2] - g[:, 2])
+    return ATE(
+        float(np.sqrt(np.mean(d**2))),
+        float(d.mean()),
+        float(d.max()),
+        float(d[-1]),
+        float(np.sqrt(np.mean(rot**2))),
+        d,
+        align,
+    )
+
+
+def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^-1 b`` for SE(2) poses (N, 3): ``b`` expressed in the frame of ``a``."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, _wrap(b[:, 2] - a[:, 2])])
+
+
+@dataclass(frozen=True)
+class RPE:
+    """Relative pose error over ``delta`` (``unit`` "m" of travelled ground-truth path or "s")."""
+
+    trans_rmse_m: float
+    rot_rmse_rad: float
+    pairs: int
+    delta: float
+    unit: str
+
+
+def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -> RPE:
+    """Relative pose error over segments of length ``delta``.
+
+    Parameters
+    ----------
+    est, gt : Trajectory
+    delta : float
+        Segment length: metres of travelled ground-truth path (``unit="m"``) or seconds.
+    unit : {"m", "s"}
+
+    Returns
+    -------
+    RPE
+        NaN errors and ``pairs = 0`` when no segment is that long.
+
+    For each estimate pose i, j is the first later pose whose travelled distance (or time) from i
+    reaches ``delta``; ``E_ij = (gt_i^-1 gt_j)^-1 (est_i^-1 est_j)``.
+    """
+    if unit not in ("m", "s"):
+        raise ValueError(f"rpe unit must be 'm' or 's', got {unit!r}")
+    if not delta > 0:
+        raise ValueError(f"rpe delta must be positive, got {delta!r}")
+    idx, g = associate(est, gt)
+    e = est.poses[idx]
+    if unit == "m":
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(g[:, :2], axis=0), axis=1))])
+    else:
+        s = est.t[idx]
+    i = np.arange(len(s))
+    j = np.searchsorted(s, s + delta * (1 - 1e-12), side="left")
+    ok = j < len(s)
+    i, j = i[ok], j[ok]
+    if i.size == 0:
+        return RPE(math.nan, math.nan, 0, float(delta), unit)
+    rel_e = _between(e[i], e[j])
+    rel_g = _between(g[i], g[j])
+    err = _between(rel_g, rel_e)
+    t_err = np.linalg.norm(err[:, :2], axis=1)
+    r_err = np.abs(_wrap(err[:, 2]))
+    return RPE(
+        float(np.sqrt(np.mean(t_err**2))),
+        float(np.sqrt(np.mean(r_err**2))),
+        int(i.size),
+        float(delta),
+        unit,
+    )
+
+
+def nees_values(est: Trajectory, gt: Trajectory) -> np.ndarray:
+    """NEES ``e^T P^-1 e`` (world frame) at every estimate pose with a positive-definite covariance.
+
+    Poses whose covariance is not positive definite (e.g. a perfectly known initial pose with
+    ``P = 0``) are skipped. Returns an array of shape (K,), empty without covariances.
+    """
+    if est.covariances is None:
+        return np.empty(0)
+    idx, g = associate(est, gt)
+    e = est.poses[idx] - g
+    e[:, 2] = _wrap(e[:, 2])
+    covs = est.covariances[idx]
+    covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
+    out = []
+    for ek, pk in zip(e, covs, strict=False):
+        try:
+            ch = np.linalg.cholesky(pk)
+        except np.linalg.LinAlgError:
+            continue
+        y = np.linalg.solve(ch, ek)
+        out.append(float(y @ y))
+    return np.asarray(out)
+
+
+def nees(est: Trajectory, gt: Trajectory) -> float:
+    """Mean NEES over the poses with a positive-definite covariance (NaN if none).
+
+    For a consistent estimator of the 3-D pose the expected value is 3.
+    """
+    v = nees_values(est, gt)
+    return float(v.mean()) if v.size else math.nan
+
+
+def metrics(
+    result: EstimateResult, log=None, runtime_s: float | None = None, rpe_delta_m: float = 10.0
+) -> dict:
+    """The ``metrics.json`` content of a run (shared spec section 3).
+
+    Parameters
+    ----------
+    result : EstimateResult
+    log : SensorLog, optional
+        Supplies ``repairs`` and ground truth.
+    runtime_s : float, optional
+        Wall-clock time of the estimator (s).
+    rpe_delta_m : float
+        Segment length of the RPE (m of travelled ground-truth path).
+
+    Returns
+    -------
+    dict
+        Always ``estimator, poses, runtime_s, sensors {name: {used, rejected}}, repairs``; with
+        ground truth also ``ate_rmse_m, ate_aligned_rmse_m, final_error_m, rpe_trans_m,
+        rpe_rot_rad, rpe_delta_m, nees_mean`` (``nees_mean`` is None without covariances).
+    """
+    traj = result.trajectory
+    names = sorted(set(result.used) | set(result.rejected))
+    out: dict = {
+        "estimator": result.estimator,
+        "poses": len(traj),
+        "runtime_s": None if runtime_s is None else float(runtime_s),
+        "sensors": {
+            n: {"used": int(result.used.get(n, 0)), "rejected": int(result.rejected.get(n, 0))}
+            for n in names
+        },
+        "repairs": dict(getattr(log, "repairs", {}) or {}),
+    }
+    gt_stream = getattr(log, "groundtruth", None)
+    if gt_stream is not None and len(gt_stream) and len(traj):
+        gt = trajectory_from_stream(gt_stream)
+        a = ate(traj, gt)
+        out["ate_rmse_m"] = a.rmse_m
+        out["final_error_m"] = a.final_m
+        if np.count_nonzero((traj.t >= gt.t[0]) & (traj.t <= gt.t[-1])) >= 2:
+            out["ate_aligned_rmse_m"] = ate(traj, gt, align=True).rmse_m
+        r = rpe(traj, gt, rpe_delta_m, "m")
+        out["rpe_trans_m"] = r.trans_rmse_m
+        out["rpe_rot_rad"] = r.rot_rmse_rad
+        out["rpe_delta_m"] = r.delta
+        n = nees(traj, gt)
+        out["nees_mean"] = None if math.isnan(n) else n
+    if result.extra:
+        out["extra"] = result.extra
+    return out

@@ -1,0 +1,279 @@
+"""Output writers and readers: trajectory.csv, trajectory.tum, metrics.json, trajectory.png.
+
+Every file is written atomically: the content goes to a temporary file in the destination
+folder, which is then renamed over the target with :func:`os.replace` (atomic on POSIX and
+Windows within one file system). A run that fails part-way leaves no half-written file, and
+:func:`write_outputs` removes the files it already wrote in this call when a later one fails.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from odofuse.errors import InputError
+from odofuse.trajectory import EstimateResult, Trajectory
+
+CSV_HEADER = (
+    "t",
+    "x",
+    "y",
+    "theta",
+    "var_x",
+    "cov_xy",
+    "cov_xtheta",
+    "var_y",
+    "cov_ytheta",
+    "var_theta",
+)
+#: (row, col) of the covariance entries in CSV_HEADER order after the pose.
+_COV_IDX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def atomic_write(path: str | Path, write: Callable[[str], None]) -> Path:
+    """Call ``write(tmp_path)`` on a temporary file next to ``path``, then rename it to ``path``.
+
+    The temporary file is deleted if ``write`` raises, and the exception propagates.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+
+    def write(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    return atomic_write(path, write)
+
+
+def _wrap(a):
+    return (np.asarray(a, dtype=float) + math.pi) % (2 * math.pi) - math.pi
+
+
+def trajectory_csv_text(traj: Trajectory) -> str:
+    """The ``trajectory.csv`` content: one row per pose, covariance in the world frame.
+
+    Values use ``%.17g`` (round-trips every float64 exactly); a trajectory without
+    covariances gets ``nan`` in the six covariance columns.
+    """
+    n = len(traj)
+    cov = traj.covariances
+    covcols = (
+        np.full((n, 6), np.nan)
+        if cov is None
+        else np.stack([cov[:, i, j] for i, j in _COV_IDX], axis=1)
+    )
+    table = np.column_stack([traj.t, traj.poses[:, :2], _wrap(traj.poses[:, 2]), covcols])
+    lines = [",".join(CSV_HEADER)]
+    fmt = ",".join(["%.17g"] * len(CSV_HEADER))
+    lines += [fmt % tuple(row) for row in table]
+    return "\n".join(lines) + "\n"
+
+
+def yaw_to_quaternion(theta) -> np.ndarray:
+    """Unit quaternion ``(N, 4)`` as ``[qx, qy, qz, qw]`` of a rotation by ``theta`` about z."""
+    half = 0.5 * np.asarray(theta, dtype=float)
+    z = np.zeros_like(half)
+    return np.stack([z, z, np.sin(half), np.cos(half)], axis=-1)
+
+
+def trajectory_tum_text(traj: Trajectory) -> str:
+    """The TUM content: ``t x y z qx qy qz qw`` per line, z = 0, yaw quaternion (evo-readable)."""
+    q = yaw_to_quaternion(traj.poses[:, 2])
+    table = np.column_stack([traj.t, traj.poses[:, :2], np.zeros(len(traj)), q])
+    return "".join(" ".join(f"{v:.17g}" for v in row) + "\n" for row in table)
+
+
+def write_trajectory_csv(path: str | Path, traj: Trajectory) -> Path:
+    """Write ``trajectory.csv`` atomically."""
+    return atomic_write_text(path, trajectory_csv_text(traj))
+
+
+def write_tum(path: str | Path, traj: Trajectory) -> Path:
+    """Write a TUM trajectory file atomically."""
+    return atomic_write_text(path, trajectory_tum_text(traj))
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def _clean(obj):
+    """Replace non-finite floats with None so that metrics.json is strict JSON."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def write_metrics(path: str | Path, metrics: dict) -> Path:
+    """Write ``metrics.json`` atomically (sorted keys, non-finite numbers as ``null``)."""
+    text = json.dumps(_clean(metrics), indent=2, sort_keys=True, default=_json_default)
+    return atomic_write_text(path, text + "\n")
+
+
+def write_outputs(
+    out_dir: str | Path, result: EstimateResult, metrics: dict, log=None, plot: bool = True
+) -> dict[str, Path]:
+    """Write the four outputs of a run (spec section 3) into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        Output folder (created if needed).
+    result : EstimateResult
+        The estimate.
+    metrics : dict
+        The metrics, see :func:`odofuse.evaluation.metrics`.
+    log : SensorLog, optional
+        For ground truth and landmarks in the picture.
+    plot : bool
+        Also write ``trajectory.png``.
+
+    Returns
+    -------
+    dict
+        ``{"csv": path, "tum": path, "metrics": path, "png": path}``.
+
+    If any writer fails, files written by this call are removed again and the error propagates.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written: dict[str, Path] = {}
+    try:
+        written["csv"] = write_trajectory_csv(out / "trajectory.csv", result.trajectory)
+        written["tum"] = write_tum(out / "trajectory.tum", result.trajectory)
+        if plot:
+            from odofuse.plotting import plot_run
+
+            written["png"] = plot_run(out / "trajectory.png", result, log)
+        # metrics.json last: its presence marks a complete run.
+        written["metrics"] = write_metrics(out / "metrics.json", metrics)
+    except BaseException:
+        for p in written.values():
+            Path(p).unlink(missing_ok=True)
+        raise
+    return written
+
+
+def read_trajectory_csv(path: str | Path) -> Trajectory:
+    """Read a ``trajectory.csv`` written by :func:`write_trajectory_csv`.
+
+    A file with only ``t,x,y,theta`` (no covariance columns) or with ``nan`` covariances gives
+    ``covariances=None``.
+    """
+    name = str(path)
+    header, data, lines = read_table_allow_nan(path)
+    for col in CSV_HEADER[:4]:
+        if col not in header:
+            raise InputError("missing column", name, 1, col)
+    if data.shape[0] == 0:
+        raise InputError("no poses", name, 2)
+    idx = [header.index(c) for c in CSV_HEADER[:4]]
+    pose_part = data[:, idx]
+    if not np.isfinite(pose_part).all():
+        i, j = np.argwhere(~np.isfinite(pose_part))[0]
+        raise InputError("value is not finite", name, int(lines[i]), CSV_HEADER[j])
+    covs = None
+    if all(c in header for c in CSV_HEADER[4:]):
+        flat = data[:, [header.index(c) for c in CSV_HEADER[4:]]]
+        if np.isfinite(flat).all():
+            covs = np.empty((len(data), 3, 3))
+            for k, (i, j) in enumerate(_COV_IDX):
+                covs[:, i, j] = covs[:, j, i] = flat[:, k]
+    return Trajectory(pose_part[:, 0], pose_part[:, 1:4], covs)
+
+
+def read_table_allow_nan(path: str | Path):
+    """Like :func:`odofuse.io.csvlog.read_table` but accepting ``nan`` cells (covariances)."""
+    name = str(path)
+    with open(path, encoding="utf-8-sig") as fh:
+        rows = [(k + 1, line) for k, line in enumerate(fh.read().splitlines()) if line.strip()]
+    if not rows:
+        raise InputError("empty file: expected a header line", name, 1)
+    header = tuple(c.strip() for c in rows[0][1].split(","))
+    data = np.empty((len(rows) - 1, len(header)))
+    lines = np.array([k for k, _ in rows[1:]], dtype=np.int64)
+    for r, (k, line) in enumerate(rows[1:]):
+        cells = line.split(",")
+        if len(cells) != len(header):
+            raise InputError(f"{len(cells)} cells instead of {len(header)}", name, k)
+        for j, cell in enumerate(cells):
+            try:
+                data[r, j] = float(cell)
+            except ValueError:
+                raise InputError(f"not a number: {cell.strip()!r}", name, k, header[j]) from None
+    return header, data, lines
+
+
+def read_tum(path: str | Path) -> Trajectory:
+    """Read a TUM file (``t x y z qx qy qz qw``; ``#`` comments) into a planar trajectory.
+
+    The heading is the yaw of the quaternion, ``atan2(2 (qw qz + qx qy), 1 - 2 (qy^2 + qz^2))``.
+    """
+    name = str(path)
+    ts, rows = [], []
+    with open(path, encoding="utf-8") as fh:
+        for k, line in enumerate(fh, start=1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            cells = s.replace(",", " ").split()
+            if len(cells) != 8:
+                raise InputError(f"{len(cells)} values instead of 8 (t x y z qx qy qz qw)", name, k)
+            try:
+                vals = [float(c) for c in cells]
+            except ValueError:
+                raise InputError("not a number", name, k) from None
+            if not all(math.isfinite(v) for v in vals):
+                raise InputError("value is not finite", name, k)
+            ts.append(vals[0])
+            rows.append(vals[1:])
+    if not rows:
+        raise InputError("no poses in TUM file", name)
+    a = np.asarray(rows)
+    qx, qy, qz, qw = a[:, 3], a[:, 4], a[:, 5], a[:, 6]
+    yaw = np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy**2 + qz**2))
+    return Trajectory(np.asarray(ts), np.column_stack([a[:, 0], a[:, 1], yaw]))
+
+
+def read_trajectory(path: str | Path) -> Trajectory:
+    """Read ``.csv`` (trajectory.csv or groundtruth.csv) or TUM (any other extension)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "trajectory.csv"
+    if path.suffix.lower() == ".csv":
+        return read_trajectory_csv(path)
+    return read_tum(path)

@@ -1,0 +1,124 @@
+"""Pictures of a run: estimate, ground truth, beacons/landmarks and 2-sigma covariance ellipses.
+
+Uses matplotlib's non-interactive Agg backend through the object API (no pyplot state), so it
+works on headless machines and in threads.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from odofuse.trajectory import EstimateResult, Trajectory
+
+#: Mahalanobis radius of the drawn ellipses: 2 sigma in 2-D holds 86.5 % of the probability.
+ELLIPSE_SIGMA = 2.0
+
+
+def covariance_ellipse(
+    mean_xy, cov_xy, n_sigma: float = ELLIPSE_SIGMA, points: int = 64
+) -> np.ndarray:
+    """Outline of the ``n_sigma`` ellipse of a 2-D Gaussian.
+
+    Parameters
+    ----------
+    mean_xy : array_like, shape (2,)
+        Centre (m).
+    cov_xy : array_like, shape (2, 2)
+        Position covariance (m^2), world frame.
+    n_sigma : float
+        Mahalanobis radius.
+    points : int
+        Number of outline points.
+
+    Returns
+    -------
+    ndarray, shape (points, 2)
+        Points ``mean + n_sigma * V sqrt(L) [cos a, sin a]`` with ``cov = V L V^T``.
+    """
+    cov = 0.5 * (np.asarray(cov_xy, dtype=float) + np.asarray(cov_xy, dtype=float).T)
+    w, v = np.linalg.eigh(cov)
+    w = np.clip(w, 0.0, None)
+    a = np.linspace(0.0, 2 * math.pi, points)
+    circle = np.stack([np.cos(a), np.sin(a)], axis=1)
+    return np.asarray(mean_xy, dtype=float) + n_sigma * (circle * np.sqrt(w)) @ v.T
+
+
+def plot_run(
+    out_png: str | Path,
+    result: EstimateResult | Trajectory,
+    log=None,
+    ellipses: int = 15,
+    title: str | None = None,
+) -> Path:
+    """Draw the estimate (and ground truth, landmarks, ellipses) into a PNG, written atomically.
+
+    Parameters
+    ----------
+    out_png : str or Path
+        Output file.
+    result : EstimateResult or Trajectory
+        The estimate.
+    log : SensorLog, optional
+        Ground truth (``log.groundtruth``) and landmarks (``log.landmarks``).
+    ellipses : int
+        About this many 2-sigma position ellipses, evenly spaced along the trajectory
+        (only where covariances exist).
+    title : str, optional
+        Defaults to the estimator name.
+
+    Returns
+    -------
+    Path
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from odofuse.outputs import atomic_write
+
+    traj = result.trajectory if isinstance(result, EstimateResult) else result
+    name = result.estimator if isinstance(result, EstimateResult) else "estimate"
+    fig = Figure(figsize=(8, 7), dpi=110)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    gt = getattr(log, "groundtruth", None)
+    if gt is not None and len(gt):
+        ax.plot(gt["x"], gt["y"], color="0.45", lw=1.2, label="ground truth")
+    ax.plot(traj.poses[:, 0], traj.poses[:, 1], color="tab:blue", lw=1.2, label=f"{name} estimate")
+    if len(traj):
+        ax.plot(*traj.poses[0, :2], "o", color="tab:green", ms=6, label="start")
+        ax.plot(*traj.poses[-1, :2], "s", color="tab:red", ms=6, label="end")
+    if traj.covariances is not None and ellipses > 0 and len(traj):
+        step = max(1, len(traj) // ellipses)
+        first = True
+        for k in range(0, len(traj), step):
+            cov = traj.covariances[k, :2, :2]
+            if not np.all(np.isfinite(cov)):
+                continue
+            e = covariance_ellipse(traj.poses[k, :2], cov)
+            ax.plot(
+                e[:, 0],
+                e[:, 1],
+                color="tab:orange",
+                lw=0.8,
+                alpha=0.8,
+                label=f"{ELLIPSE_SIGMA:g}-sigma position ellipse" if first else None,
+            )
+            first = False
+    landmarks = getattr(log, "landmarks", None) or {}
+    if landmarks:
+        ids = sorted(landmarks)
+        pts = np.array([landmarks[i] for i in ids])
+        ax.plot(pts[:, 0], pts[:, 1], "^", color="k", ms=8, label="beacons / landmarks")
+        for i, p in zip(ids, pts, strict=False):
+            ax.annotate(str(i), p, textcoords="offset points", xytext=(5, 5), fontsize=8)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, lw=0.4, alpha=0.6)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(title or f"odofuse: {name}")
+    fig.tight_layout()
+    return atomic_write(out_png, lambda tmp: fig.savefig(tmp, format="png"))
