@@ -172,6 +172,37 @@ def test_politecnico_omni_matrix_maps_onto_mr_13_32():
     assert np.allclose(F_P[2], -F_MR[0])
 
 
+def test_politecnico_omni_mapping_is_unique_up_to_the_120_degree_symmetry():
+    """Search all wheel renumberings and sign flips for which the 003 matrix is MR 13.32 seen
+    from a rotated and/or shifted body frame (omega kept, planar block a rotation)."""
+    import itertools
+
+    r = R
+    F_P = np.array(
+        [[0, -r / math.sqrt(3), r / math.sqrt(3)], [-2 * r / 3, r / 3, r / 3], [r / (3 * D)] * 3]
+    )
+    F = Omni3(r, D).matrix()[[1, 2, 0]]  # rows v_x, v_y, omega
+    found = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product([1, -1], repeat=3):
+            P = np.zeros((3, 3))
+            for i, j in enumerate(perm):
+                P[j, i] = signs[i]  # Delta theta_MR = P w
+            M = F_P @ np.linalg.inv(F @ P)
+            planar = M[:2, :2]
+            if (
+                np.allclose(M[2], [0, 0, 1])
+                and np.allclose(planar.T @ planar, np.eye(2))
+                and np.linalg.det(planar) > 0
+            ):
+                found.append((perm, signs, math.degrees(math.atan2(planar[1, 0], planar[0, 0]))))
+    assert len(found) == 3
+    assert all(signs == (-1, -1, -1) for _, signs, _ in found)
+    identity = [a for p, _, a in found if p == (0, 1, 2)]
+    assert identity == [pytest.approx(90.0)]  # the mapping documented in docs/drives.md
+    assert sorted(round(a) % 360 for *_, a in found) == [90, 210, 330]
+
+
 # ---------------------------------------------------------------- skid steer (003)
 def test_skid_steer_chi_1_equals_differential():
     sk, df = SkidSteer(R, 2 * D), Differential(R, 2 * D)
