@@ -591,3 +591,18 @@ def test_turn_drive_turn_reaches_goal():
     np.testing.assert_allclose(
         turn_drive_turn([1, 1, 0.5], [1, 1, -0.5]), [[0, 0, 0], [0, 0, 0], [-1, 0, 0]]
     )
+
+
+# ---------------------------------------------------------------- odofuse.testing helper
+def test_numerical_jacobian_wraps_angle_rows():
+    def f(x):  # heading of a point: jumps from +pi to -pi across the negative x axis
+        return np.array([math.atan2(x[1], x[0]), x[0] * x[1]])
+
+    x = np.array([-2.0, 0.0])
+    J = numerical_jacobian(f, x, wrap_rows=[0])
+    np.testing.assert_allclose(J, [[0.0, x[0] / (x @ x)], [x[1], x[0]]], atol=1e-9)
+    assert abs(numerical_jacobian(f, x)[0, 1]) > 1e5  # unwrapped: the 2 pi jump / (2 eps)
+    with pytest.raises(ValueError, match="wrap_rows"):
+        numerical_jacobian(f, x, wrap_rows=[5])
+    with pytest.raises(ValueError, match="shape"):
+        numerical_jacobian(f, np.zeros((2, 2)))
