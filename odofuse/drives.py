@@ -562,7 +562,7 @@ class Generic(_LinearDrive):
     name: ClassVar[str] = "generic"
 
     def __post_init__(self) -> None:
-        def arr(key, shape_tail=()):
+        def arr(key):
             try:
                 a = np.asarray(getattr(self, key), dtype=float)
             except (TypeError, ValueError) as exc:
