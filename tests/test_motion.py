@@ -122,6 +122,9 @@ def test_siegwart_error_model_reference_values():
 def test_dead_reckon_vectorised_equals_step_by_step(integrator):
     model = diff_model(integrator, floor=(1e-8, 2e-8))
     U = RNG.normal(1.0, 2.0, (3000, 2))
+    # straight steps (omega = 0 exactly) and nearly straight ones (omega ~ 1e-9 .. 1e-3)
+    U[::7, 1] = U[::7, 0]
+    U[1::7, 1] = U[1::7, 0] + RNG.choice([1e-9, 1e-6, 1e-3], size=U[1::7].shape[0])
     pose0, P0 = np.array([10.0, -5.0, 3.0]), np.diag([0.01, 0.02, 0.003])
     poses, covs = dead_reckon(model, pose0, P0, U)
     pose, P = pose0, P0
