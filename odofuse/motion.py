@@ -186,57 +186,81 @@ def _dsinc_half(w):
     return 0.5 * np.where(small, series, closed)
 
 
-def _cumulative_poses(pose0, twist, integrator: str, jacobian: bool = False):
-    """Poses after each step of ``twist`` ``(N, 3)``, vectorised, and optionally ``J_pose_twist``.
+def _chord(theta_start, twist, integrator: str):
+    """Each step's displacement in complex form, ``z_k = g(w) (v_x + i v_y) e^{i phi_k}``.
 
-    In complex form every integrator moves the robot by ``z_k = g(w) (v_x + i v_y) e^{i phi_k}``:
     ``exact`` has ``g = sinc(w/2)`` and ``phi_k = theta_k + w/2`` (the chord of the arc), ``rk2``
-    ``g = 1`` at the same mid angle, ``euler`` ``g = 1`` at ``phi_k = theta_k``. This is the same
+    ``g = 1`` at the same mid angle, ``euler`` ``g = 1`` at ``phi_k = theta_k``: the same
     increment as :func:`body_increment` composed with the pose, with three transcendental
-    evaluations per step instead of six, and its derivative w.r.t. the twist is
-    ``dz/dv_x = g e^{i phi}``, ``dz/dv_y = i g e^{i phi}``,
-    ``dz/dw = (v_x + i v_y) e^{i phi} (g' + i c g)`` with ``c = d phi / d w``.
+    evaluations per step instead of six.
 
-    Returns
-    -------
-    poses : ndarray (N+1, 3)
-    J_pose_twist : ndarray (N, 3, 3) or None
-        World-frame Jacobian of each step's end pose w.r.t. its twist ``[omega, v_x, v_y]``.
+    Returns ``zr, zi`` (the rotated velocity ``(v_x + i v_y) e^{i phi}``), ``c, s``
+    (``cos phi``, ``sin phi``) and ``g`` (None unless ``exact``).
     """
     w, vx, vy = twist[:, 0], twist[:, 1], twist[:, 2]
-    n = w.shape[0]
-    theta = np.empty(n + 1)
-    theta[0] = pose0[2]
-    np.cumsum(w, out=theta[1:])
-    theta[1:] += pose0[2]
     half = 0.5 * w
-    phi = theta[:-1] if integrator == "euler" else theta[:-1] + half
+    phi = theta_start if integrator == "euler" else theta_start + half
     c, s = np.cos(phi), np.sin(phi)
-    zr, zi = c * vx - s * vy, s * vx + c * vy  # (v_x + i v_y) e^{i phi}
+    g = None
     if integrator == "exact":
         g = np.divide(np.sin(half), half, out=np.ones_like(half), where=half != 0.0)
-        dx, dy = g * zr, g * zi
-    else:
-        g, dx, dy = None, zr, zi
+    return c * vx - s * vy, s * vx + c * vy, c, s, g
+
+
+def _cumulative_poses(pose0, twist, integrator: str):
+    """Poses after each step of ``twist`` ``(N, 3)`` (N+1, 3), and the step-start headings."""
+    n = twist.shape[0]
+    theta = np.empty(n + 1)
+    theta[0] = pose0[2]
+    np.cumsum(twist[:, 0], out=theta[1:])
+    theta[1:] += pose0[2]
+    zr, zi, _, _, g = _chord(theta[:-1], twist, integrator)
+    if g is not None:
+        zr, zi = g * zr, g * zi
     poses = np.empty((n + 1, 3))
     poses[0, :2] = pose0[:2]
-    np.cumsum(dx, out=poses[1:, 0])
-    np.cumsum(dy, out=poses[1:, 1])
+    np.cumsum(zr, out=poses[1:, 0])
+    np.cumsum(zi, out=poses[1:, 1])
     poses[1:, :2] += pose0[:2]
     poses[:, 2] = se2.wrap(theta)
-    if not jacobian:
-        return poses, None
-    J = np.zeros((n, 3, 3))
+    return poses, theta[:-1]
+
+
+def _step_jacobians(theta_start, twist, integrator: str) -> np.ndarray:
+    """World-frame Jacobian of each step's end pose w.r.t. its twist, ``(N, 3, 3)``.
+
+    From the complex form of :func:`_chord`: ``dz/dv_x = g e^{i phi}``,
+    ``dz/dv_y = i g e^{i phi}`` and ``dz/dw = (v_x + i v_y) e^{i phi} (g' + i g dphi/dw)``.
+    """
+    zr, zi, c, s, g = _chord(theta_start, twist, integrator)
+    J = np.zeros((twist.shape[0], 3, 3))
     J[:, 2, 0] = 1.0
     if integrator == "exact":
-        a, b = _dsinc_half(w), 0.5 * g
+        a, b = _dsinc_half(twist[:, 0]), 0.5 * g
         J[:, 0, 0], J[:, 1, 0] = zr * a - zi * b, zr * b + zi * a
         c, s = g * c, g * s
     elif integrator == "rk2":
         J[:, 0, 0], J[:, 1, 0] = -0.5 * zi, 0.5 * zr
     J[:, 0, 1], J[:, 1, 1] = c, s
     J[:, 0, 2], J[:, 1, 2] = -s, c
-    return poses, J
+    return J
+
+
+def _process_noise(model: MotionModel, theta_start, twist, U) -> np.ndarray:
+    """``Q_k = F_u Sigma_u F_u^T`` of each step, ``(N, 3, 3)``, world frame.
+
+    Built from element-wise products: numpy's batched 3x3 matmul is several times slower here.
+    """
+    J_pt = _step_jacobians(theta_start, twist, model.integrator)
+    J_tu = model.drive.J_twist_u(U)
+    F_u = sum(J_pt[:, :, j, None] * J_tu[:, None, j, :] for j in range(3))
+    Fv = F_u * model.errors.variances(model.drive, U)[:, None, :]
+    Q = np.empty((U.shape[0], 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            Q[:, i, j] = np.einsum("nk,nk->n", Fv[:, i, :], F_u[:, j, :])
+            Q[:, j, i] = Q[:, i, j]
+    return Q
 
 
 # Block length of the closed-form covariance recursion. Within a block, positions are taken
@@ -273,29 +297,19 @@ def dead_reckon(model: MotionModel, pose0, P0, U, with_cov: bool = True):
     pose0 = np.asarray(pose0, dtype=float)
     U = np.asarray(U, dtype=float).reshape(-1, len(model.drive.input_names))
     twist = model.drive.twist(U)
-    poses, J_pose_twist = _cumulative_poses(pose0, twist, model.integrator, with_cov)
+    poses, theta_start = _cumulative_poses(pose0, twist, model.integrator)
     if not with_cov:
         return poses, None
     n_steps = U.shape[0]
-    # F_u = J_pose_twist J_twist_u; Q_k = F_u Sigma_u F_u^T with diagonal Sigma_u, built from
-    # element-wise products (numpy's batched 3x3 matmul is several times slower here).
-    J_tu = model.drive.J_twist_u(U)
-    F_u = sum(J_pose_twist[:, :, j, None] * J_tu[:, None, j, :] for j in range(3))
-    var = model.errors.variances(model.drive, U)
-    Fv = F_u * var[:, None, :]
-    Q = np.empty((n_steps, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            Q[:, i, j] = np.einsum("nk,nk->n", Fv[:, i, :], F_u[:, j, :])
-            Q[:, j, i] = Q[:, i, j]
     covs = np.empty((n_steps + 1, 3, 3))
     covs[0] = P0
     P_m = np.asarray(P0, dtype=float)
+    # Blocks also keep every temporary small enough to stay in cache.
     for m in range(0, n_steps, _COV_BLOCK):
         stop = min(m + _COV_BLOCK, n_steps)
+        Qb = _process_noise(model, theta_start[m:stop], twist[m:stop], U[m:stop])
         rel = poses[m + 1 : stop + 1, :2] - poses[m, :2]  # p_{j+1} - p_m for j in block
         f = np.column_stack([-rel[:, 1], rel[:, 0], np.zeros(len(rel))])  # L(p_{j+1} - p_m)
-        Qb = Q[m:stop]
         q = Qb[:, 2, :]
         q22 = Qb[:, 2, 2]
         S0 = np.cumsum(Qb, axis=0)

@@ -46,7 +46,7 @@ def odometry_inputs(log, model) -> tuple[np.ndarray, np.ndarray]:
         return np.concatenate([[stream.t[0] - period], stream.t]), values
     if len(stream) < 2:
         raise InputError("wheels.csv needs at least two rows to form a step", file=stream.source)
-    steering = np.asarray(model.drive.travel_scale()) == 0
+    steering = np.array([kind == "steer" for kind in model.drive.input_kinds])
     U = np.where(steering, 0.5 * (values[:-1] + values[1:]), np.diff(values, axis=0))
     return stream.t.copy(), U
 
