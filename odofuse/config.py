@@ -361,12 +361,39 @@ def config_from_dict(
     )
 
 
+def _yaml_loader():
+    """PyYAML's SafeLoader with YAML 1.2 floats: ``1e-4`` is a number, not the string "1e-4"."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    float_re = re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    )
+    Loader.yaml_implicit_resolvers = {
+        k: [(tag, r) for tag, r in v if tag != "tag:yaml.org,2002:float"]
+        for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", float_re, list("-+0123456789."))
+    return Loader
+
+
 def parse_yaml(text: str, source: str):
-    """Parse YAML text; malformed YAML raises ConfigError naming the file and line."""
+    """Parse YAML text; malformed YAML raises ConfigError naming the file and line.
+
+    Numbers in exponent form without a dot (``1e-4``) are floats, as in YAML 1.2 (PyYAML's
+    YAML 1.1 rules would read them as strings).
+    """
     import yaml
 
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_yaml_loader())
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]

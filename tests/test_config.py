@@ -59,8 +59,11 @@ def test_spec_example_loads(tmp_path):
 
 
 def test_log_mapping_with_topics_and_builtin(tmp_path):
-    c = config_from_dict({"log": {"path": "run.bag", "topics": {"wheels": "/js"}},
-                          "robot": {"drive": "increments"}}, "x.yaml", tmp_path)
+    c = config_from_dict(
+        {"log": {"path": "run.bag", "topics": {"wheels": "/js"}}, "robot": {"drive": "increments"}},
+        "x.yaml",
+        tmp_path,
+    )
     assert c.log == str(tmp_path / "run.bag")
     assert c.log_options == {"topics": {"wheels": "/js"}}
     c = config_from_dict({"log": "builtin:plaza1", "robot": {"drive": "increments"}})
@@ -133,3 +136,10 @@ def test_empty_and_non_mapping(tmp_path):
 def test_missing_file_is_oserror(tmp_path):
     with pytest.raises(OSError):
         load_config(tmp_path / "missing.yaml")
+
+
+def test_exponent_without_dot_is_a_number(tmp_path):
+    # PyYAML's YAML 1.1 rules read "1e-4" as a string; we follow YAML 1.2.
+    c = load_config(write(tmp_path, GOOD.replace("k_r: 1.0e-4", "k_r: 1e-4")))
+    assert c.motion["k_r"] == 1e-4
+    bad(tmp_path, GOOD.replace("k_r: 1.0e-4", "k_r: '1e-4'"), "motion.k_r", "number")

@@ -93,8 +93,7 @@ def test_out_of_range_values(tmp_path):
     expect(tmp_path, "gps.csv", "t,lat,lon\n0.1,91,9\n", 2, "lat", "latitude")
     expect(tmp_path, "gps.csv", "t,x,y,sigma\n0.1,1,2,0\n", 2, "sigma", "positive")
     expect(tmp_path, "gps.csv", "t,x,lat\n0.1,1,2\n", 1, "y", "t, x, y")
-    expect(tmp_path, "ranges.csv", "t,id,range\n0.1,3,5\n", 2, "id", "map.csv",
-           landmark_ids={1, 2})
+    expect(tmp_path, "ranges.csv", "t,id,range\n0.1,3,5\n", 2, "id", "map.csv", landmark_ids={1, 2})
 
 
 def test_duplicates_dropped_and_counted(tmp_path):
@@ -110,8 +109,14 @@ def test_ranges_share_time_stamps_but_not_ids(tmp_path):
     repairs = {}
     s = read_stream(p, repairs=repairs)
     assert len(s) == 2 and repairs == {"ranges.duplicate_rows": 1}
-    expect(tmp_path, "ranges.csv", "t,id,range\n0.1,1,5\n0.1,2,6\n0.1,1,5.5\n", 4, "range",
-           "time stamp and id")
+    expect(
+        tmp_path,
+        "ranges.csv",
+        "t,id,range\n0.1,1,5\n0.1,2,6\n0.1,1,5.5\n",
+        4,
+        "range",
+        "time stamp and id",
+    )
 
 
 def test_gaps_are_counted(tmp_path):
@@ -128,8 +133,9 @@ def test_encoder_ticks_and_rollover(tmp_path):
     rows = "\n".join(f"{0.1 * i:.1f},{v},{v}" for i, v in enumerate(ticks))
     p = write(tmp_path, "wheels.csv", "t,left,right\n" + rows + "\n")
     repairs = {}
-    s = read_stream(p, repairs=repairs,
-                    encoder={"ticks_per_rev": 250, "gear_ratio": 4, "rollover": 65536})
+    s = read_stream(
+        p, repairs=repairs, encoder={"ticks_per_rev": 250, "gear_ratio": 4, "rollover": 65536}
+    )
     expected = (65000 + np.array([0, 400, 800, 1236, 1736])) * 2 * math.pi / 1000
     np.testing.assert_allclose(s["left"], expected, rtol=1e-12)
     np.testing.assert_allclose(s["right"], expected, rtol=1e-12)
@@ -137,7 +143,8 @@ def test_encoder_ticks_and_rollover(tmp_path):
 
 
 def test_encoder_backwards_rollover(tmp_path):
-    p = write(tmp_path, "wheels.csv", "t,left,right,steer\n0,100,5,0.1\n1,65436,5,0.2\n")  # -200 ticks
+    # 100 -> 65436 on a 16-bit counter is -200 ticks, not +65336.
+    p = write(tmp_path, "wheels.csv", "t,left,right,steer\n0,100,5,0.1\n1,65436,5,0.2\n")
     repairs = {}
     s = read_stream(p, repairs=repairs, encoder={"ticks_per_rev": 100, "rollover": 65536})
     np.testing.assert_allclose(s["left"], np.array([100, -100]) * 2 * math.pi / 100, atol=1e-12)
@@ -178,8 +185,9 @@ def test_million_rows_load_fast_and_error_is_precise(tmp_path):
     left = np.cumsum(rng.integers(0, 50, n))
     table = np.column_stack([t, left, left + 3])
     path = tmp_path / "wheels.csv"
-    np.savetxt(path, table, fmt=["%.2f", "%d", "%d"], delimiter=",", header="t,left,right",
-               comments="")
+    np.savetxt(
+        path, table, fmt=["%.2f", "%d", "%d"], delimiter=",", header="t,left,right", comments=""
+    )
     start = time.perf_counter()
     log = read_csv_log(tmp_path)
     elapsed = time.perf_counter() - start

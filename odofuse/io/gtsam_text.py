@@ -82,7 +82,7 @@ def read_gtsam_text(path: str | Path) -> SensorLog:
             if not cells or cells[0].startswith("#"):
                 continue
             tag = cells[0]
-            if tag.endswith("SE3") or tag.startswith("VERTEX3") or tag.startswith("EDGE3"):
+            if "SE3" in tag or tag.startswith(("VERTEX3", "EDGE3")):
                 raise InputError(
                     f"3-D pose-graph line '{tag}' (only 2-D graphs are supported)", name, lineno
                 )

@@ -1,0 +1,156 @@
+"""ATE / RPE / NEES / alignment against hand-computed reference values."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from odofuse.evaluation import (
+    align_se2,
+    apply_alignment,
+    ate,
+    interpolate_poses,
+    metrics,
+    nees,
+    nees_values,
+    rpe,
+)
+from odofuse.io.log import SensorLog, Stream
+from odofuse.trajectory import EstimateResult, Trajectory
+
+
+def straight(n=11, step=1.0):
+    t = np.arange(n, dtype=float)
+    return Trajectory(t, np.column_stack([t * step, np.zeros(n), np.zeros(n)]))
+
+
+def rot(a):
+    return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+
+def test_align_recovers_rigid_transform():
+    rng = np.random.default_rng(3)
+    est = rng.normal(size=(30, 2)) * 5
+    r_true, t_true = rot(0.7), np.array([2.0, -1.0])
+    gt = est @ r_true.T + t_true
+    r, t, angle = align_se2(est, gt)
+    np.testing.assert_allclose(r, r_true, atol=1e-12)
+    np.testing.assert_allclose(t, t_true, atol=1e-12)
+    assert angle == pytest.approx(0.7)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+
+
+def test_align_never_reflects():
+    est = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    gt = est * np.array([1.0, -1.0])  # a mirror image: best proper rotation is not a reflection
+    r, _, _ = align_se2(est, gt)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+
+
+def test_ate_constant_offset():
+    gt = straight()
+    est = Trajectory(gt.t, gt.poses + [3.0, 4.0, 0.0])
+    a = ate(est, gt)
+    assert a.rmse_m == pytest.approx(5.0)
+    assert a.final_m == pytest.approx(5.0)
+    assert a.max_m == pytest.approx(5.0)
+    assert ate(est, gt, align=True).rmse_m == pytest.approx(0.0, abs=1e-12)
+
+
+def test_ate_reference_values():
+    gt = straight(3)
+    est = Trajectory(gt.t, gt.poses + [[0, 0, 0], [0, 1, 0], [0, 2, 0.3]])
+    a = ate(est, gt)
+    assert a.rmse_m == pytest.approx(math.sqrt((0 + 1 + 4) / 3))
+    assert a.mean_m == pytest.approx(1.0)
+    assert a.rot_rmse_rad == pytest.approx(math.sqrt(0.09 / 3))
+
+
+def test_interpolation_time_and_circle():
+    gt = Trajectory([0.0, 1.0], [[0.0, 0.0, 3.1], [2.0, 4.0, -3.1]])
+    p = interpolate_poses(gt, [0.5, 0.25])
+    np.testing.assert_allclose(p[:, :2], [[1.0, 2.0], [0.5, 1.0]])
+    # the short way through +-pi, not through 0
+    assert abs(abs(p[0, 2]) - math.pi) < 1e-12
+    assert p[1, 2] == pytest.approx(3.1 + 0.25 * (2 * math.pi - 6.2))
+
+
+def test_ate_ignores_poses_outside_ground_truth():
+    gt = straight(5)
+    est = Trajectory([-1.0, 0.5, 2.0, 9.0], [[0, 0, 0], [0.5, 1, 0], [2, 0, 0], [9, 0, 0]])
+    a = ate(est, gt)
+    np.testing.assert_allclose(a.errors, [1.0, 0.0])
+
+
+def test_rpe_scale_error_and_rigid_invariance():
+    gt = straight(11)
+    est = Trajectory(gt.t, gt.poses * [1.1, 1.0, 1.0])
+    r = rpe(est, gt, delta=1.0)
+    assert r.trans_rmse_m == pytest.approx(0.1)
+    assert r.rot_rmse_rad == pytest.approx(0.0)
+    assert r.pairs == 10
+    r2 = rpe(est, gt, delta=2.0, unit="s")
+    assert r2.trans_rmse_m == pytest.approx(0.2) and r2.pairs == 9
+    # a rigidly moved copy has ATE > 0 but RPE = 0
+    moved = apply_alignment(gt, rot(0.5), np.array([3.0, 1.0]))
+    assert ate(moved, gt).rmse_m > 1.0
+    r3 = rpe(moved, gt, delta=1.0)
+    assert r3.trans_rmse_m == pytest.approx(0.0, abs=1e-12)
+    assert r3.rot_rmse_rad == pytest.approx(0.0, abs=1e-12)
+
+
+def test_rpe_rotation_error():
+    gt = straight(3)
+    est = Trajectory(gt.t, [[0, 0, 0], [1, 0, 0.2], [2, 0, 0.4]])
+    r = rpe(est, gt, delta=1.0)
+    assert r.rot_rmse_rad == pytest.approx(0.2)
+    assert rpe(est, gt, delta=100.0).pairs == 0
+
+
+def test_nees_reference_and_wrap():
+    gt = Trajectory([0.0, 1.0, 2.0], [[0, 0, -math.pi + 0.05], [1, 0, 0], [2, 0, 0]])
+    est_poses = np.array([[0, 0, math.pi - 0.05], [1.1, 0, 0], [2, 0, 0]])
+    covs = np.stack([np.diag([1.0, 1.0, 0.01]), np.diag([0.01, 1.0, 1.0]), np.zeros((3, 3))])
+    est = Trajectory(gt.t, est_poses, covs)
+    v = nees_values(est, gt)
+    np.testing.assert_allclose(v, [1.0, 1.0])  # (0.1)^2 / 0.01 twice; the P = 0 pose skipped
+    assert nees(est, gt) == pytest.approx(1.0)
+    assert math.isnan(nees(Trajectory(gt.t, est_poses), gt))
+
+
+def test_nees_full_covariance():
+    gt = Trajectory([0.0], [[0.0, 0.0, 0.0]])
+    e = np.array([0.3, -0.2, 0.1])
+    p = np.array([[0.5, 0.1, 0.0], [0.1, 0.4, 0.05], [0.0, 0.05, 0.2]])
+    est = Trajectory([0.0], [e], p[None])
+    assert nees(est, gt) == pytest.approx(e @ np.linalg.solve(p, e))
+
+
+def test_metrics_keys():
+    gt = straight(11)
+    covs = np.repeat(np.eye(3)[None] * 0.04, 11, axis=0)
+    est = Trajectory(gt.t, gt.poses + [0.2, 0.0, 0.0], covs)
+    res = EstimateResult("ekf", est, used={"ranges": 5, "odometry": 10}, rejected={"ranges": 1})
+    log = SensorLog(
+        "mem",
+        {},
+        {},
+        Stream("groundtruth", "mem", gt.t, ("x", "y", "theta"), gt.poses),
+        {"ranges.duplicate_rows": 2},
+    )
+    m = metrics(res, log, 0.5)
+    assert m["estimator"] == "ekf" and m["poses"] == 11 and m["runtime_s"] == 0.5
+    assert m["sensors"] == {
+        "odometry": {"used": 10, "rejected": 0},
+        "ranges": {"used": 5, "rejected": 1},
+    }
+    assert m["repairs"] == {"ranges.duplicate_rows": 2}
+    assert m["ate_rmse_m"] == pytest.approx(0.2)
+    assert m["final_error_m"] == pytest.approx(0.2)
+    assert m["rpe_trans_m"] == pytest.approx(0.0, abs=1e-12)
+    assert m["rpe_rot_rad"] == pytest.approx(0.0)
+    assert m["nees_mean"] == pytest.approx(0.04 / 0.04)
+    m2 = metrics(res, SensorLog("mem", {}), 0.5)
+    assert "ate_rmse_m" not in m2 and m2["repairs"] == {}
