@@ -168,6 +168,14 @@ class MeasurementModel:
     def H(self, x, row) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def h_many(self, X, row) -> np.ndarray:
+        """``h`` of many states ``X`` (N, n) at once, shape (N, dim) (particle filter)."""
+        return np.array([self.h(x, row) for x in np.asarray(X, dtype=float)])
+
+    def _get_many(self, X, state: str, default: float):
+        i = self.calib_index.get(state)
+        return X[:, i] if i is not None and i < X.shape[1] else default
+
     def R(self, row) -> np.ndarray:
         """Measurement covariance ``(dim, dim)``: ``sigma^2`` (or the row's ``sigma``)."""
         s = float(row.get("sigma", self.sigma)) if isinstance(row, Mapping) else self.sigma
@@ -273,6 +281,11 @@ class GpsPosition(MeasurementModel):
         c, s = math.cos(x[2]), math.sin(x[2])
         return np.array([x[0] + c * lx - s * ly, x[1] + s * lx + c * ly])
 
+    def h_many(self, X, row=None) -> np.ndarray:
+        lx, ly = self.lever_arm
+        c, s = np.cos(X[:, 2]), np.sin(X[:, 2])
+        return np.column_stack([X[:, 0] + c * lx - s * ly, X[:, 1] + s * lx + c * ly])
+
     def H(self, x, row=None) -> np.ndarray:
         lx, ly = self.lever_arm
         c, s = math.cos(x[2]), math.sin(x[2])
@@ -312,6 +325,9 @@ class CompassHeading(MeasurementModel):
 
     def h(self, x, row=None) -> np.ndarray:
         return np.array([float(wrap(x[2] + self._get(x, "compass_offset", 0.0)))])
+
+    def h_many(self, X, row=None) -> np.ndarray:
+        return wrap(X[:, 2] + self._get_many(X, "compass_offset", 0.0))[:, None]
 
     def H(self, x, row=None) -> np.ndarray:
         J = np.zeros((1, len(x)))
@@ -384,6 +400,11 @@ class GyroYawRate(MeasurementModel):
         dt = self._dt(row)
         ref = self._get(x, "gyro_theta_ref", float(x[2]))
         return np.array([float(wrap(x[2] - ref)) / dt + self._get(x, "gyro_bias", 0.0)])
+
+    def h_many(self, X, row) -> np.ndarray:
+        dt = self._dt(row)
+        ref = self._get_many(X, "gyro_theta_ref", X[:, 2])
+        return (wrap(X[:, 2] - ref) / dt + self._get_many(X, "gyro_bias", 0.0))[:, None]
 
     def H(self, x, row) -> np.ndarray:
         dt = self._dt(row)
@@ -466,6 +487,12 @@ class BeaconRange(MeasurementModel):
         d = math.hypot(x[0] - b[0], x[1] - b[1])
         return np.array([self._get(x, "range_scale", 1.0) * d + self._get(x, "range_offset", 0.0)])
 
+    def h_many(self, X, row) -> np.ndarray:
+        b = _landmark(self.landmarks, row, self.name)
+        d = np.hypot(X[:, 0] - b[0], X[:, 1] - b[1])
+        scale = self._get_many(X, "range_scale", 1.0)
+        return (scale * d + self._get_many(X, "range_offset", 0.0))[:, None]
+
     def H(self, x, row) -> np.ndarray:
         b = _landmark(self.landmarks, row, self.name)
         dx, dy = x[0] - b[0], x[1] - b[1]
@@ -509,6 +536,10 @@ class LandmarkBearing(MeasurementModel):
         b = _landmark(self.landmarks, row, self.name)
         return np.array([float(wrap(math.atan2(b[1] - x[1], b[0] - x[0]) - x[2]))])
 
+    def h_many(self, X, row) -> np.ndarray:
+        b = _landmark(self.landmarks, row, self.name)
+        return wrap(np.arctan2(b[1] - X[:, 1], b[0] - X[:, 0]) - X[:, 2])[:, None]
+
     def H(self, x, row) -> np.ndarray:
         b = _landmark(self.landmarks, row, self.name)
         dx, dy = b[0] - x[0], b[1] - x[1]
@@ -549,6 +580,11 @@ class LandmarkRangeBearing(MeasurementModel):
         b = _landmark(self.landmarks, row, self.name)
         dx, dy = b[0] - x[0], b[1] - x[1]
         return np.array([math.hypot(dx, dy), float(wrap(math.atan2(dy, dx) - x[2]))])
+
+    def h_many(self, X, row) -> np.ndarray:
+        b = _landmark(self.landmarks, row, self.name)
+        dx, dy = b[0] - X[:, 0], b[1] - X[:, 1]
+        return np.column_stack([np.hypot(dx, dy), wrap(np.arctan2(dy, dx) - X[:, 2])])
 
     def H(self, x, row) -> np.ndarray:
         b = _landmark(self.landmarks, row, self.name)

@@ -1,0 +1,206 @@
+"""Unscented Kalman filter (filterpy) over the same motion function as the EKF.
+
+Each sigma point of ``[x, y, theta, augmented...]`` is moved by the run's motion model:
+``pose' = pose (+) delta(u)`` (the head-to-tail composition of ``002_88fc37db58155723.txt``
+with the drive/integrator increment of :class:`~odofuse.motion.MotionModel`); augmented states
+are constant. The odometry error model's input noise enters as the additive process noise
+``Q = F_u Sigma_u F_u^T`` of the EKF (``Sigma_u`` from the wheel travel, Siegwart &
+Nourbakhsh ch. 5, ``004_f4547100a083f338.txt``), plus the augmented states' random walk.
+
+Angles are handled everywhere filterpy lets us: the state mean is circular in theta (and in
+heading clones), state residuals and ``state_add`` wrap theta, and each sensor's
+``residual``/``mean`` are installed as ``residual_z``/``z_mean`` before its update. After a
+first update at a time stamp the sigma points are regenerated from the updated ``x``, ``P``
+before a second update (filterpy would otherwise reuse the predicted ones).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from odofuse.estimators.ekf import FastIncrement
+from odofuse.estimators.localizer import run_with
+from odofuse.measurements import gate_threshold
+
+TWO_PI = 2.0 * math.pi
+
+
+def _wrap(a):
+    return (a + math.pi) % TWO_PI - math.pi
+
+
+class UkfBackend:
+    """UKF backend for :class:`~odofuse.estimators.localizer.Localizer`.
+
+    Parameters
+    ----------
+    model : MotionModel
+    models : dict
+        Stream -> bound measurement model.
+    x0, P0 : ndarray (n,), (n, n)
+    walk : ndarray (n,)
+        Random-walk variance per second of each state.
+    options : dict
+        ``alpha`` (default 0.5), ``beta`` (2), ``kappa`` (0) of Van der Merwe's scaled
+        sigma points.
+    """
+
+    def __init__(self, model, models, x0, P0, walk, options=None) -> None:
+        from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+        options = dict(options or {})
+        n = len(x0)
+        self.model = model
+        self.n = n
+        self.walk = np.asarray(walk, dtype=float)
+        angles = [2]
+        for m in models.values():
+            idx = getattr(m, "calib_index", {})
+            for s in m.clones() if hasattr(m, "clones") else {}:
+                if s in idx:
+                    angles.append(idx[s])
+        self.angles = np.array(sorted(set(angles)))
+        points = MerweScaledSigmaPoints(
+            n,
+            alpha=float(options.get("alpha", 0.5)),
+            beta=float(options.get("beta", 2.0)),
+            kappa=float(options.get("kappa", 0.0)),
+            subtract=self.residual_x,
+        )
+        self.points = points
+        self.kf = UnscentedKalmanFilter(
+            dim_x=n,
+            dim_z=1,
+            dt=1.0,
+            hx=None,
+            fx=self._fx,
+            points=points,
+            x_mean_fn=self.x_mean,
+            residual_x=self.residual_x,
+            state_add=self.state_add,
+        )
+        self.kf.x = np.array(x0, dtype=float)
+        self.kf.P = np.array(P0, dtype=float)
+        self._fresh = False  # sigmas_f hold the points of the last predict
+        self._gates = {
+            id(m): gate_threshold(getattr(m, "gate", None), m.dim) for m in models.values()
+        }
+        fast = FastIncrement(model)
+        self._fast = fast if fast.ok else None
+
+    # -- angle-aware state arithmetic ---------------------------------------------------
+    def residual_x(self, a, b) -> np.ndarray:
+        d = np.subtract(a, b)
+        d[self.angles] = _wrap(d[self.angles])
+        return d
+
+    def state_add(self, x, dx) -> np.ndarray:
+        s = np.add(x, dx)
+        s[self.angles] = _wrap(s[self.angles])
+        return s
+
+    def x_mean(self, sigmas, Wm) -> np.ndarray:
+        m = Wm @ sigmas
+        for i in self.angles:
+            m[i] = math.atan2(Wm @ np.sin(sigmas[:, i]), Wm @ np.cos(sigmas[:, i]))
+        return m
+
+    # -- motion -----------------------------------------------------------------------------
+    def increment(self, u):
+        """``MotionModel.increment(u)`` (through the EKF's fast path when available)."""
+        if self._fast is not None:
+            d, J, _ = self._fast(np.asarray(u, dtype=float))
+            return d, J
+        return self.model.increment(u)
+
+    @staticmethod
+    def _fx(s, dt, delta=None):
+        c, sn = math.cos(s[2]), math.sin(s[2])
+        out = s.copy()
+        out[0] = s[0] + c * delta[0] - sn * delta[1]
+        out[1] = s[1] + sn * delta[0] + c * delta[1]
+        out[2] = _wrap(s[2] + delta[2])
+        return out
+
+    def predict(self, u, dt: float, dtheta: float | None = None, var_dtheta: float = 0.0) -> None:
+        """Sigma points through ``pose (+) delta(u)``; additive ``Q = F_u Sigma_u F_u^T``."""
+        if self._fast is not None:
+            delta, J, var = self._fast(np.asarray(u, dtype=float))
+        else:
+            delta, J = self.model.increment(u)
+            var = self.model.errors.variances(self.model.drive, u)
+        if dtheta is not None:
+            delta, J = delta.copy(), J.copy()
+            delta[2] = dtheta
+            J[2, :] = 0.0
+        th = self.kf.x[2]
+        c, s = math.cos(th), math.sin(th)
+        J_b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        F_u = J_b @ J
+        Q = np.zeros((self.n, self.n))
+        Q[:3, :3] = (F_u * var) @ F_u.T
+        Q[2, 2] += var_dtheta if dtheta is not None else 0.0
+        if dt > 0:
+            Q[np.diag_indices(self.n)] += self.walk * dt
+        self.kf.Q = Q
+        self.kf.predict(dt=dt, delta=delta)
+        self.kf.P = 0.5 * (self.kf.P + self.kf.P.T)
+        self._fresh = True
+
+    # -- update -----------------------------------------------------------------------------
+    def update(self, model, row) -> tuple[bool, float]:
+        """Gated filterpy UKF update with the sensor's own residual and mean."""
+        kf = self.kf
+        if not self._fresh:
+            kf.sigmas_f = self.points.sigma_points(kf.x, kf.P)
+        x0, P0, sig0 = kf.x.copy(), kf.P.copy(), kf.sigmas_f.copy()
+        kf.residual_z = model.residual
+        kf.z_mean = model.mean
+        kf._dim_z = model.dim
+        kf.update(model.z(row), R=model.R(row), hx=lambda s: model.h(s, row))
+        y = kf.y
+        nis = float(y @ kf.SI @ y)
+        gate = self._gates.get(id(model))
+        if gate is None:
+            gate = self._gates[id(model)] = gate_threshold(getattr(model, "gate", None), model.dim)
+        if not nis <= gate:
+            kf.x, kf.P, kf.sigmas_f = x0, P0, sig0
+            return False, nis
+        kf.P = 0.5 * (kf.P + kf.P.T)
+        self._fresh = False
+        return True, nis
+
+    # -- bookkeeping ------------------------------------------------------------------------
+    def clone(self, dst: int, src: int) -> None:
+        x, P = self.kf.x.copy(), self.kf.P.copy()
+        x[dst] = x[src]
+        P[dst, :] = P[src, :]
+        P[:, dst] = P[:, src]
+        P[dst, dst] = P[src, src]
+        self.kf.x, self.kf.P = x, P
+        self._fresh = False
+
+    def snapshot(self):
+        return self.kf.x.copy(), self.kf.P.copy(), self.kf.sigmas_f.copy(), self._fresh
+
+    def restore(self, snap) -> None:
+        x, P, sig, fresh = snap
+        self.kf.x, self.kf.P, self.kf.sigmas_f, self._fresh = x.copy(), P.copy(), sig.copy(), fresh
+
+    def mean(self) -> np.ndarray:
+        return self.kf.x
+
+    def cov(self) -> np.ndarray:
+        return self.kf.P
+
+
+def make_backend(model, models, x0, P0, walk, options) -> UkfBackend:
+    """Backend factory for :func:`odofuse.estimators.localizer.build`."""
+    return UkfBackend(model, models, x0, P0, walk, options)
+
+
+def run(log, config):
+    """UKF over a whole log: a thin wrapper feeding the log to a streaming Localizer."""
+    return run_with(log, config, "ukf", make_backend)
