@@ -252,16 +252,10 @@ def _validate_initial(v, src: str) -> dict:
     initial = _mapping(v, "initial", src)
     _unknown(initial, INITIAL_KEYS, "initial", src)
     out = {}
+    # pose omitted: the estimators start from the log's own initial pose (builtin datasets,
+    # pose graphs) or the origin.
     if "pose" in initial and initial["pose"] is not None:
-        pose = initial["pose"]
-        if isinstance(pose, str):
-            if pose not in ("dataset", "groundtruth"):
-                raise ConfigError(
-                    "must be [x, y, theta] or 'dataset'/'groundtruth'", src, "initial.pose"
-                )
-            out["pose"] = pose
-        else:
-            out["pose"] = _numbers(pose, "initial.pose", src, 3)
+        out["pose"] = _numbers(initial["pose"], "initial.pose", src, 3)
     if "sigma" in initial and initial["sigma"] is not None:
         out["sigma"] = _numbers(initial["sigma"], "initial.sigma", src, 3, nonneg=True)
     return out

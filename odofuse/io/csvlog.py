@@ -290,24 +290,20 @@ def _wheel_ticks_to_rad(header, data, lines, name, encoder: dict, repairs: dict)
     ``columns`` (which wheels.csv columns are encoders; default every column whose name does
     not start with ``steer``).
     """
-    tpr = float(encoder["ticks_per_rev"]) * float(encoder.get("gear_ratio", 1.0))
-    rollover = encoder.get("rollover")
+    from odofuse.encoders import Encoder
+
+    enc = Encoder(
+        float(encoder["ticks_per_rev"]),
+        float(encoder.get("gear_ratio", 1.0)),
+        encoder.get("rollover"),
+    )
     cols = encoder.get("columns") or [c for c in header[1:] if not c.startswith("steer")]
-    data = data.copy()
-    unwraps = 0
     for col in cols:
         if col not in header:
             raise InputError("encoder column named in the config is missing", name, 1, col)
-        j = header.index(col)
-        ticks = data[:, j]
-        if rollover:
-            m = float(rollover)
-            d = np.diff(ticks)
-            wrapped = np.abs(d) > m / 2
-            unwraps += int(np.count_nonzero(wrapped))
-            d = d - m * np.round(d / m)
-            ticks = np.concatenate([ticks[:1], ticks[0] + np.cumsum(d)])
-        data[:, j] = ticks * (_TWO_PI / tpr)
+    idx = [header.index(c) for c in cols]
+    data = data.copy()
+    data[:, idx], unwraps = enc.convert(data[:, idx])
     if unwraps:
         repairs["wheels.rollover_unwraps"] = repairs.get("wheels.rollover_unwraps", 0) + unwraps
     return data

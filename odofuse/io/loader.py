@@ -96,9 +96,19 @@ def load_log(
 
 
 def load_log_for(config) -> SensorLog:
-    """Load the log named by a :class:`odofuse.config.RunConfig` (its encoder block and topics)."""
-    return load_log(
-        config.log,
-        encoder=(config.robot or {}).get("encoder"),
-        topics=(config.log_options or {}).get("topics"),
-    )
+    """Load the log named by a :class:`odofuse.config.RunConfig` (its encoder block and topics).
+
+    When the robot has an ``encoder`` block without ``columns``, the encoder columns of
+    ``wheels.csv`` are the drive's inputs of kind ``"wheel"`` (steering angles stay radians).
+    """
+    robot = dict(config.robot or {})
+    encoder = robot.get("encoder")
+    if encoder and not encoder.get("columns"):
+        from odofuse.drives import make_drive
+
+        geometry = {k: v for k, v in robot.items() if k not in ("drive", "encoder")}
+        drive = make_drive(robot["drive"], **geometry)
+        kinds = getattr(drive, "input_kinds", ("wheel",) * len(drive.input_names))
+        cols = [n for n, k in zip(drive.input_names, kinds, strict=True) if k == "wheel"]
+        encoder = {**encoder, "columns": cols}
+    return load_log(config.log, encoder=encoder, topics=(config.log_options or {}).get("topics"))
