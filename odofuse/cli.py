@@ -322,6 +322,9 @@ def main(argv: list[str] | None = None) -> int:
     except OdofuseError as exc:
         print(f"odofuse: error: {exc}", file=sys.stderr)
         return 2
+    except ValueError as exc:  # bad values found below the config layer (e.g. a drive's limits)
+        print(f"odofuse: error: {exc}", file=sys.stderr)
+        return 2
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"odofuse: error: {where}{exc.strerror or exc}", file=sys.stderr)

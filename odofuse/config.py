@@ -248,6 +248,29 @@ def _validate_motion(v, src: str) -> dict:
     return out
 
 
+def _check_motion_against_drive(robot: dict, motion: dict, src: str) -> None:
+    """``k_r``/``k_l`` need a left/right drive; a ``k`` list needs one entry per drive input."""
+    from odofuse.drives import make_drive
+
+    geometry = {k: v for k, v in robot.items() if k not in ("drive", "encoder")}
+    names = tuple(make_drive(robot["drive"], **geometry).input_names)
+    for key in ("k_r", "k_l"):
+        if key in motion and names[:2] != ("left", "right"):
+            raise ConfigError(
+                f"applies to left/right wheels; drive '{robot['drive']}' has "
+                f"inputs {', '.join(names)} (use k: [one per input])",
+                src,
+                f"motion.{key}",
+            )
+    for key in ("k", "var_floor"):
+        if isinstance(motion.get(key), list) and len(motion[key]) != len(names):
+            raise ConfigError(
+                f"needs one number per drive input ({', '.join(names)}), got {len(motion[key])}",
+                src,
+                f"motion.{key}",
+            )
+
+
 def _validate_initial(v, src: str) -> dict:
     initial = _mapping(v, "initial", src)
     _unknown(initial, INITIAL_KEYS, "initial", src)
@@ -341,10 +364,13 @@ def config_from_dict(
         output = str(base / out if base is not None and not out.is_absolute() else out)
     if "description" in top and top["description"] is not None:
         _string(top["description"], "description", src)
+    robot = _validate_robot(top["robot"], src)
+    motion = _validate_motion(top.get("motion"), src)
+    _check_motion_against_drive(robot, motion, src)
     return RunConfig(
         log=log,
-        robot=_validate_robot(top["robot"], src),
-        motion=_validate_motion(top.get("motion"), src),
+        robot=robot,
+        motion=motion,
         estimator=estimator,
         initial=_validate_initial(top.get("initial"), src),
         sensors=_validate_sensors(top.get("sensors"), src),

@@ -32,6 +32,7 @@ CSV_HEADER = (
     "cov_ytheta",
     "var_theta",
 )
+OUTPUT_NAMES = ("trajectory.csv", "trajectory.tum", "trajectory.png", "metrics.json")
 #: (row, col) of the covariance entries in CSV_HEADER order after the pose.
 _COV_IDX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -171,6 +172,10 @@ def write_outputs(
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    # Outputs of an earlier run in this folder go first, so that a run failing half-way
+    # cannot leave a mix of old and new files.
+    for name in OUTPUT_NAMES:
+        (out / name).unlink(missing_ok=True)
     written: dict[str, Path] = {}
     try:
         written["csv"] = write_trajectory_csv(out / "trajectory.csv", result.trajectory)

@@ -143,3 +143,12 @@ def test_exponent_without_dot_is_a_number(tmp_path):
     c = load_config(write(tmp_path, GOOD.replace("k_r: 1.0e-4", "k_r: 1e-4")))
     assert c.motion["k_r"] == 1e-4
     bad(tmp_path, GOOD.replace("k_r: 1.0e-4", "k_r: '1e-4'"), "motion.k_r", "number")
+
+
+def test_motion_keys_must_fit_the_drive(tmp_path):
+    inc = GOOD.replace("drive: differential", "drive: increments").replace(
+        "  wheel_radius: 0.04\n  track_width: 0.235\n", ""
+    )
+    bad(tmp_path, inc, "motion.k_r", "left/right")
+    two = GOOD.replace("k_r: 1.0e-4\n  k_l: 1.0e-4", "k: [1.0e-4, 1.0e-4, 1.0e-4]")
+    bad(tmp_path, two, "motion.k", "one number per drive input")

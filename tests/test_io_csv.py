@@ -199,3 +199,26 @@ def test_million_rows_load_fast_and_error_is_precise(tmp_path):
     with pytest.raises(InputError) as info:
         read_csv_log(tmp_path)
     assert (info.value.row, info.value.column) == (777_779, "left")
+
+
+def test_encoder_columns_follow_the_drive(tmp_path):
+    # tricycle inputs: ("wheel", "steer"); only the wheel column is in ticks
+    from odofuse.config import config_from_dict
+    from odofuse.io.loader import load_log_for
+
+    write(tmp_path, "wheels.csv", "t,wheel,steer\n0,0,0.1\n1,500,0.2\n")
+    cfg = config_from_dict(
+        {
+            "log": str(tmp_path),
+            "robot": {
+                "drive": "tricycle",
+                "wheel_radius": 0.1,
+                "wheelbase": 0.5,
+                "encoder": {"ticks_per_rev": 1000},
+            },
+        },
+        "cfg.yaml",
+    )
+    s = load_log_for(cfg).streams["wheels"]
+    np.testing.assert_allclose(s["wheel"], [0.0, math.pi])
+    np.testing.assert_allclose(s["steer"], [0.1, 0.2])
