@@ -145,9 +145,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     names = [args.estimator] if args.estimator else list(DEFAULT_ESTIMATORS)
     configs = {}
     for name in names:
+        # an estimator without its own packaged config runs with the dead-reckoning one
+        own = default_config_path(name).exists()
         configs[name] = (
             default_config(name)
-            if name in DEFAULT_ESTIMATORS
+            if own
             else dataclasses.replace(default_config(DEFAULT_ESTIMATORS[0]), estimator=name)
         )
     log = load_log_for(next(iter(configs.values())))
