@@ -566,7 +566,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> Simulation:
     twists = path_twists(sc.path, dt, pose0)
     N = len(twists)
     t = np.arange(N + 1) * dt
-    u_cmd = np.array([nominal.inverse(tw) for tw in twists], dtype=float).reshape(N, len(names))
+    u_cmd = np.asarray(nominal.inverse(twists), dtype=float).reshape(N, len(names))
     if not np.all(np.isfinite(u_cmd)):
         raise ValueError(
             f"drive '{sc.drive}' cannot follow path '{dict(sc.path).get('kind')}' "
@@ -596,12 +596,16 @@ def simulate(scenario: Scenario, seed: int | None = None) -> Simulation:
 
     # True motion: exact exponential of the true twist of each step.
     tw_true = np.asarray(true_drive.twist(u_true), dtype=float).reshape(N, 3)
-    truth = np.empty((N + 1, 3))
-    truth[0] = pose0
+    # Head-to-tail composition of all steps at once: headings are a running sum, each step's
+    # displacement is rotated by the heading at its start.
     delta = se2.exp(tw_true)
-    for k in range(N):
-        truth[k + 1] = se2.compose(truth[k], delta[k])
-    truth[:, 2] = se2.wrap(truth[:, 2])
+    heading = pose0[2] + np.concatenate([[0.0], np.cumsum(delta[:, 2])])
+    c, s_ = np.cos(heading[:-1]), np.sin(heading[:-1])
+    disp = np.column_stack([c * delta[:, 0] - s_ * delta[:, 1], s_ * delta[:, 0] + c * delta[:, 1]])
+    truth = np.empty((N + 1, 3))
+    truth[0, :2] = pose0[:2]
+    truth[1:, :2] = pose0[:2] + np.cumsum(disp, axis=0)
+    truth[:, 2] = se2.wrap(heading)
 
     streams: dict[str, Stream] = {}
     # Wheels: cumulative angles of wheel inputs, steering angle held during the step.
