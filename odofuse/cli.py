@@ -186,7 +186,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     paths, changes = write_csv_log(log, args.dir)
     for p in paths:
         print(p)
-    for k, v in sorted(changes.items()):
+    for k, v in sorted({**log.repairs, **changes}.items()):
         print(f"note: {k} = {v}")
     if log.initial_pose is not None:
         x, y, th = (float(v) for v in log.initial_pose)

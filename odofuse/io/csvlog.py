@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from odofuse.errors import InputError
-from odofuse.io.log import SensorLog, Stream
+from odofuse.io.log import SensorLog, Stream, time_ordered
 
 #: Required value columns (after ``t``) of the streams named by the spec; ``None``: any.
 STREAM_COLUMNS: dict[str, tuple[str, ...] | None] = {
@@ -455,23 +455,19 @@ def write_csv_log(log: SensorLog, folder: str | Path) -> tuple[list[Path], dict[
     items = list(log.streams.items())
     if log.groundtruth is not None:
         items.append(("groundtruth", log.groundtruth))
-    for name, s in items:
-        order = np.argsort(s.t, kind="stable")
-        moved = int(np.count_nonzero(order != np.arange(order.size)))
-        table = np.column_stack([s.t, s.values])[order]
-        key = [0] + (
-            [1 + s.columns.index("id")] if name in KEYED_STREAMS and "id" in s.columns else []
-        )
+    for name, stream in items:
         if name not in STREAM_COLUMNS:
-            key = list(range(table.shape[1]))
-        _, first = np.unique(table[:, key], axis=0, return_index=True)
-        keep = np.zeros(len(table), dtype=bool)
-        keep[first] = True
+            key = None
+        elif name in KEYED_STREAMS and "id" in stream.columns:
+            key = ("id",)
+        else:
+            key = ()
+        s, moved, dropped = time_ordered(stream, key)
         if moved:
             changes[f"{name}.reordered"] = moved
-        if not keep.all():
-            changes[f"{name}.duplicates_dropped"] = int(np.count_nonzero(~keep))
-            table = table[keep]
+        if dropped:
+            changes[f"{name}.duplicates_dropped"] = dropped
+        table = np.column_stack([s.t, s.values])
         header = ",".join(("t",) + s.columns)
         body = "\n".join(",".join(_fmt(v) for v in row) for row in table)
         path = folder / f"{name}.csv"

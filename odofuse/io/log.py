@@ -45,12 +45,13 @@ class Stream:
         try:
             return self.values[:, self.columns.index(column)]
         except ValueError:
-            raise KeyError(f"{self.source}: stream '{self.name}' has no column '{column}'") from None
+            msg = f"{self.source}: stream '{self.name}' has no column '{column}'"
+            raise KeyError(msg) from None
 
     def row(self, i: int) -> dict[str, float]:
         """Row ``i`` as ``{"t": ..., column: value, ...}``."""
         out = {"t": float(self.t[i])}
-        out.update(zip(self.columns, map(float, self.values[i])))
+        out.update(zip(self.columns, map(float, self.values[i]), strict=True))
         return out
 
 
@@ -72,3 +73,35 @@ class SensorLog:
 
     def has(self, name: str) -> bool:
         return name in self.streams and len(self.streams[name]) > 0
+
+
+def time_ordered(
+    stream: Stream, key_columns: tuple[str, ...] | None = ()
+) -> tuple[Stream, int, int]:
+    """``stream`` sorted by time (stable), without rows repeating an earlier (t, key) pair.
+
+    ``key_columns`` names the columns that, with ``t``, identify a measurement: ``("id",)`` for
+    ranges to several beacons, ``()`` for one value per time stamp; with ``None`` only rows
+    equal in every column are repeats.
+
+    Returns
+    -------
+    stream : Stream
+    moved : int
+        Rows whose position changed by the sort.
+    dropped : int
+        Repeated rows removed (the first occurrence is kept).
+    """
+    order = np.argsort(stream.t, kind="stable")
+    moved = int(np.count_nonzero(order != np.arange(order.size)))
+    table = np.column_stack([stream.t, stream.values])[order]
+    if key_columns is None:
+        key = list(range(table.shape[1]))
+    else:
+        key = [0] + [1 + stream.columns.index(c) for c in key_columns]
+    _, first = np.unique(table[:, key], axis=0, return_index=True)
+    keep = np.zeros(len(table), dtype=bool)
+    keep[first] = True
+    table = table[keep]
+    out = Stream(stream.name, stream.source, table[:, 0], stream.columns, table[:, 1:])
+    return out, moved, int(np.count_nonzero(~keep))
