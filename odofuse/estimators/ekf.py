@@ -146,6 +146,8 @@ class EkfBackend:
         self._errors = model.errors
         fast = FastIncrement(model)
         self._fast = fast if fast.ok else None
+        self._cvec = np.zeros(n)
+        self._diag = np.diag_indices(n)
 
     # -- prediction ---------------------------------------------------------------
     def predict(self, u, dt: float, dtheta: float | None = None, var_dtheta: float = 0.0) -> None:
@@ -170,7 +172,6 @@ class EkfBackend:
         c, s = math.cos(x[2]), math.sin(x[2])
         dxw = c * delta[0] - s * delta[1]
         dyw = s * delta[0] + c * delta[1]
-        F_p = np.array([[1.0, 0.0, -dyw], [0.0, 1.0, dxw], [0.0, 0.0, 1.0]])
         J_b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         F_u = J_b @ J
         Q = (F_u * var) @ F_u.T
@@ -180,18 +181,19 @@ class EkfBackend:
         xn[0] += dxw
         xn[1] += dyw
         xn[2] = (x[2] + delta[2] + math.pi) % TWO_PI - math.pi
-        if self.n == 3:
-            Pn = F_p @ P @ F_p.T + Q
-        else:
-            Pn = P.copy()
-            top = F_p @ P[:3, :]
-            Pn[:3, :] = top
-            Pn[:, :3] = top.T
-            Pn[:3, :3] = top[:, :3] @ F_p.T + Q
-            if self._has_walk and dt > 0:
-                Pn[np.diag_indices(self.n)] += self.walk * dt
+        # F_p = I + c e_theta^T with c = (-dy_w, dx_w, 0, ...) (Siegwart's F_p, extended by the
+        # identity on augmented states), so F_p P F_p^T = P + A + A^T + P_tt c c^T with
+        # A = c P[theta, :]. Written this way every term is exactly symmetric, and it costs a
+        # few outer products instead of two n x n matrix products.
+        cvec = self._cvec
+        cvec[0], cvec[1] = -dyw, dxw
+        A = np.outer(cvec, P[2])
+        Pn = P + (A + A.T) + P[2, 2] * np.outer(cvec, cvec)
+        Pn[:3, :3] += 0.5 * (Q + Q.T)
+        if self._has_walk and dt > 0:
+            Pn[self._diag] += self.walk * dt
         self.kf.x = xn
-        self.kf.P = 0.5 * (Pn + Pn.T)
+        self.kf.P = Pn
 
     def increment(self, u) -> tuple[np.ndarray, np.ndarray]:
         """``MotionModel.increment(u)`` (through the fast path when available)."""
