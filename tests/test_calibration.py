@@ -128,3 +128,32 @@ def test_umbmark_from_written_logs(tmp_path):
     # encoder quantisation (979.2 ticks/rev) is the only error besides E_d, E_b
     assert abs(out["E_d"] - 1.002) < 0.1 * 0.002
     assert abs(out["E_b"] - 1.01) < 0.1 * 0.01
+
+
+def test_cli_calibrate_umbmark(tmp_path, capsys):
+    import json
+
+    from odofuse.cli import main
+
+    code = main(
+        [
+            "calibrate",
+            "umbmark",
+            "--runs",
+            "2",
+            "--E-d",
+            "0.998",
+            "--E-b",
+            "1.02",
+            "-o",
+            str(tmp_path),
+        ]
+    )
+    assert code == 0
+    summary = json.loads((tmp_path / "umbmark.json").read_text())
+    assert abs(summary["E_d"] - 0.998) < 0.1 * 0.002
+    assert abs(summary["E_b"] - 1.02) < 0.1 * 0.02
+    assert summary["reduction"] >= 10
+    assert (tmp_path / "umbmark.png").exists()
+    assert main(["calibrate", "umbmark", "--cw", str(tmp_path)]) == 2
+    assert "--ccw" in capsys.readouterr().err

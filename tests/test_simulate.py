@@ -363,3 +363,21 @@ def test_scenario_errors_name_key_and_file(tmp_path):
     p.write_text("seed: [1\n")
     with pytest.raises(ConfigError, match="malformed YAML"):
         S.load_scenario(p)
+
+
+def test_cli_simulate_writes_log_and_reports_bad_input(tmp_path, capsys):
+    from odofuse.cli import main
+
+    scenario = REPO / "configs" / "sim-umbmark-cw.yaml"
+    out = tmp_path / "log"
+    assert main(["simulate", str(scenario), "-o", str(out), "--seed", "4"]) == 0
+    assert (out / "groundtruth.csv").exists() and (out / "config.yaml").exists()
+    assert "true final pose" in capsys.readouterr().out
+    again = tmp_path / "again"
+    assert main(["simulate", str(scenario), "-o", str(again), "--seed", "4"]) == 0
+    assert (out / "wheels.csv").read_bytes() == (again / "wheels.csv").read_bytes()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("path: {kind: spiral}\n")
+    assert main(["simulate", str(bad), "-o", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "path.kind" in err and "bad.yaml" in err and "Traceback" not in err
