@@ -666,7 +666,7 @@ def demo_drive_zoo(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
         p = np.array(poses)
         ax.plot(p[:, 0], p[:, 1], color="tab:blue", lw=2, label="path under the twist")
         for j in range(0, n + 1, n // 4):
-            _robot_marker(ax, p[j], 0.08 * max(1.0, float(np.ptp(p[:, :2]))), "tab:blue")
+            _robot_marker(ax, p[j], 0.05 * max(1.0, float(np.ptp(p[:, :2]))), "tab:blue")
             ax.plot([p[j, 0], icr[0]], [p[j, 1], icr[1]], color="tab:gray", ls=":", lw=1)
         ax.plot(*icr, "r*", ms=15, label="ICR")
         dom = int(drive.degree_of_mobility)

@@ -859,13 +859,27 @@ def _spec(cls, block: Mapping, source: str, key: str):
         elif v is None:
             kwargs[k] = None
         else:
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ConfigError(f"must be a number, got {v!r}", source, f"{key}.{k}")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"must be a finite number, got {v!r}", source, f"{key}.{k}")
+            problem = _value_problem(k, float(v))
+            if problem:
+                raise ConfigError(f"{problem}, got {v!r}", source, f"{key}.{k}")
             kwargs[k] = float(v)
     try:
         return cls(**kwargs)
     except TypeError as exc:
         raise ConfigError(str(exc), source, key) from None
+
+
+def _value_problem(name: str, v: float) -> str | None:
+    """Range check of a scalar scenario value by its field name (None when fine)."""
+    if name.startswith("E_") or name == "rate":
+        return None if v > 0 else "must be positive"
+    if name.endswith("prob"):
+        return None if 0.0 <= v <= 1.0 else "must be a probability in [0, 1]"
+    if "sigma" in name or name in ("k", "bias_walk", "max_range", "fov"):
+        return None if v >= 0 else "must not be negative"
+    return None
 
 
 def scenario_from_dict(d: Mapping, source: str = "<scenario>") -> Scenario:

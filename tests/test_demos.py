@@ -138,3 +138,22 @@ def test_cli_demo_and_list(tmp_path, capsys):
     assert cli_main(["demo", "integration", "--quick", "-o", str(tmp_path)]) == 0
     text = capsys.readouterr().out
     assert "slope_euler" in text and (tmp_path / "integration.png").exists()
+
+
+@pytest.mark.slow
+def test_error_growth_full_size_nees(tmp_path):
+    """1000 Monte-Carlo runs: moderate noise consistent at every checkpoint, large noise not."""
+    n = demos.run_demo("error_growth", out_dir=tmp_path, quick=False, seed=0)["numbers"]
+    lo, hi = n["nees_bounds_95"]
+    assert n["runs"] == 1000
+    assert all(lo <= v <= hi for v in n["moderate"]["nees_rk2"])
+    assert all(lo <= v <= hi for v in n["moderate"]["nees_exact"])
+    assert n["large_heading_noise"]["nees_rk2"][-1] > 10 * hi
+    # the mean NEES only grows once the heading noise does (beyond 0.03 rad it leaves the band)
+    sweep = n["sweep"]
+    slo, shi = sweep["nees_bounds_95"]
+    for sig, v in zip(sweep["sigma_theta_end_rad"], sweep["nees_end"], strict=True):
+        if sig < 0.02:
+            assert slo <= v <= shi
+        if sig > 0.1:
+            assert v > shi

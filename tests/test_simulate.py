@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -381,3 +382,22 @@ def test_cli_simulate_writes_log_and_reports_bad_input(tmp_path, capsys):
     assert main(["simulate", str(bad), "-o", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert "path.kind" in err and "bad.yaml" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "text,key",
+    [
+        ("sensors:\n  gps: {outlier_prob: 1.5}\n", "sensors.gps.outlier_prob"),
+        ("sensors:\n  gyro: {sigma: -0.1}\n", "sensors.gyro.sigma"),
+        ("sensors:\n  ranges: {rate: 0}\n", "sensors.ranges.rate"),
+        ("systematic: {E_b: 0}\n", "systematic.E_b"),
+        ("nonsystematic: {k: .nan}\n", "nonsystematic.k"),
+        ("dt: -1\n", "dt"),
+        ("beacons: [[1, 2]]\n", "beacons"),
+    ],
+)
+def test_scenario_value_ranges(tmp_path, text, key):
+    p = tmp_path / "s.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=re.escape(key)):
+        S.load_scenario(p)
