@@ -616,7 +616,11 @@ def simulate(scenario: Scenario, seed: int | None = None) -> Simulation:
         values[:, ~wheel] = np.vstack([steer[:1], steer])
     if sc.encoder is not None:
         values[:, encoded] = encoder_ticks(cum[:, encoded], sc.encoder)
-    streams["wheels"] = Stream("wheels", "simulation", t, names, values)
+    if sc.drive == "increments":
+        # odometry.csv: the increments since the previous row (the form of Plaza's DR stream)
+        streams["odometry"] = Stream("odometry", "simulation", t[1:], names, u_meas)
+    else:
+        streams["wheels"] = Stream("wheels", "simulation", t, names, values)
 
     if sc.gyro is not None:
         g = sc.gyro

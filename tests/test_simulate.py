@@ -401,3 +401,24 @@ def test_scenario_value_ranges(tmp_path, text, key):
     p.write_text(text)
     with pytest.raises(ConfigError, match=re.escape(key)):
         S.load_scenario(p)
+
+
+def test_increments_drive_writes_odometry_csv(tmp_path):
+    from odofuse.config import load_config
+    from odofuse.estimators import run_estimator
+    from odofuse.io.loader import load_log_for
+
+    sc = S.Scenario(
+        drive="increments",
+        geometry={},
+        dt=0.1,
+        path={"kind": "square", "side": 3.0, "direction": "cw"},
+    )
+    sim = S.simulate(sc)
+    assert "odometry" in sim.streams and "wheels" not in sim.streams
+    np.testing.assert_allclose(sim.streams["odometry"]["ds"], sim.twists_cmd[:, 1])
+    np.testing.assert_allclose(sim.streams["odometry"]["dtheta"], sim.twists_cmd[:, 0])
+    S.write_log(sim, tmp_path)
+    cfg = load_config(tmp_path / "config.yaml")
+    res = run_estimator("dead_reckoning", load_log_for(cfg), cfg)
+    np.testing.assert_allclose(res.trajectory.poses[-1], sim.truth[-1], atol=1e-6)
