@@ -19,23 +19,25 @@ from odofuse.motion import motion_model_from_config
 BEACONS = {0: np.array([20.0, 0.0]), 1: np.array([0.0, 25.0]), 2: np.array([-15.0, -10.0])}
 
 
-def _motion(drive="increments", integrator="exact", k=(1e-3, 1e-4), **geometry):
+def _motion(drive="increments", integrator="exact", k=(1e-3, 1e-4), floor=1e-8, **geometry):
     cfg = RunConfig(
         log="x",
         robot={"drive": drive, **geometry},
-        motion={"integrator": integrator, "k": list(k), "var_floor": 1e-8},
+        motion={"integrator": integrator, "k": list(k), "var_floor": floor},
     )
     return motion_model_from_config(cfg)
 
 
-def simulate(seed, steps=300, k=(1e-3, 1e-4), sigma=0.3, every=2, scale=1.0, offset=0.0):
+def simulate(
+    seed, steps=300, k=(1e-3, 1e-4), sigma=0.3, every=2, scale=1.0, offset=0.0, floor=1e-8
+):
     """Truth and a log for the increments drive: noisy odometry, ranges to 3 beacons.
 
     The odometry noise is drawn from the filter's own error model (var = k |u| + floor), so
     a consistent filter must show chi-square NEES.
     """
     rng = np.random.default_rng(seed)
-    model = _motion(k=k)
+    model = _motion(k=k, floor=floor)
     dt = 0.1
     t = dt * np.arange(1, steps + 1)
     u_true = np.column_stack(
@@ -63,7 +65,7 @@ def simulate(seed, steps=300, k=(1e-3, 1e-4), sigma=0.3, every=2, scale=1.0, off
         b = (i // every) % 3
         d = np.hypot(*(truth[i + 1, :2] - BEACONS[b]))
         rows.append((t[i], b, scale * d + offset + rng.normal(0.0, sigma)))
-    rows = np.array(rows)
+    rows = np.array(rows).reshape(-1, 3)
     log = SensorLog(
         "sim",
         {
@@ -78,14 +80,16 @@ def simulate(seed, steps=300, k=(1e-3, 1e-4), sigma=0.3, every=2, scale=1.0, off
     return log, truth
 
 
-def sim_config(k=(1e-3, 1e-4), sigma=0.3, estimator="ekf", calibrate=False, sigma0=0.05, **options):
+def sim_config(
+    k=(1e-3, 1e-4), sigma=0.3, estimator="ekf", calibrate=False, sigma0=0.05, floor=1e-8, **options
+):
     ranges = {"sigma": sigma, "gate": 0.9999}
     if calibrate:
         ranges.update(calibrate=True, scale_sigma=0.05, offset_sigma=0.5)
     return RunConfig(
         log="sim",
         robot={"drive": "increments"},
-        motion={"integrator": "exact", "k": list(k), "var_floor": 1e-8},
+        motion={"integrator": "exact", "k": list(k), "var_floor": floor},
         estimator=estimator,
         initial={"sigma": [sigma0, sigma0, sigma0 / 5]},
         sensors={"ranges": ranges},

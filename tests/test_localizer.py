@@ -1,0 +1,226 @@
+"""Streaming Localizer: online == offline, step splitting, late measurements, REP-105, gyro."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from test_ekf import sim_config, simulate
+
+from odofuse import se2
+from odofuse.errors import ConfigError
+from odofuse.estimators import ekf, particle, ukf
+from odofuse.estimators.localizer import build, events
+from odofuse.io.log import SensorLog, Stream
+from odofuse.motion import dead_reckon
+
+BACKENDS = {"ekf": ekf, "ukf": ukf, "particle": particle}
+
+
+def _cfg(estimator="ekf", **kw):
+    opts = {"particles": 200, "seed": 3} if estimator == "particle" else {}
+    opts.update(kw.pop("options", {}))
+    return sim_config(estimator=estimator, **kw, **opts)
+
+
+def _stream(log, name, t, columns, values):
+    streams = dict(log.streams)
+    streams[name] = Stream(name, "sim", np.asarray(t, float), columns, np.asarray(values, float))
+    return dataclasses.replace(log, streams=streams)
+
+
+def _feed_online(log, cfg, estimator, order=None):
+    loc, t, U = build(cfg, log, estimator, BACKENDS[estimator].make_backend)
+    evs = events(log, t, U, ["ranges", "gyro"])
+    if order is not None:
+        evs = order(evs)
+    poses = []
+    for te, kind, stream, i in evs:
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+            poses.append(loc.pose())
+        else:
+            loc.add_measurement(stream, log.streams[stream].row(i))
+    loc.finish()
+    return loc, np.array(poses)
+
+
+@pytest.mark.parametrize("estimator", ["ekf", "ukf", "particle"])
+def test_streaming_equals_the_offline_run(estimator):
+    log, _ = simulate(21, steps=200)
+    cfg = _cfg(estimator)
+    offline = BACKENDS[estimator].run(log, cfg)
+    loc, poses_now = _feed_online(log, cfg, estimator)
+    online = loc.result()
+    np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses)
+    np.testing.assert_array_equal(online.trajectory.covariances, offline.trajectory.covariances)
+    # "Where am I now" after each odometry row is the trajectory as it was being built.
+    np.testing.assert_array_equal(poses_now, offline.trajectory.poses[1:])
+    assert online.used == offline.used and online.rejected == offline.rejected
+
+
+def test_measurement_inside_a_step_splits_the_odometry_increment():
+    log, _ = simulate(22, steps=3, every=1)
+    t_odo = log.streams["odometry"].t
+    # One range at 30 % of the second step.
+    tm = t_odo[0] + 0.3 * (t_odo[1] - t_odo[0])
+    log = _stream(log, "ranges", [tm], ("id", "range"), [[0, 19.0]])
+    cfg = _cfg()
+    res = ekf.run(log, cfg)
+    loc, t, U = build(cfg, log, "ekf", ekf.make_backend)
+    b, m = loc.backend, loc.models["ranges"]
+    b.predict(U[0], t[1] - t[0])
+    b.predict(0.3 * U[1], 0.3 * (t[2] - t[1]))
+    b.update(m, log.streams["ranges"].row(0))
+    b.predict(0.7 * U[1], 0.7 * (t[2] - t[1]))
+    np.testing.assert_allclose(res.trajectory.poses[2], b.mean()[:3], atol=1e-15)
+    np.testing.assert_allclose(res.trajectory.covariances[2], b.cov()[:3, :3], atol=1e-15)
+
+
+def _delay(stream, seconds):
+    """Reorder events so rows of ``stream`` arrive ``seconds`` after their time stamp."""
+
+    def order(evs):
+        keyed = [
+            ((te + seconds) if s == stream else te, kind, n)
+            for n, (te, kind, s, _) in enumerate(evs)
+        ]
+        return [evs[n] for _, _, n in sorted(keyed)]
+
+    return order
+
+
+@pytest.mark.parametrize("estimator", ["ekf", "particle"])
+def test_late_measurements_inside_the_window_are_replayed(estimator):
+    log, _ = simulate(23, steps=200)
+    cfg = _cfg(estimator, options={"late_window": 1.0})
+    offline = BACKENDS[estimator].run(log, cfg)
+    loc, _ = _feed_online(log, cfg, estimator, order=_delay("ranges", 0.45))
+    late = loc.result()
+    assert late.extra["dropped_late"] == {}
+    assert late.used == offline.used
+    np.testing.assert_allclose(late.trajectory.poses, offline.trajectory.poses, atol=1e-12)
+
+
+def test_measurements_older_than_the_window_are_counted_and_dropped():
+    log, _ = simulate(24, steps=200)
+    cfg = _cfg(options={"late_window": 0.3})
+    loc, _ = _feed_online(log, cfg, "ekf", order=_delay("ranges", 0.5))
+    res = loc.result()
+    # Each range arrives 0.5 s late, when the filter is 0.4 s past it (odometry every 0.1 s),
+    # except near the end of the log where the odometry stops earlier.
+    t_end = log.streams["odometry"].t[-1]
+    t_r = log.streams["ranges"].t
+    late = np.minimum(t_r + 0.4, t_end) - t_r > 0.3 + 1e-9
+    assert res.extra["dropped_late"]["ranges"] == late.sum() > 90
+    assert res.used["ranges"] == (~late).sum()
+    # Up to the first replayed range the filter is dead reckoning.
+    odo = ekf.run(dataclasses.replace(log, streams={"odometry": log.streams["odometry"]}), cfg)
+    first = t_r[~late].min()
+    keep = res.trajectory.t < first
+    np.testing.assert_allclose(res.trajectory.poses[keep], odo.trajectory.poses[keep], atol=1e-12)
+
+
+def test_measurements_after_the_last_odometry_are_counted():
+    log, _ = simulate(25, steps=50)
+    t_end = log.streams["odometry"].t[-1]
+    r = log.streams["ranges"]
+    log = _stream(
+        log, "ranges", np.r_[r.t, t_end + 1.0], r.columns, np.vstack([r.values, [0, 10.0]])
+    )
+    res = ekf.run(log, _cfg())
+    assert res.extra["dropped_late"] == {"ranges": 1}
+
+
+def test_odom_frame_is_dead_reckoning_and_map_to_odom_closes_the_loop():
+    log, _ = simulate(26, steps=150)
+    cfg = _cfg()
+    loc, _ = _feed_online(log, cfg, "ekf")
+    _, t, U = build(cfg, log, "ekf", ekf.make_backend)
+    dr, _ = dead_reckon(loc.motion_model, log.initial_pose, np.zeros((3, 3)), U, with_cov=False)
+    np.testing.assert_allclose(loc.odom_pose(), dr[-1], atol=1e-9)
+    np.testing.assert_allclose(
+        se2.compose(loc.map_to_odom(), loc.odom_pose()), loc.pose(), atol=1e-12
+    )
+    assert np.hypot(*(loc.pose()[:2] - dr[-1][:2])) > 1e-3  # the ranges did correct it
+
+
+def _with_gyro(log, truth, bias, sigma, seed):
+    """Add a gyro stream: mean true yaw rate over each odometry step, plus bias and noise."""
+    rng = np.random.default_rng(seed)
+    t = log.streams["odometry"].t
+    t_all = np.r_[log.groundtruth.t[0], t]
+    dth = se2.wrap(np.diff(truth[:, 2]))
+    rate = dth / np.diff(t_all) + bias + rng.normal(0.0, sigma, t.size)
+    return _stream(log, "gyro", t, ("wz",), rate[:, None])
+
+
+def _heading_rmse(res, truth):
+    return math.sqrt(np.mean(se2.wrap(res.trajectory.poses[:, 2] - truth[:, 2]) ** 2))
+
+
+def test_gyro_as_a_measurement_with_bias_calibration():
+    # Heading noise of the wheels from a per-step floor (0.017 rad per step).
+    kw = {"k": (1e-3, 1e-6), "floor": [1e-8, 3e-4]}
+    log, truth = simulate(27, steps=800, every=10, **kw)
+    log = _with_gyro(log, truth, bias=0.02, sigma=0.01, seed=1)
+    base = sim_config(**kw)
+    sensors = dict(base.sensors, gyro={"sigma": 0.01, "calibrate": True, "bias_sigma": 0.05})
+    res = ekf.run(log, dataclasses.replace(base, sensors=sensors))
+    without = ekf.run(log, base)
+    bias = res.extra["calibration"]["gyro_bias"]
+    assert abs(bias["value"] - 0.02) < 3 * bias["sigma"] and bias["sigma"] < 0.005
+    assert "gyro_theta_ref" not in res.extra["calibration"]
+    # The first sample only sets the heading clone; the gate may reject a 3-sigma straggler.
+    assert res.used["gyro"] + res.rejected["gyro"] == len(log.streams["gyro"]) - 1
+    assert res.rejected["gyro"] <= 3
+    assert _heading_rmse(res, truth) < 0.5 * _heading_rmse(without, truth)
+
+
+def test_gyrodometry_switches_to_the_gyro_on_a_bump():
+    log, truth = simulate(28, steps=300, k=(1e-4, 1e-6), every=1000)
+    odo = log.streams["odometry"]
+    values = odo.values.copy()
+    values[100, 1] += 0.3  # a bump: the encoders report a 0.3 rad turn that never happened
+    log = _stream(log, "odometry", odo.t, odo.columns, values)
+    log = _with_gyro(log, truth, bias=0.0, sigma=0.002, seed=2)
+    base = sim_config(k=(1e-4, 1e-6))
+    plain = ekf.run(log, dataclasses.replace(base, sensors={}))
+    sensors = {"gyro": {"sigma": 0.002, "gyrodometry": True, "threshold": 0.05}}
+    res = ekf.run(log, dataclasses.replace(base, sensors=sensors))
+    assert res.extra["gyrodometry_switches"] == 1
+    assert abs(se2.wrap(plain.trajectory.poses[-1, 2] - truth[-1, 2])) > 0.25
+    assert abs(se2.wrap(res.trajectory.poses[-1, 2] - truth[-1, 2])) < 0.02
+    assert "gyro" not in res.used  # gyrodometry is part of the prediction, not an update
+
+
+def test_config_errors_name_the_key():
+    log, _ = simulate(29, steps=10)
+    with pytest.raises(ConfigError) as info:
+        ekf.run(log, _cfg(options={"late_windo": 1.0}))
+    assert info.value.key == "options.ekf.late_windo" and info.value.file == "sim.yaml"
+    with pytest.raises(ConfigError) as info:
+        ekf.run(log, _cfg(options={"late_window": -1}))
+    assert info.value.key == "options.ekf.late_window"
+    cfg = dataclasses.replace(_cfg(), sensors={"gyro": {"sigma": 0.01, "gyrodometry": True}})
+    with pytest.raises(ConfigError) as info:
+        ekf.run(log, cfg)
+    assert info.value.key == "sensors.gyro.threshold"
+
+
+def test_odometry_going_back_in_time_is_an_input_error():
+    log, _ = simulate(30, steps=10)
+    loc, t, U = build(_cfg(), log, "ekf", ekf.make_backend)
+    loc.add_odometry(t[1], U[0])
+    with pytest.raises(ValueError, match="before the filter time"):
+        loc.add_odometry(t[0], U[1])
+
+
+def test_sensor_log_type_is_used_unchanged():
+    log, _ = simulate(31, steps=5)
+    assert isinstance(log, SensorLog)
+    res = ekf.run(log, _cfg())
+    assert res.trajectory.t[0] < log.streams["odometry"].t[0]
+    np.testing.assert_allclose(res.trajectory.t[1:], log.streams["odometry"].t)
