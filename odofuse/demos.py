@@ -645,6 +645,59 @@ _ZOO = [
 ]
 
 
+def _wheel_layout(name: str, geometry: dict, u: np.ndarray) -> list[tuple[float, float, float]]:
+    """Wheel centres and rolling directions ``(x, y, heading)`` in the body frame (m, rad).
+
+    Layouts follow the drive docstrings in :mod:`odofuse.drives` (Modern Robotics numbering for
+    omni3/mecanum4, body origin at the rear axle midpoint for car-like drives). Steered wheels
+    are turned by their inverse-kinematics steering angle. Skid-steer and synchro layouts are
+    illustrative (their models have no wheel positions).
+    """
+    g = geometry
+    if name == "differential":
+        b = g["track_width"] / 2
+        return [(0.0, b, 0.0), (0.0, -b, 0.0)]
+    if name == "skid_steer":
+        b = g["track_width"] / 2
+        return [(sx * 0.5 * b, sy * b, 0.0) for sx in (1, -1) for sy in (1, -1)]
+    if name == "synchro":
+        r = 4 * g["wheel_radius"]
+        return [(r * math.cos(a), r * math.sin(a), 0.0) for a in (0.0, 2.094, 4.189)]
+    if name == "tricycle":
+        d = g["wheelbase"]
+        return [(0.0, 0.3 * d, 0.0), (0.0, -0.3 * d, 0.0), (d, 0.0, float(u[1]))]
+    if name == "bicycle":
+        return [(0.0, 0.0, 0.0), (g["wheelbase"], 0.0, float(u[1]))]
+    if name == "ackermann":
+        b, d = g["track_width"] / 2, g["wheelbase"]
+        return [(d, b, float(u[4])), (d, -b, float(u[5])), (0.0, b, 0.0), (0.0, -b, 0.0)]
+    if name == "omni3":
+        d = g["wheel_distance"]
+        c = d * math.sqrt(3) / 2
+        return [(0.0, d, 0.0), (c, -d / 2, math.radians(240)), (-c, -d / 2, math.radians(120))]
+    if name == "mecanum4":
+        ll, w = g["half_length"], g["half_width"]
+        return [(ll, w, 0.0), (ll, -w, 0.0), (-ll, -w, 0.0), (-ll, w, 0.0)]
+    return []
+
+
+#: Drives whose wheels roll without side slip: their wheel axes all pass through the ICR.
+_AXES_MEET_AT_ICR = ("differential", "tricycle", "bicycle", "ackermann")
+
+
+def _draw_wheels(ax, name, geometry, u, icr, size: float) -> None:
+    for x, y, h in _wheel_layout(name, geometry, u):
+        c, s_ = math.cos(h), math.sin(h)
+        half_l, half_w = 0.5 * size, 0.15 * size
+        corners = np.array(
+            [[half_l, half_w], [-half_l, half_w], [-half_l, -half_w], [half_l, -half_w]]
+        )
+        pts = corners @ np.array([[c, s_], [-s_, c]]) + [x, y]
+        ax.fill(pts[:, 0], pts[:, 1], color="0.15", zorder=4)
+        if name in _AXES_MEET_AT_ICR and np.all(np.isfinite(icr)):
+            ax.plot([x, icr[0]], [y, icr[1]], color="tab:red", lw=1, ls="--", zorder=3)
+
+
 def demo_drive_zoo(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
     """The drive zoo: each drive's ICR, degree of mobility and inverse kinematics."""
     from odofuse.drives import make_drive
@@ -669,6 +722,10 @@ def demo_drive_zoo(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
             _robot_marker(ax, p[j], 0.05 * max(1.0, float(np.ptp(p[:, :2]))), "tab:blue")
             ax.plot([p[j, 0], icr[0]], [p[j, 1], icr[1]], color="tab:gray", ls=":", lw=1)
         ax.plot(*icr, "r*", ms=15, label="ICR")
+        size = 2.0 * geometry["wheel_radius"]  # wheels to scale
+        _draw_wheels(ax, name, geometry, u, icr, size)
+        if name in _AXES_MEET_AT_ICR:
+            ax.plot([], [], color="tab:red", lw=1, ls="--", label="wheel axes (meet at ICR)")
         dom = int(drive.degree_of_mobility)
         dos = int(getattr(drive, "degree_of_steerability", 0))
         ax.set_title(
@@ -695,6 +752,7 @@ def demo_drive_zoo(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
             "roundtrip_error": float(np.max(np.abs(back - tw))),
         }
     axes[0, 0].legend(loc="upper right", fontsize=7)
+    axes[1, 1].legend(loc="upper right", fontsize=7)
     fig.suptitle(
         "Drive zoo: one body twist per drive, its ICR and the inputs that produce it "
         "(wheel rates in rad/s, steering angles in rad)"
