@@ -109,3 +109,38 @@ def test_odometry_increments_log_dead_reckons_to_the_true_pose(tmp_path):
     expected = truth(pose0, tw)
     assert data.shape[0] == len(tw) + 1  # the initial pose, one period before the first row
     assert np.abs(data[:, 1:3] - expected[:, :2]).max() < 1e-9
+
+
+@pytest.mark.parametrize(
+    "robot",
+    [
+        {"drive": "tricycle", "wheel_radius": 0.1, "wheelbase": 0.8},
+        {"drive": "bicycle", "wheel_radius": 0.3, "wheelbase": 2.5},
+        {"drive": "ackermann", "wheel_radius": 0.3, "wheelbase": 2.5, "track_width": 1.5},
+        {"drive": "synchro", "wheel_radius": 0.05},
+    ],
+    ids=lambda r: r["drive"],
+)
+def test_noise_free_simulated_steered_drives_dead_reckon_exactly(tmp_path, robot):
+    # Steering columns: the row at t_{k+1} holds the angle held during step k, as written by the
+    # simulator and read by the estimators; a noise-free log then dead-reckons to the truth.
+    from odofuse.simulate import scenario_from_dict, simulate, write_log
+
+    scenario = scenario_from_dict(
+        {
+            "seed": 1,
+            "dt": 0.05,
+            "robot": robot,
+            "path": {"kind": "figure_eight", "radius": 4.0, "speed": 1.0, "laps": 1},
+        },
+        "<test>",
+    )
+    write_log(simulate(scenario), tmp_path / "log")
+    config = yaml.safe_load((tmp_path / "log" / "config.yaml").read_text())
+    config.update(log="log", estimator="dead_reckoning", output="out")
+    (tmp_path / "run.yaml").write_text(yaml.safe_dump(config))
+    assert main(["run", str(tmp_path / "run.yaml")]) == 0
+    est = np.loadtxt(tmp_path / "out" / "trajectory.csv", delimiter=",", skiprows=1)
+    gt = np.loadtxt(tmp_path / "log" / "groundtruth.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(est[:, 0], gt[:, 0])
+    assert np.abs(est[:, 1:3] - gt[:, 1:3]).max() < 1e-9

@@ -18,8 +18,10 @@ def odometry_inputs(log, model) -> tuple[np.ndarray, np.ndarray]:
     """Per-step drive inputs of a log and the times of the poses they lead to.
 
     For ``wheels.csv`` (cumulative wheel angles, rad, and steering angles) step ``k`` goes from
-    row ``k`` to row ``k+1``: wheel inputs are the differences, steering inputs the mean of the
-    two rows. For ``odometry.csv`` (increments since the previous row) row ``k``'s increment
+    row ``k`` to row ``k+1``: wheel inputs are the differences; a steering angle in row ``k+1``
+    is the angle held during the step that ends there (the simulator writes it so; a logger
+    that samples the angle at the row's time gives the same up to one step's change).
+    For ``odometry.csv`` (increments since the previous row) row ``k``'s increment
     ends at ``t_k``; the initial pose is placed one nominal period before the first row.
 
     Returns
@@ -31,14 +33,19 @@ def odometry_inputs(log, model) -> tuple[np.ndarray, np.ndarray]:
     """
     name = odometry_stream_name(model)
     if name not in log.streams or len(log.streams[name]) == 0:
-        raise InputError(f"the '{model.drive.name}' drive needs a non-empty {name}.csv stream",
-                         file=log.source)
+        raise InputError(
+            f"the '{model.drive.name}' drive needs a non-empty {name}.csv stream", file=log.source
+        )
     stream = log.streams[name]
     missing = [c for c in model.drive.input_names if c not in stream.columns]
     if missing:
-        raise InputError(f"missing column(s) {', '.join(missing)} for the '{model.drive.name}' "
-                         f"drive (has {', '.join(stream.columns)})", file=stream.source, row=1,
-                         column=missing[0])
+        raise InputError(
+            f"missing column(s) {', '.join(missing)} for the '{model.drive.name}' "
+            f"drive (has {', '.join(stream.columns)})",
+            file=stream.source,
+            row=1,
+            column=missing[0],
+        )
     cols = [stream.columns.index(c) for c in model.drive.input_names]
     values = stream.values[:, cols]
     if name == "odometry":
@@ -47,7 +54,7 @@ def odometry_inputs(log, model) -> tuple[np.ndarray, np.ndarray]:
     if len(stream) < 2:
         raise InputError("wheels.csv needs at least two rows to form a step", file=stream.source)
     steering = np.array([kind == "steer" for kind in model.drive.input_kinds])
-    U = np.where(steering, 0.5 * (values[:-1] + values[1:]), np.diff(values, axis=0))
+    U = np.where(steering, values[1:], np.diff(values, axis=0))
     return stream.t.copy(), U
 
 
@@ -62,6 +69,9 @@ def initial_state(config, log) -> tuple[np.ndarray, np.ndarray]:
         pose = np.zeros(3)
     sigma = np.asarray(initial.get("sigma", DEFAULT_INITIAL_SIGMA), dtype=float)
     if pose.shape != (3,) or sigma.shape != (3,) or not np.all(np.isfinite(np.r_[pose, sigma])):
-        raise ConfigError("initial.pose and initial.sigma must be 3 finite numbers",
-                          file=config.source, key="initial")
+        raise ConfigError(
+            "initial.pose and initial.sigma must be 3 finite numbers",
+            file=config.source,
+            key="initial",
+        )
     return pose, np.diag(sigma**2)
