@@ -35,6 +35,7 @@ provide the attributes and methods of :class:`MeasurementModel`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -177,9 +178,20 @@ class MeasurementModel:
         return X[:, i] if i is not None and i < X.shape[1] else default
 
     def R(self, row) -> np.ndarray:
-        """Measurement covariance ``(dim, dim)``: ``sigma^2`` (or the row's ``sigma``)."""
-        s = float(row.get("sigma", self.sigma)) if isinstance(row, Mapping) else self.sigma
-        return np.eye(self.dim) * s * s
+        """Measurement covariance ``(dim, dim)``: ``sigma^2`` (or the row's ``sigma``).
+
+        Without a per-row ``sigma`` the same (read-only) array is returned every time.
+        """
+        if row is not None and "sigma" in row:
+            s = float(row["sigma"])
+            return np.eye(self.dim) * (s * s)
+        return self._R_const
+
+    @functools.cached_property
+    def _R_const(self) -> np.ndarray:
+        R = np.eye(self.dim) * (self.sigma * self.sigma)
+        R.flags.writeable = False
+        return R
 
     def residual(self, z, z_hat) -> np.ndarray:
         """``z - z_hat`` with the rows in ``angle_rows`` wrapped to ``[-pi, pi)``."""
@@ -234,10 +246,11 @@ class MeasurementModel:
         return gtsam.CustomFactor(self.noise(row, noise), gtsam.KeyVector(keys), error)
 
 
-def _landmark(landmarks: Mapping[int, np.ndarray], row, stream: str) -> np.ndarray:
+def _landmark(landmarks: Mapping[int, np.ndarray], row, stream: str):
+    """Map position of the row's ``id`` (an ``(2,)`` array or pair), ValueError if unknown."""
     lid = int(round(float(row["id"])))
     try:
-        return np.asarray(landmarks[lid], dtype=float)
+        return landmarks[lid]
     except KeyError:
         raise ValueError(
             f"stream '{stream}' at t={row.get('t', float('nan')):.6f}: landmark id {lid} "
@@ -482,10 +495,30 @@ class BeaconRange(MeasurementModel):
     def z(self, row) -> np.ndarray:
         return np.array([float(row["range"])])
 
+    # The EKF calls h and H once per range: the beacon lookup and the calibration indices
+    # are prepared once per (bound) model, as plain floats and ints.
+    @functools.cached_property
+    def _beacons(self) -> dict[int, tuple[float, float]]:
+        return {int(k): (float(v[0]), float(v[1])) for k, v in self.landmarks.items()}
+
+    @functools.cached_property
+    def _calib_cols(self) -> tuple[int | None, int | None]:
+        return self.calib_index.get("range_scale"), self.calib_index.get("range_offset")
+
+    def _geometry(self, x, row):
+        b = _landmark(self._beacons, row, self.name)
+        dx, dy = float(x[0]) - b[0], float(x[1]) - b[1]
+        i_s, i_o = self._calib_cols
+        n = len(x)
+        i_s = i_s if i_s is not None and i_s < n else None
+        i_o = i_o if i_o is not None and i_o < n else None
+        return dx, dy, math.hypot(dx, dy), i_s, i_o
+
     def h(self, x, row) -> np.ndarray:
-        b = _landmark(self.landmarks, row, self.name)
-        d = math.hypot(x[0] - b[0], x[1] - b[1])
-        return np.array([self._get(x, "range_scale", 1.0) * d + self._get(x, "range_offset", 0.0)])
+        _, _, d, i_s, i_o = self._geometry(x, row)
+        scale = float(x[i_s]) if i_s is not None else 1.0
+        offset = float(x[i_o]) if i_o is not None else 0.0
+        return np.array([scale * d + offset])
 
     def h_many(self, X, row) -> np.ndarray:
         b = _landmark(self.landmarks, row, self.name)
@@ -494,18 +527,15 @@ class BeaconRange(MeasurementModel):
         return (scale * d + self._get_many(X, "range_offset", 0.0))[:, None]
 
     def H(self, x, row) -> np.ndarray:
-        b = _landmark(self.landmarks, row, self.name)
-        dx, dy = x[0] - b[0], x[1] - b[1]
-        d = max(math.hypot(dx, dy), 1e-9)
-        s = self._get(x, "range_scale", 1.0)
+        dx, dy, d, i_s, i_o = self._geometry(x, row)
+        d = max(d, 1e-9)
+        scale = float(x[i_s]) if i_s is not None else 1.0
         J = np.zeros((1, len(x)))
-        J[0, 0], J[0, 1] = s * dx / d, s * dy / d
-        c = self._col("range_scale", len(x))
-        if c is not None:
-            J[0, c] = d
-        c = self._col("range_offset", len(x))
-        if c is not None:
-            J[0, c] = 1.0
+        J[0, 0], J[0, 1] = scale * dx / d, scale * dy / d
+        if i_s is not None:
+            J[0, i_s] = d
+        if i_o is not None:
+            J[0, i_o] = 1.0
         return J
 
     def factor(self, key, row, calib_keys=None, noise=None, landmark_key=None):

@@ -73,6 +73,10 @@ class FastIncrement:
         self.k_eff = np.where(self.scale > 0, np.asarray(model.errors.k) / safe, 0.0)
         self.floor = np.asarray(model.errors.floor, dtype=float)
         self.integrator = model.integrator
+        self._k = self.k_eff.tolist()
+        self._f = self.floor.tolist()
+        self._Ml = self.M.tolist()
+        self._two = self.M.shape[1] == 2
         rng = np.random.default_rng(0)
         n = self.M.shape[1]
         try:
@@ -112,6 +116,51 @@ class FastIncrement:
             delta = np.array([vx, vy, w])
             Jt = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
         return delta, Jt @ M, self.k_eff * np.abs(u) + self.floor
+
+    def terms(self, u) -> tuple[float, float, float, list[list[float]]]:
+        """Scalar form for the EKF: ``delta`` as floats and ``G = J_delta_u diag(sigma_u)``.
+
+        ``G G^T = J_delta_u Sigma_u J_delta_u^T`` is the body-frame process noise of the step.
+        """
+        ul = u.tolist()
+        if self._two:
+            (m00, m01), (m10, m11), (m20, m21) = self._Ml
+            u0, u1 = ul
+            w, vx, vy = m00 * u0 + m01 * u1, m10 * u0 + m11 * u1, m20 * u0 + m21 * u1
+        else:
+            w, vx, vy = (self.M @ u).tolist()
+        if self.integrator == "exact":
+            A, B, dA, dB = _exp_coeffs(w)
+            d = (A * vx - B * vy, B * vx + A * vy, w)
+            Jt = ((dA * vx - dB * vy, A, -B), (dB * vx + dA * vy, B, A))
+        elif self.integrator == "rk2":
+            c, s = math.cos(0.5 * w), math.sin(0.5 * w)
+            d = (c * vx - s * vy, s * vx + c * vy, w)
+            Jt = ((0.5 * (-s * vx - c * vy), c, -s), (0.5 * (c * vx - s * vy), s, c))
+        else:
+            d = (vx, vy, w)
+            Jt = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+        Jt = Jt + ((1.0, 0.0, 0.0),)
+        if self._two:
+            # Two inputs (increments, differential, skid-steer): unrolled.
+            k0, k1 = self._k
+            f0, f1 = self._f
+            s0 = math.sqrt(k0 * abs(u0) + f0)
+            s1 = math.sqrt(k1 * abs(u1) + f1)
+            (r0, r1, r2), (p0, p1, p2), _ = Jt
+            G = [
+                [(r0 * m00 + r1 * m10 + r2 * m20) * s0, (r0 * m01 + r1 * m11 + r2 * m21) * s1],
+                [(p0 * m00 + p1 * m10 + p2 * m20) * s0, (p0 * m01 + p1 * m11 + p2 * m21) * s1],
+                [m00 * s0, m01 * s1],  # the theta row of J_delta_twist is (1, 0, 0)
+            ]
+            return d[0], d[1], d[2], G
+        sd = [math.sqrt(k * abs(v) + f) for k, v, f in zip(self._k, ul, self._f, strict=True)]
+        M = self._Ml
+        G = [
+            [(r[0] * M[0][j] + r[1] * M[1][j] + r[2] * M[2][j]) * sd[j] for j in range(len(sd))]
+            for r in Jt
+        ]
+        return d[0], d[1], d[2], G
 
 
 class EkfBackend:
@@ -158,38 +207,62 @@ class EkfBackend:
         """
         x, P = self.kf.x, self.kf.P
         if self._fast is not None:
-            delta, J, var = self._fast(u)
+            d0, d1, d2, G = self._fast.terms(u)
         else:
             delta, J = self.model.increment(u)
             var = self._errors.variances(self._drive, u)
+            d0, d1, d2 = delta.tolist()
+            G = (J * np.sqrt(var)).tolist()
         if dtheta is not None:
-            delta = delta.copy()
-            J = J.copy()
-            delta[2] = dtheta
-            J[2, :] = 0.0
+            d2 = float(dtheta)
+            G = [G[0], G[1], [0.0] * len(G[2])]
         # Head-to-tail composition and its Jacobians (se2.compose / se2.J_compose, 002 source),
-        # in scalar form: this is the hot path of the filter.
-        c, s = math.cos(x[2]), math.sin(x[2])
-        dxw = c * delta[0] - s * delta[1]
-        dyw = s * delta[0] + c * delta[1]
-        J_b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        F_u = J_b @ J
-        Q = (F_u * var) @ F_u.T
+        # in scalar form: this is the hot path of the filter. F_u Sigma_u F_u^T = W W^T with
+        # W = blockdiag(R(theta), 1) G.
+        th = float(x[2])
+        c, s = math.cos(th), math.sin(th)
+        dxw = c * d0 - s * d1
+        dyw = s * d0 + c * d1
+        g0, g1, g2 = G
+        if len(g2) == 2:  # unrolled for two inputs
+            a0, a1 = c * g0[0] - s * g1[0], c * g0[1] - s * g1[1]
+            b0, b1 = s * g0[0] + c * g1[0], s * g0[1] + c * g1[1]
+            e0, e1 = g2
+            q00, q01, q02 = a0 * a0 + a1 * a1, a0 * b0 + a1 * b1, a0 * e0 + a1 * e1
+            q11, q12, q22 = b0 * b0 + b1 * b1, b0 * e0 + b1 * e1, e0 * e0 + e1 * e1
+        else:
+            w0 = [c * a - s * b for a, b in zip(g0, g1, strict=True)]
+            w1 = [s * a + c * b for a, b in zip(g0, g1, strict=True)]
+            q00 = sum(a * a for a in w0)
+            q01 = sum(a * b for a, b in zip(w0, w1, strict=True))
+            q02 = sum(a * b for a, b in zip(w0, g2, strict=True))
+            q11 = sum(a * a for a in w1)
+            q12 = sum(a * b for a, b in zip(w1, g2, strict=True))
+            q22 = sum(a * a for a in g2)
         if dtheta is not None:
-            Q[2, 2] += var_dtheta
+            q22 += var_dtheta
         xn = x.copy()
         xn[0] += dxw
         xn[1] += dyw
-        xn[2] = (x[2] + delta[2] + math.pi) % TWO_PI - math.pi
+        xn[2] = (th + d2 + math.pi) % TWO_PI - math.pi
         # F_p = I + c e_theta^T with c = (-dy_w, dx_w, 0, ...) (Siegwart's F_p, extended by the
-        # identity on augmented states), so F_p P F_p^T = P + A + A^T + P_tt c c^T with
-        # A = c P[theta, :]. Written this way every term is exactly symmetric, and it costs a
-        # few outer products instead of two n x n matrix products.
+        # identity on augmented states), so F_p P F_p^T = P + B + B^T with B = c v^T and
+        # v = P[theta, :] + P_tt c / 2. Every term is exactly symmetric, and it costs one
+        # outer product instead of two n x n matrix products.
         cvec = self._cvec
         cvec[0], cvec[1] = -dyw, dxw
-        A = np.outer(cvec, P[2])
-        Pn = P + (A + A.T) + P[2, 2] * np.outer(cvec, cvec)
-        Pn[:3, :3] += 0.5 * (Q + Q.T)
+        B = np.outer(cvec, P[2] + (0.5 * P[2, 2]) * cvec)
+        Pn = P + (B + B.T)
+        # + Q on the pose block, element by element (cheaper than a 3x3 array here)
+        Pn[0, 0] += q00
+        Pn[1, 1] += q11
+        Pn[2, 2] += q22
+        v = Pn[0, 1] + q01
+        Pn[0, 1] = Pn[1, 0] = v
+        v = Pn[0, 2] + q02
+        Pn[0, 2] = Pn[2, 0] = v
+        v = Pn[1, 2] + q12
+        Pn[1, 2] = Pn[2, 1] = v
         if self._has_walk and dt > 0:
             Pn[self._diag] += self.walk * dt
         self.kf.x = xn
@@ -207,6 +280,8 @@ class EkfBackend:
         """Gated filterpy update with ``model`` on one row; returns (accepted, NIS)."""
         kf = self.kf
         x0, P0 = kf.x, kf.P  # filterpy rebinds x and P, so these stay the prior
+        # Models without angle rows subtract plainly (filterpy's default, cheaper).
+        residual = model.residual if getattr(model, "angle_rows", (0,)) else np.subtract
         kf.update(
             model.z(row),
             model.H,
@@ -214,7 +289,7 @@ class EkfBackend:
             R=model.R(row),
             args=(row,),
             hx_args=(row,),
-            residual=model.residual,
+            residual=residual,
         )
         y = kf.y
         nis = float(y @ kf.SI @ y)
@@ -225,7 +300,8 @@ class EkfBackend:
         if not nis <= gate:
             kf.x, kf.P = x0, P0
             return False, nis
-        kf.x[2] = (kf.x[2] + math.pi) % TWO_PI - math.pi
+        x = kf.x
+        x[2] = (x[2] + math.pi) % TWO_PI - math.pi
         return True, nis
 
     # -- bookkeeping ------------------------------------------------------------------
