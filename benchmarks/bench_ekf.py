@@ -153,7 +153,8 @@ def main(argv=None) -> dict:
         "time_ratio_odofuse_over_handwritten": t_ours / t_hand,
         "same_result": same,
     }
-    print(f"EKF predict+update, n=5 state, {args.steps} steps (best of {args.repeats}, interleaved)")
+    head = f"EKF predict+update, n=5 state, {args.steps} steps"
+    print(f"{head} (best of {args.repeats}, interleaved)")
     print(
         f"  odofuse EkfBackend     {out['odofuse_steps_per_s']:>10.0f} steps/s  (target >= 20000)"
     )
