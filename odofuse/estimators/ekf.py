@@ -251,7 +251,7 @@ class EkfBackend:
         # outer product instead of two n x n matrix products.
         cvec = self._cvec
         cvec[0], cvec[1] = -dyw, dxw
-        B = np.outer(cvec, P[2] + (0.5 * P[2, 2]) * cvec)
+        B = cvec[:, None] * (P[2] + (0.5 * P[2, 2]) * cvec)  # outer product c v^T
         Pn = P + (B + B.T)
         # + Q on the pose block, element by element (cheaper than a 3x3 array here)
         Pn[0, 0] += q00
