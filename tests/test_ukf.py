@@ -141,3 +141,29 @@ def test_plaza1_ukf_rmse_at_most_30_cm(monkeypatch):
     rmse, res, log = _plaza_rmse("ukf")
     assert rmse <= 0.30
     assert 1.03 < res.extra["calibration"]["range_scale"]["value"] < 1.10
+
+
+def test_gyro_clone_state_with_a_singular_covariance_matches_the_ekf():
+    # Right after cloning, the heading clone equals theta exactly: P is singular and the
+    # sigma points need a PSD square root instead of a Cholesky factor.
+    import dataclasses
+
+    from test_ekf import sim_config, simulate
+    from test_localizer import _with_gyro
+
+    kw = {"k": (1e-3, 1e-6), "floor": [1e-8, 3e-4]}
+    log, truth = simulate(27, steps=300, every=10, **kw)
+    log = _with_gyro(log, truth, bias=0.02, sigma=0.01, seed=1)
+    gyro = {"sigma": 0.01, "calibrate": True, "bias_sigma": 0.05}
+    res = {}
+    for name, run in (("ekf", run_ekf), ("ukf", run_ukf)):
+        base = sim_config(estimator=name, **kw)
+        res[name] = run(log, dataclasses.replace(base, sensors=dict(base.sensors, gyro=gyro)))
+    e, u = res["ekf"], res["ukf"]
+    assert u.used == e.used
+    # Same answer up to the different linearisation of the sparse range updates (cm, against
+    # 0.3 m range noise).
+    assert np.max(np.hypot(*(u.trajectory.xy - e.trajectory.xy).T)) < 0.05
+    be, bu = e.extra["calibration"]["gyro_bias"], u.extra["calibration"]["gyro_bias"]
+    assert abs(bu["value"] - be["value"]) < 0.1 * be["sigma"]
+    assert bu["sigma"] == pytest.approx(be["sigma"], rel=0.01)

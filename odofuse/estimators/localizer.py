@@ -156,7 +156,6 @@ class Localizer:
         self._seq = 0
         self._pending: list[tuple[float, int, str, dict]] = []
         self._steps: deque[_Step] = deque()
-        self._applied: dict[float, list] = {}
         self.used = {s: 0 for s in self.models}
         self.rejected = {s: 0 for s in self.models}
         self.dropped_late = {s: 0 for s in self.models}
@@ -168,13 +167,11 @@ class Localizer:
         )
         self._gyro: list[tuple[float, float]] = []  # (t, wz) samples, time-sorted
         self.gyro_switches = 0
-        self._nis: dict[str, list[float]] = {s: [] for s in self.models}
         x = backend.mean()
         self._traj_t = [self.t]
         self._traj_x = [x[:3].copy()]
         self._traj_P = [backend.cov()[:3, :3].copy()]
         self._odom = x[:3].copy()
-        self._odom_at_start = x[:3].copy()
 
     # ----------------------------------------------------------------- queries
     def pose(self) -> np.ndarray:
@@ -277,7 +274,8 @@ class Localizer:
             return None
         total, cursor = 0.0, t0
         i = bisect.bisect_right(g, (t0, math.inf)) - 1  # last sample at or before t0
-        rate = g[i][1] if i >= 0 else None
+        # Before the first sample its rate is held backwards (no gap at the start of a log).
+        rate = g[i][1] if i >= 0 else g[0][1]
         for tj, wj in g[i + 1 :]:
             if tj > t1:
                 break

@@ -31,6 +31,19 @@ def _wrap(a):
     return (a + math.pi) % TWO_PI - math.pi
 
 
+def _psd_sqrt(A: np.ndarray) -> np.ndarray:
+    """Matrix ``U`` with ``U^T U = A`` for the sigma points: Cholesky, or for a singular ``A``
+    (a heading clone right after cloning equals theta exactly) the symmetric square root
+    from the eigen-decomposition with negative round-off eigenvalues clipped to zero."""
+    import scipy.linalg
+
+    try:
+        return scipy.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        vals, vecs = np.linalg.eigh(0.5 * (A + A.T))
+        return (vecs * np.sqrt(np.clip(vals, 0.0, None))) @ vecs.T
+
+
 class UkfBackend:
     """UKF backend for :class:`~odofuse.estimators.localizer.Localizer`.
 
@@ -68,6 +81,7 @@ class UkfBackend:
             beta=float(options.get("beta", 2.0)),
             kappa=float(options.get("kappa", 0.0)),
             subtract=self.residual_x,
+            sqrt_method=_psd_sqrt,
         )
         self.points = points
         self.kf = UnscentedKalmanFilter(
