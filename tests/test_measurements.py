@@ -292,3 +292,14 @@ def test_gyro_factor_between_two_poses():
     assert f.error(v) == pytest.approx(0.0, abs=1e-20)
     v.update(1, gtsam.Pose2(0.1, 0.0, -math.pi + 0.06))
     assert f.error(v) == pytest.approx(0.5 * (0.01 / (0.01 * 0.5)) ** 2)
+
+
+@pytest.mark.parametrize("model,row,n_aug", CASES, ids=lambda c: getattr(c, "name", ""))
+def test_vectorised_h_equals_h_row_by_row(model, row, n_aug):
+    m = _bound(model)
+    rng = np.random.default_rng(4)
+    X = rng.normal(0.0, 2.0, (25, 3 + n_aug))
+    X[:, 2] = rng.uniform(-math.pi, math.pi, 25)
+    X[:, 3:] = rng.normal(0.0, 0.1, (25, n_aug)) + (1.0 if n_aug else 0.0)
+    expected = np.array([m.h(x, row) for x in X])
+    np.testing.assert_allclose(m.h_many(X, row), expected, rtol=1e-13, atol=1e-13)
