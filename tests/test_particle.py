@@ -162,3 +162,26 @@ def test_plaza1_particle_rmse_at_most_half_a_metre(monkeypatch):
     monkeypatch.chdir(pathlib.Path(__file__).resolve().parents[1])
     rmse, res, log = _plaza_rmse("particle")
     assert rmse <= 0.5
+
+
+def test_liu_west_resampling_keeps_the_calibration_posterior_moments():
+    model = _motion()
+    m = BeaconRange("ranges", 0.3, landmarks={0: np.array([5.0, 0.0])}, calibrate=True)
+    m = m.bind({"range_scale": 3, "range_offset": 4})
+    x0 = np.array([0.0, 0.0, 0.0, 1.0, 0.0])
+    P0 = np.diag([0.01, 0.01, 0.001, 0.05**2, 0.5**2])
+    pf = ParticleBackend(
+        model, {"r": m}, x0, P0, np.zeros(5), {"particles": 20000, "seed": 9, "roughening": 0.3}
+    )
+    rng = np.random.default_rng(1)
+    w = rng.uniform(size=pf.N) * np.exp(-0.5 * ((pf.X[:, 3] - 1.02) / 0.03) ** 2)
+    pf.w = w / w.sum()
+    mean = pf.w @ pf.X[:, 3:]
+    D = pf.X[:, 3:] - mean
+    var = pf.w @ (D**2)
+    unique_before = np.unique(pf.X[low_variance_resample(pf.w, np.random.default_rng(0)), 3]).size
+    pf._resample()
+    assert np.all(np.abs(pf.X[:, 3:].mean(axis=0) - mean) < 3 * np.sqrt(var / 2000))
+    np.testing.assert_allclose(pf.X[:, 3:].var(axis=0), var, rtol=0.1)
+    # Duplicates are spread again: every particle's scale is distinct.
+    assert np.unique(pf.X[:, 3]).size == pf.N > unique_before

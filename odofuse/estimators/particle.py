@@ -9,9 +9,10 @@ Thrun's MCL, but with the Siegwart variances (on variances, per metre travelled)
 Thrun's ``alpha_1..4`` rotation/translation parameters.
 
 Augmented states (range scale/offset, biases) are carried per particle: drawn from their
-prior, moved by their random walk, and after each resampling jittered by a small
-"roughening" (``roughening`` x the cloud's spread, default 0.02) so a constant parameter does
-not collapse onto a few values.
+prior, moved by their random walk, and regularised at each resampling with the kernel
+shrinkage of Liu & West (2001): ``z_i <- a z_i + (1 - a) m + N(0, h^2 V)`` with the weighted
+mean ``m`` and covariance ``V`` before resampling, ``h = roughening`` (default 0.1) and
+``a = sqrt(1 - h^2)``, which keeps ``m`` and ``V`` while spreading duplicated particles.
 
 Update: weights multiply by the Gaussian likelihood of each particle's innovation (angle rows
 wrapped). Gating uses the cloud's own innovation statistics: ``y = z - mean(h)``,
@@ -72,7 +73,7 @@ class ParticleBackend:
         Random-walk variance per second of each state.
     options : dict
         ``particles`` (default 1000), ``seed`` (0), ``resample_threshold`` (0.5),
-        ``roughening`` (0.02).
+        ``roughening`` (0.1, the Liu-West kernel width ``h``, in (0, 1)).
     """
 
     def __init__(self, model, models, x0, P0, walk, options=None) -> None:
@@ -83,7 +84,9 @@ class ParticleBackend:
             raise ValueError(f"particles must be >= 1, got {self.N}")
         self.rng = np.random.default_rng(int(options.get("seed", 0)))
         self.resample_threshold = float(options.get("resample_threshold", 0.5))
-        self.roughening = float(options.get("roughening", 0.02))
+        self.roughening = float(options.get("roughening", 0.1))
+        if not 0.0 <= self.roughening < 1.0:
+            raise ValueError(f"roughening must be in [0, 1), got {self.roughening}")
         x0 = np.asarray(x0, dtype=float)
         self.n = x0.size
         self.walk = np.asarray(walk, dtype=float)
@@ -101,6 +104,8 @@ class ParticleBackend:
                 if s in idx:
                     self.angles.append(idx[s])
                     self.X[:, idx[s]] = self.X[:, 2]
+        clone_cols = set(self.angles[1:])
+        self._kernel_cols = [i for i in range(3, self.n) if i not in clone_cols]
         self._gates = {
             id(m): gate_threshold(getattr(m, "gate", None), m.dim) for m in models.values()
         }
@@ -166,15 +171,26 @@ class ParticleBackend:
         return True, nis
 
     def _resample(self) -> None:
+        cols = self._kernel_cols
+        if cols and self.roughening > 0:
+            # Liu & West kernel shrinkage for the (static) augmented states: the weighted
+            # posterior mean m and covariance V are kept, while duplicated particles are spread
+            # again, so resampling alone does not collapse a constant parameter onto one value.
+            Z = self.X[:, cols]
+            m = self.w @ Z
+            D = Z - m
+            V = (D * self.w[:, None]).T @ D
         idx = low_variance_resample(self.w, self.rng)
         self.X = self.X[idx]
         self.w = np.full(self.N, 1.0 / self.N)
         self.resamples += 1
-        if self.roughening > 0 and self.n > 3:
-            spread = self.X[:, 3:].std(axis=0)
-            self.X[:, 3:] += self.rng.standard_normal((self.N, self.n - 3)) * (
-                self.roughening * spread
-            )
+        if cols and self.roughening > 0:
+            h2 = self.roughening**2
+            a = math.sqrt(1.0 - h2)
+            vals, vecs = np.linalg.eigh(0.5 * (V + V.T))
+            root = vecs * np.sqrt(np.clip(vals, 0.0, None) * h2)
+            noise = self.rng.standard_normal((self.N, len(cols))) @ root.T
+            self.X[:, cols] = a * self.X[:, cols] + (1.0 - a) * m + noise
 
     # -- bookkeeping ------------------------------------------------------------------------
     def clone(self, dst: int, src: int) -> None:
