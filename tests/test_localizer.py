@@ -224,3 +224,22 @@ def test_sensor_log_type_is_used_unchanged():
     res = ekf.run(log, _cfg())
     assert res.trajectory.t[0] < log.streams["odometry"].t[0]
     np.testing.assert_allclose(res.trajectory.t[1:], log.streams["odometry"].t)
+
+
+def test_bad_rows_are_input_errors_naming_stream_and_column():
+    from odofuse.errors import InputError
+
+    log, _ = simulate(32, steps=10)
+    loc, t, U = build(_cfg(), log, "ekf", ekf.make_backend)
+    with pytest.raises(InputError, match="ranges.*range"):
+        loc.add_measurement("ranges", {"t": 1.0, "id": 0})
+    with pytest.raises(InputError, match="non-finite"):
+        loc.add_measurement("ranges", {"t": 1.0, "id": 0, "range": float("nan")})
+    with pytest.raises(InputError, match="time"):
+        loc.add_measurement("ranges", {"id": 0, "range": 3.0})
+    with pytest.raises(InputError, match="non-finite"):
+        loc.add_odometry(t[1], [0.1, float("inf")])
+    # A stream without a model is ignored.
+    loc.add_measurement("sonar", {"t": 1.0, "d": 3.0})
+    loc.add_odometry(t[1], U[0])
+    assert loc.t == t[1]

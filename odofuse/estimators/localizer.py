@@ -224,9 +224,17 @@ class Localizer:
         if stream not in self.models:
             return
         row = dict(row)
-        t = float(row["t"])
+        t = float(row.get("t", math.nan))
         if not math.isfinite(t):
-            raise InputError(f"non-finite time in stream '{stream}'", column="t")
+            raise InputError(f"stream '{stream}': missing or non-finite time", column="t")
+        try:
+            z = np.asarray(self.models[stream].z(row), dtype=float)
+        except KeyError as exc:
+            raise InputError(
+                f"stream '{stream}' at t={t:.6f}: no column {exc}", column=str(exc).strip("'")
+            ) from None
+        if not np.all(np.isfinite(z)):
+            raise InputError(f"stream '{stream}' at t={t:.6f}: non-finite value {z.tolist()}")
         item = (t, self._seq, stream, row)
         self._seq += 1
         if t > self.t:
@@ -246,6 +254,8 @@ class Localizer:
         """Process one odometry step ``(t_prev, t]`` with drive input ``u`` (n,)."""
         t = float(t)
         u = np.asarray(u, dtype=float)
+        if not (math.isfinite(t) and np.all(np.isfinite(u))):
+            raise InputError(f"odometry at t={t:.6f}: non-finite time or input {u.tolist()}")
         if not t >= self.t:
             raise InputError(
                 f"odometry time {t:.6f} is before the filter time {self.t:.6f}", column="t"
