@@ -250,7 +250,9 @@ def test_covariance_stays_symmetric_positive_definite_over_a_million_steps():
             b.update(m, row)
         if k % 1000 == 999:
             P = b.cov()
-            np.testing.assert_array_equal(P, P.T)
+            # The prediction keeps P exactly symmetric; filterpy's Joseph update leaves
+            # rounding-level asymmetry, which must not accumulate.
+            assert np.max(np.abs(P - P.T)) <= 1e-13 * np.max(np.abs(P))
             np.linalg.cholesky(P)  # raises if not positive definite
     assert np.all(np.linalg.eigvalsh(b.cov()) > 0)
 
