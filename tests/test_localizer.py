@@ -243,3 +243,24 @@ def test_bad_rows_are_input_errors_naming_stream_and_column():
     loc.add_measurement("sonar", {"t": 1.0, "d": 3.0})
     loc.add_odometry(t[1], U[0])
     assert loc.t == t[1]
+
+
+def test_live_localizer_from_config_without_a_log():
+    from odofuse.estimators.localizer import Localizer
+
+    log, _ = simulate(33, steps=120)
+    cfg = _cfg()
+    offline = ekf.run(log, cfg)
+    _, t, U = build(cfg, log, "ekf", ekf.make_backend)
+    loc = Localizer.from_config(
+        cfg, t0=t[0], landmarks=log.landmarks, initial_pose=log.initial_pose
+    )
+    for te, kind, stream, i in events(log, t, U, ["ranges"]):
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+        else:
+            loc.add(stream, log.streams[stream].row(i))
+    np.testing.assert_array_equal(loc.pose(), offline.trajectory.poses[-1])
+    np.testing.assert_array_equal(loc.covariance(), offline.trajectory.covariances[-1])
+    with pytest.raises(ConfigError, match="streaming"):
+        Localizer.from_config(cfg, t0=0.0, estimator="smoother")

@@ -173,6 +173,40 @@ class Localizer:
         self._traj_P = [backend.cov()[:3, :3].copy()]
         self._odom = x[:3].copy()
 
+    @classmethod
+    def from_config(
+        cls, config, t0: float, landmarks=None, estimator: str | None = None, initial_pose=None
+    ) -> Localizer:
+        """A live Localizer from a run config, without a log.
+
+        Parameters
+        ----------
+        config : RunConfig
+            Robot, motion, sensors, ``initial`` and ``options`` as for an offline run.
+        t0 : float
+            Time of the initial state, s (the first odometry row covers ``(t0, t_1]``).
+        landmarks : dict, optional
+            Beacon/landmark id -> ``(2,)`` world position, for range/bearing sensors.
+        estimator : str, optional
+            ``"ekf"``, ``"ukf"`` or ``"particle"`` (default ``config.estimator``).
+        initial_pose : array_like (3,), optional
+            Start pose when ``config.initial`` has none.
+        """
+        import importlib
+        from types import SimpleNamespace
+
+        name = estimator or config.estimator
+        if name not in ("ekf", "ukf", "particle"):
+            raise ConfigError(
+                f"no streaming backend for estimator '{name}'; use ekf, ukf or particle",
+                config.source,
+                "estimator",
+            )
+        module = importlib.import_module(f"odofuse.estimators.{name}")
+        pose = None if initial_pose is None else np.asarray(initial_pose, dtype=float)
+        src = SimpleNamespace(landmarks=dict(landmarks or {}), initial_pose=pose, streams={})
+        return assemble(config, name, module.make_backend, t0, src)
+
     # ----------------------------------------------------------------- queries
     def pose(self) -> np.ndarray:
         """Filtered pose ``[x, y, theta]`` (map frame) at :attr:`t`."""
@@ -465,54 +499,67 @@ def _gyrodometry(config):
     return ("gyro", thr)
 
 
-def build(config, log, estimator: str, make_backend, pose0=None, P0=None):
-    """Localizer for ``config``/``log`` with the backend from ``make_backend``.
+def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Localizer:
+    """A :class:`Localizer` for ``config`` starting at time ``t0`` (s).
+
+    ``log`` (optional) supplies the landmark map and the dataset's own start pose; for a live
+    stream pass an object with ``landmarks`` (dict id -> (2,)) and ``initial_pose`` (or None),
+    or nothing.
 
     Parameters
     ----------
     make_backend : callable
         ``make_backend(motion_model, models, x0, P0, walk, options) -> backend``.
-
-    Returns
-    -------
-    loc : Localizer
-    t : ndarray (N+1,)
-        Odometry times (``t[0]`` the initial time).
-    U : ndarray (N, n)
-        Drive inputs per step.
     """
-    from odofuse.estimators.common import initial_state, odometry_inputs
+    from types import SimpleNamespace
+
+    from odofuse.estimators.common import initial_state
     from odofuse.measurements import measurement_models
     from odofuse.motion import motion_model_from_config
 
+    if log is None:
+        log = SimpleNamespace(landmarks={}, initial_pose=None, streams={})
     opts = config.option_block(estimator)
-    allowed = set(_OPTION_KEYS)
     for key in opts:
-        if key not in allowed:
+        if key not in _OPTION_KEYS:
             raise ConfigError(
-                f"unknown option; allowed: {', '.join(sorted(allowed))}",
+                f"unknown option; allowed: {', '.join(sorted(_OPTION_KEYS))}",
                 config.source,
                 f"options.{estimator}.{key}",
             )
     motion = motion_model_from_config(config)
-    t, U = odometry_inputs(log, motion)
-    p0, C0 = initial_state(config, log)
-    pose0 = p0 if pose0 is None else pose0
-    P0 = C0 if P0 is None else P0
+    pose0, P0 = initial_state(config, log)
     models = measurement_models(config, log)
     gyro = _gyrodometry(config)
-    if gyro is not None:
-        models = {s: m for s, m in models.items() if s != "gyro"} | {"gyro": models["gyro"]}
-    names, index = state_layout({s: m for s, m in models.items() if gyro is None or s != gyro[0]})
-    models = {s: (m.bind(index) if hasattr(m, "bind") else m) for s, m in models.items()}
+    # With gyrodometry the gyro feeds the prediction and is not a measurement model.
     filt = {s: m for s, m in models.items() if gyro is None or s != gyro[0]}
+    names, index = state_layout(filt)
+    filt = {s: (m.bind(index) if hasattr(m, "bind") else m) for s, m in filt.items()}
     x0, Pa, walk = augmented_prior(filt, names, pose0, P0)
     backend = make_backend(motion, filt, x0, Pa, walk, opts)
     late = _float_option(opts, "late_window", DEFAULT_LATE_WINDOW, config.source, estimator)
     if gyro is not None:
         gyro = (gyro[0], gyro[1], float(getattr(models["gyro"], "sigma", 0.0)))
-    loc = Localizer(backend, filt, float(t[0]), late, gyro, estimator, motion)
-    return loc, t, U
+    return Localizer(backend, filt, float(t0), late, gyro, estimator, motion)
+
+
+def build(config, log, estimator: str, make_backend):
+    """Localizer for a whole ``log``, plus the log's odometry times and drive inputs.
+
+    Returns
+    -------
+    loc : Localizer
+        Starting at ``t[0]``, the initial time.
+    t : ndarray (N+1,)
+        Odometry times (``t[0]`` the initial time).
+    U : ndarray (N, n)
+        Drive inputs per step.
+    """
+    from odofuse.estimators.common import odometry_inputs
+    from odofuse.motion import motion_model_from_config
+
+    t, U = odometry_inputs(log, motion_model_from_config(config))
+    return assemble(config, estimator, make_backend, float(t[0]), log), t, U
 
 
 def events(log, t, U, streams) -> list[tuple[float, int, str, object]]:
