@@ -264,3 +264,13 @@ def test_live_localizer_from_config_without_a_log():
     np.testing.assert_array_equal(loc.covariance(), offline.trajectory.covariances[-1])
     with pytest.raises(ConfigError, match="streaming"):
         Localizer.from_config(cfg, t0=0.0, estimator="smoother")
+
+
+def test_measurement_at_the_start_time_updates_the_initial_state():
+    log, _ = simulate(34, steps=5)
+    loc, t, U = build(_cfg(), log, "ekf", ekf.make_backend)
+    P0 = loc.covariance()
+    loc.add_measurement("ranges", {"t": t[0], "id": 0, "range": 19.0})
+    assert loc.used["ranges"] == 1 and np.trace(loc.covariance()) < np.trace(P0)
+    loc.add_measurement("ranges", {"t": t[0] - 5.0, "id": 0, "range": 19.0})
+    assert loc.dropped_late["ranges"] == 1

@@ -274,6 +274,10 @@ class Localizer:
         if t > self.t:
             bisect.insort(self._pending, item)
             return
+        if not self._steps and self.t == self.t_start and t >= self.t - self.late_window:
+            # Before the first odometry step: applied to the initial state as it is.
+            self._apply(item)
+            return
         if (
             t < self.t - self.late_window
             or t <= self.t_start
