@@ -292,7 +292,7 @@ class EkfBackend:
             residual=residual,
         )
         y = kf.y
-        nis = float(y @ kf.SI @ y)
+        nis = float(y.dot(kf.SI.dot(y)))
         gate = self._gates.get(id(model))
         if gate is None:
             gate = gate_threshold(getattr(model, "gate", None), model.dim)
