@@ -327,12 +327,9 @@ class Localizer:
         for tj, wj in g[i + 1 :]:
             if tj > t1:
                 break
-            if rate is not None:
-                total += rate * (tj - cursor)
+            total += rate * (tj - cursor)
             cursor, rate = tj, wj
-        if rate is not None:
-            total += rate * (t1 - cursor)
-        return total
+        return total + rate * (t1 - cursor)
 
     def _process_step(self, t0, t1, u, due) -> None:
         snap = self._snapshot() if self.late_window > 0 else None
