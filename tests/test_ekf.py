@@ -282,3 +282,36 @@ def test_plaza1_ekf_rmse_at_most_30_cm(monkeypatch):
     # The ranges' systematic scale error (~7 %) is learnt, not absorbed into the pose.
     assert 1.03 < res.extra["calibration"]["range_scale"]["value"] < 1.10
     assert res.used["ranges"] + res.rejected["ranges"] == len(log.streams["ranges"])
+
+
+def test_gps_with_lever_arm_and_compass_end_to_end():
+    log, truth = simulate(40, steps=400, k=(1e-2, 1e-3), every=1000)
+    rng = np.random.default_rng(41)
+    lever = np.array([0.4, 0.1])
+    t = log.streams["odometry"].t
+    idx = np.arange(9, 400, 10)
+    th = truth[idx + 1, 2]
+    ant = truth[idx + 1, :2] + np.column_stack(
+        [
+            np.cos(th) * lever[0] - np.sin(th) * lever[1],
+            np.sin(th) * lever[0] + np.cos(th) * lever[1],
+        ]
+    )
+    gps = ant + rng.normal(0.0, 0.5, ant.shape)
+    heading = (th + rng.normal(0.0, 0.05, th.size) + math.pi) % (2 * math.pi) - math.pi
+    streams = dict(log.streams)
+    streams["gps"] = Stream("gps", "sim", t[idx], ("x", "y"), gps)
+    streams["compass"] = Stream("compass", "sim", t[idx], ("heading",), heading[:, None])
+    log = dataclasses.replace(log, streams=streams)
+    base = sim_config(k=(1e-2, 1e-3))
+    sensors = {"gps": {"sigma": 0.5, "lever_arm": lever.tolist()}, "compass": {"sigma": 0.05}}
+    res = run_ekf(log, dataclasses.replace(base, sensors=sensors))
+    dr = run_ekf(log, dataclasses.replace(base, sensors={}))
+    err = np.hypot(*(res.trajectory.xy - truth[:, :2]).T)
+    err_dr = np.hypot(*(dr.trajectory.xy - truth[:, :2]).T)
+    assert res.used == {"gps": 40, "compass": 40}
+    assert err[-100:].max() < 1.0 and err_dr[-100:].mean() > 2 * err[-100:].mean()
+    e = res.trajectory.poses - truth
+    e[:, 2] = (e[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    nees = np.einsum("ni,nij,nj->n", e, np.linalg.inv(res.trajectory.covariances), e)
+    assert nees[50:].mean() < chi2.ppf(0.999, 3)

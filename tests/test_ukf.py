@@ -167,3 +167,28 @@ def test_gyro_clone_state_with_a_singular_covariance_matches_the_ekf():
     be, bu = e.extra["calibration"]["gyro_bias"], u.extra["calibration"]["gyro_bias"]
     assert abs(bu["value"] - be["value"]) < 0.1 * be["sigma"]
     assert bu["sigma"] == pytest.approx(be["sigma"], rel=0.01)
+
+
+def test_monte_carlo_nees_of_the_ukf_inside_95_percent_bounds():
+    import dataclasses
+
+    from scipy.stats import chi2
+    from test_ekf import sim_config, simulate
+
+    runs, steps = 20, 200
+    sigma0 = np.array([0.05, 0.05, 0.01])
+    nees = np.empty((runs, steps + 1))
+    for r in range(runs):
+        log, truth = simulate(300 + r, steps=steps)
+        pose0 = truth[0] + np.random.default_rng(3000 + r).normal(0.0, sigma0)
+        cfg = dataclasses.replace(
+            sim_config(estimator="ukf"), initial={"pose": list(pose0), "sigma": list(sigma0)}
+        )
+        tr = run_ukf(log, cfg).trajectory
+        err = tr.poses - truth
+        err[:, 2] = (err[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        nees[r] = np.einsum("ni,nij,nj->n", err, np.linalg.inv(tr.covariances), err)
+    lo, hi = chi2.ppf([0.025, 0.975], 3 * runs) / runs
+    anees = nees.mean(axis=0)
+    assert np.mean((anees >= lo) & (anees <= hi)) >= 0.9
+    assert lo < nees.mean() < hi
