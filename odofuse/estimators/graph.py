@@ -1,0 +1,982 @@
+"""GTSAM factor-graph back end: batch smoother, iSAM2 and a fixed-lag smoother.
+
+The graph is built from the run's single :class:`odofuse.motion.MotionModel` and its
+:mod:`odofuse.measurements` models, so it cannot drift apart from the filters:
+
+* **Keyframes** at every sensor time (ranges, GPS, ...), every ``keyframe_dt`` seconds and,
+  optionally, every ``keyframe_ds`` metres / ``keyframe_dtheta`` radians of odometry (or at
+  every odometry row with ``keyframe_every_step``). An odometry step straddling a keyframe is
+  split: its wheel / increment inputs are scaled by the time fraction (steering angles are
+  held), which is exact for the constant-twist step of the ``exact`` integrator.
+* **Odometry factors**: the steps between two keyframes are pre-integrated with
+  ``MotionModel.relative`` (Siegwart error model, ``004_f4547100a083f338.txt`` ch. 5; head-to-tail
+  composition, ``002_88fc37db58155723.txt``) into a ``BetweenFactorPose2`` whose covariance is
+  already in GTSAM's body (tangent) convention.
+* **Sensor factors** come from each model's ``factor`` (built-in ``PoseTranslationPrior2D``,
+  ``RangeFactor2D``, ``BearingRangeFactor2D``, ... where GTSAM has one), wrapped in a
+  Huber / Cauchy / Tukey loss per stream. Calibration states of the models (range scale and
+  offset, gyro bias, compass offset) become graph variables with the models' priors.
+* **Landmarks**: known (a tightly fixed ``Point2`` variable per map entry, or the model's unary
+  factor when calibration variables are involved) or unknown (``slam: true``: a variable per
+  id, initialised by a robust grid search of the ranges against the dead-reckoned path).
+
+Solvers: batch Levenberg-Marquardt (:func:`run_smoother`), iSAM2 one update per keyframe
+(:func:`run_isam2`) and GTSAM's ``IncrementalFixedLagSmoother`` (:func:`run_fixed_lag`).
+Marginal covariances are converted to the world frame with :func:`odofuse.se2.cov_body_to_world`.
+Options are documented in ``docs/graph.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from odofuse import se2
+from odofuse.errors import ConfigError
+from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
+from odofuse.estimators.graph_factors import (
+    ROBUST_DEFAULT_K,
+    levenberg_marquardt,
+    range_landmark_factor,
+    robust_noise,
+)
+from odofuse.trajectory import EstimateResult, Trajectory
+
+__all__ = [
+    "GraphOptions",
+    "GraphProblem",
+    "parse_options",
+    "keyframe_times",
+    "preintegrate",
+    "build_problem",
+    "build_graph",
+    "slam_initial_landmarks",
+    "run_smoother",
+    "run_isam2",
+    "run_fixed_lag",
+]
+
+#: Option keys accepted in ``options.<smoother|isam2|fixed_lag>``.
+OPTION_KEYS = (
+    "keyframe_dt",
+    "keyframe_ds",
+    "keyframe_dtheta",
+    "keyframe_every_step",
+    "robust",
+    "slam",
+    "lag",
+    "max_iterations",
+    "relative_tolerance",
+    "covariances",
+    "slam_grid",
+    "known_landmark_sigma",
+    "relinearize_threshold",
+    "relinearize_skip",
+)
+ROBUST_KINDS = ("none", "huber", "cauchy", "tukey")
+LANDMARK_SENSORS = ("BeaconRange", "LandmarkBearing", "LandmarkRangeBearing")
+# Variance (m^2, rad^2) added to every pre-integrated covariance so that a single step of a
+# drive with a rank-deficient input covariance (e.g. increments: no lateral noise) stays
+# invertible: a 0.1 mm / 0.1 mrad floor per keyframe interval, below any odometry noise.
+_COV_FLOOR = 1e-8
+
+
+def _X(i: int) -> int:
+    import gtsam
+
+    return gtsam.symbol("x", int(i))
+
+
+def _L(i: int) -> int:
+    import gtsam
+
+    return gtsam.symbol("l", int(i))
+
+
+def _C(i: int) -> int:
+    import gtsam
+
+    return gtsam.symbol("c", int(i))
+
+
+# --------------------------------------------------------------------------- options
+@dataclass(frozen=True)
+class GraphOptions:
+    """Validated options of a graph estimator (see ``docs/graph.md``).
+
+    Attributes
+    ----------
+    keyframe_dt : float
+        s; a keyframe at least this often (0 disables the time trigger).
+    keyframe_ds, keyframe_dtheta : float
+        m / rad of odometry travel between keyframes (0 disables).
+    keyframe_every_step : bool
+        A keyframe at every odometry row (the odometry-only graph then equals dead reckoning).
+    robust : dict
+        Stream -> ``(kind, k)`` with kind in ``huber|cauchy|tukey|none`` and ``k`` in sigma.
+    slam : bool
+        Landmarks are unknown graph variables.
+    lag : float
+        s, the window of the fixed-lag smoother.
+    max_iterations, relative_tolerance :
+        Levenberg-Marquardt stopping rule.
+    covariances : bool
+        Compute marginal covariances (world frame).
+    slam_grid : float
+        m, cell of the landmark initialisation grid.
+    known_landmark_sigma : float
+        m, sigma of the prior that pins a known landmark variable.
+    """
+
+    keyframe_dt: float = 1.0
+    keyframe_ds: float = 0.0
+    keyframe_dtheta: float = 0.0
+    keyframe_every_step: bool = False
+    robust: dict = field(default_factory=dict)
+    slam: bool = False
+    lag: float = 10.0
+    max_iterations: int = 100
+    relative_tolerance: float = 1e-6
+    covariances: bool = True
+    slam_grid: float = 1.0
+    known_landmark_sigma: float = 1e-6
+    relinearize_threshold: float = 0.1
+    relinearize_skip: int = 10
+
+
+def _nonneg_option(value, key, source) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"expected a number, got {value!r}", file=source, key=key) from None
+    if not (math.isfinite(v) and v >= 0.0):
+        raise ConfigError(f"must be a non-negative number, got {value!r}", file=source, key=key)
+    return v
+
+
+def _bool_option(value, key, source) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"expected true or false, got {value!r}", file=source, key=key)
+    return value
+
+
+def _robust_entry(value, key, source) -> tuple[str, float]:
+    if isinstance(value, str) or value is None:
+        kind, k = ("none" if value is None else value), None
+    elif isinstance(value, dict):
+        unknown = set(value) - {"type", "k"}
+        if unknown:
+            raise ConfigError(
+                f"unknown key(s) {', '.join(sorted(unknown))}; use type and k",
+                file=source,
+                key=f"{key}.{sorted(unknown)[0]}",
+            )
+        kind, k = value.get("type", "huber"), value.get("k")
+    else:
+        raise ConfigError(
+            f"expected a loss name or {{type, k}}, got {value!r}", file=source, key=key
+        )
+    if kind not in ROBUST_KINDS:
+        raise ConfigError(
+            f"unknown robust loss {kind!r}; use one of {', '.join(ROBUST_KINDS)}",
+            file=source,
+            key=key,
+        )
+    if kind == "none":
+        return ("none", 0.0)
+    if k is None:
+        return (kind, ROBUST_DEFAULT_K[kind])
+    kv = _nonneg_option(k, f"{key}.k", source)
+    if kv == 0.0:
+        raise ConfigError("robust threshold k must be positive", file=source, key=f"{key}.k")
+    return (kind, kv)
+
+
+def parse_options(config, estimator: str) -> GraphOptions:
+    """Validate ``config.options[estimator]`` into :class:`GraphOptions`.
+
+    ``robust`` is either one loss for every sensor (``huber`` or ``{type: cauchy, k: 2}``) or
+    a mapping stream -> loss (``{ranges: {type: huber, k: 1.345}, gps: cauchy}``).
+
+    Raises
+    ------
+    ConfigError
+        For an unknown key or a bad value, naming ``options.<estimator>.<key>`` and the file.
+    """
+    source = getattr(config, "source", "<config>")
+    block = config.option_block(estimator)
+    prefix = f"options.{estimator}"
+    kw: dict = {}
+    for key, value in block.items():
+        k = f"{prefix}.{key}"
+        if key not in OPTION_KEYS:
+            raise ConfigError(
+                f"unknown option; allowed: {', '.join(OPTION_KEYS)}", file=source, key=k
+            )
+        if key in ("keyframe_dt", "keyframe_ds", "keyframe_dtheta", "relative_tolerance"):
+            kw[key] = _nonneg_option(value, k, source)
+        elif key in ("lag", "slam_grid", "known_landmark_sigma"):
+            v = _nonneg_option(value, k, source)
+            if v == 0.0:
+                raise ConfigError("must be positive", file=source, key=k)
+            kw[key] = v
+        elif key in ("keyframe_every_step", "slam", "covariances"):
+            kw[key] = _bool_option(value, k, source)
+        elif key == "relinearize_threshold":
+            kw[key] = _nonneg_option(value, k, source)
+        elif key in ("max_iterations", "relinearize_skip"):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"expected a positive integer, got {value!r}", source, k)
+            kw[key] = value
+        elif key == "robust":
+            streams = set(getattr(config, "sensors", {}) or {}) | {"odometry", "wheels"}
+            if isinstance(value, dict) and (set(value) - {"type", "k"}):
+                kw[key] = {s: _robust_entry(v, f"{k}.{s}", source) for s, v in value.items()}
+                bad = set(kw[key]) - streams
+                if bad:
+                    raise ConfigError(
+                        f"robust loss for stream(s) not in sensors: {', '.join(sorted(bad))}",
+                        file=source,
+                        key=f"{k}.{sorted(bad)[0]}",
+                    )
+            else:
+                entry = _robust_entry(value, k, source)
+                kw[key] = {s: entry for s in streams - {"odometry", "wheels"}}
+    return GraphOptions(**kw)
+
+
+# --------------------------------------------------------------------------- odometry
+def keyframe_times(t_odo, U, model, sensor_times, options: GraphOptions) -> np.ndarray:
+    """Keyframe times: the odometry span's ends, sensor times and the dt/ds/dtheta triggers.
+
+    Parameters
+    ----------
+    t_odo : ndarray (N+1,)
+        Times of the poses of the odometry steps (s).
+    U : ndarray (N, n)
+        Drive inputs per step.
+    model : MotionModel
+    sensor_times : ndarray (M,)
+        Times of the sensor rows that get a factor (inside ``[t_odo[0], t_odo[-1]]``).
+    options : GraphOptions
+
+    Returns
+    -------
+    ndarray (K,)
+        Strictly increasing keyframe times (s).
+    """
+    t0, t1 = float(t_odo[0]), float(t_odo[-1])
+    parts = [np.array([t0, t1]), np.asarray(sensor_times, dtype=float)]
+    if options.keyframe_every_step:
+        parts.append(t_odo)
+    if options.keyframe_dt > 0:
+        parts.append(np.arange(t0, t1, options.keyframe_dt))
+    if (options.keyframe_ds > 0 or options.keyframe_dtheta > 0) and len(U):
+        delta, _ = model.increment(U)
+        for col, step in ((None, options.keyframe_ds), (2, options.keyframe_dtheta)):
+            if step <= 0:
+                continue
+            inc = np.hypot(delta[:, 0], delta[:, 1]) if col is None else np.abs(delta[:, 2])
+            cum = np.concatenate([[0.0], np.cumsum(inc)])
+            bucket = np.floor(cum / step)
+            parts.append(t_odo[1:][np.diff(bucket) > 0])
+    return np.unique(np.concatenate(parts))
+
+
+def preintegrate(t_odo, U, model, kt) -> tuple[np.ndarray, np.ndarray]:
+    """Relative poses and body-frame covariances between consecutive keyframes.
+
+    Odometry step ``k`` spans ``(t_odo[k], t_odo[k+1]]``; a step cut by a keyframe is split
+    into pieces whose wheel / increment inputs are scaled by their time fraction.
+
+    Returns
+    -------
+    deltas : ndarray (K-1, 3)
+        ``[dx, dy, dtheta]`` of keyframe ``i+1`` in the frame of keyframe ``i``.
+    covs : ndarray (K-1, 3, 3)
+        Their covariances in GTSAM's ``Pose2`` tangent convention (``MotionModel.relative``).
+    """
+    t_odo = np.asarray(t_odo, dtype=float)
+    kt = np.asarray(kt, dtype=float)
+    breaks = np.unique(np.concatenate([t_odo, kt]))
+    breaks = breaks[(breaks >= kt[0]) & (breaks <= kt[-1])]
+    a, b = breaks[:-1], breaks[1:]
+    step = np.clip(np.searchsorted(t_odo, b, side="left") - 1, 0, len(U) - 1)
+    frac = (b - a) / np.maximum(t_odo[step + 1] - t_odo[step], 1e-300)
+    kinds = getattr(model.drive, "input_kinds", ("wheel",) * U.shape[1])
+    scaled = np.array([kind != "steer" for kind in kinds])
+    pieces = np.where(scaled, U[step] * frac[:, None], U[step])
+    owner = np.searchsorted(kt, b, side="left") - 1  # keyframe interval of each piece
+    starts = np.searchsorted(owner, np.arange(len(kt) - 1), side="left")
+    ends = np.searchsorted(owner, np.arange(len(kt) - 1), side="right")
+    deltas = np.zeros((len(kt) - 1, 3))
+    covs = np.zeros((len(kt) - 1, 3, 3))
+    for i, (s, e) in enumerate(zip(starts, ends)):
+        if e > s:
+            deltas[i], covs[i] = model.relative(pieces[s:e])
+    return deltas, covs
+
+
+def _odometry_noise(cov):
+    import gtsam
+
+    cov = 0.5 * (cov + cov.T)
+    return gtsam.noiseModel.Gaussian.Covariance(cov + _COV_FLOOR * np.eye(3))
+
+
+# --------------------------------------------------------------------------- problem
+@dataclass
+class _Measurement:
+    stream: str
+    index: int  # row in the stream
+    keyframe: int  # keyframe index (the previous one too for the gyro: prev_keyframe)
+    row: dict
+    prev_keyframe: int | None = None
+    landmark: int | None = None
+
+
+@dataclass
+class GraphProblem:
+    """Everything the three solvers share (built once per run by :func:`build_problem`).
+
+    Attributes
+    ----------
+    kt : ndarray (K,)
+        Keyframe times (s).
+    deltas, covs : ndarray (K-1, 3), (K-1, 3, 3)
+        Pre-integrated odometry (body frame, GTSAM tangent covariance).
+    pose0, P0 : ndarray (3,), (3, 3)
+        Initial pose and its world-frame covariance.
+    models : dict
+        Stream -> measurement model.
+    measurements : list
+        Sensor rows with their keyframe, in time order.
+    calib : dict
+        Calibration state name -> (key, initial value, sigma).
+    landmarks : dict
+        Landmark id -> (2,) position: the map, or the SLAM initial guess.
+    rejected : dict
+        Stream -> rows that got no factor (outside the odometry span, unknown landmark, ...).
+    """
+
+    kt: np.ndarray
+    deltas: np.ndarray
+    covs: np.ndarray
+    pose0: np.ndarray
+    P0: np.ndarray
+    models: dict
+    measurements: list
+    calib: dict
+    landmarks: dict
+    options: GraphOptions
+    odometry_stream: str
+    odometry_rows: int
+    rejected: dict
+    robust: dict
+
+    def dead_reckoning(self) -> np.ndarray:
+        """Keyframe poses ``(K, 3)`` obtained by composing the odometry factors from ``pose0``."""
+        poses = np.empty((len(self.kt), 3))
+        poses[0] = self.pose0
+        for i, d in enumerate(self.deltas):
+            poses[i + 1] = se2.compose(poses[i], d)
+        return poses
+
+
+def _model_kind(model) -> str:
+    return type(model).__name__
+
+
+def build_problem(log, config, estimator: str) -> GraphProblem:
+    """Keyframes, pre-integrated odometry and the sensor rows of a run (no GTSAM objects).
+
+    Raises
+    ------
+    ConfigError, InputError
+        Bad options (naming the key and file) or an unusable log.
+    """
+    from odofuse.measurements import measurement_models
+    from odofuse.motion import motion_model_from_config
+
+    options = parse_options(config, estimator)
+    if options.slam and estimator != "smoother":
+        raise ConfigError(
+            "slam (unknown landmarks) is implemented for the batch smoother only",
+            file=config.source,
+            key=f"options.{estimator}.slam",
+        )
+    model = motion_model_from_config(config)
+    t_odo, U = odometry_inputs(log, model)
+    pose0, P0 = initial_state(config, log)
+    models = measurement_models(config, _log_with_ids(log) if options.slam else log)
+    t_lo, t_hi = float(t_odo[0]), float(t_odo[-1])
+
+    rejected: dict[str, int] = {}
+    pending: list[tuple[float, _Measurement]] = []
+    for name, m in models.items():
+        if not log.has(name):
+            continue
+        stream = log.streams[name]
+        order = np.argsort(stream.t, kind="stable")  # a few logs (Plaza) are not sorted
+        kind = _model_kind(m)
+        prev_t = None
+        n_rej = 0
+        for i in order:
+            t = float(stream.t[i])
+            if not (t_lo <= t <= t_hi):
+                n_rej += 1
+                continue
+            row = stream.row(int(i))
+            if not all(math.isfinite(v) for v in row.values()):
+                n_rej += 1
+                continue
+            meas = _Measurement(name, int(i), -1, row)
+            if kind == "GyroYawRate":
+                if prev_t is None or t <= prev_t:
+                    prev_t = t if prev_t is None else prev_t
+                    n_rej += 1
+                    continue
+                row["dt"] = t - prev_t
+                meas.prev_keyframe = -1
+                meas.row["t_prev"] = prev_t
+                prev_t = t
+            if kind in LANDMARK_SENSORS:
+                lid = int(row["id"])
+                if not options.slam and lid not in log.landmarks:
+                    n_rej += 1
+                    continue
+                meas.landmark = lid
+            pending.append((t, meas))
+        rejected[name] = n_rej
+
+    sensor_times = np.array([t for t, _ in pending])
+    kt = keyframe_times(t_odo, U, model, sensor_times, options)
+    for t, meas in pending:
+        meas.keyframe = int(np.searchsorted(kt, t))
+        if meas.prev_keyframe is not None:
+            meas.prev_keyframe = int(np.searchsorted(kt, meas.row["t_prev"]))
+    pending.sort(key=lambda tm: (tm[1].keyframe, tm[1].stream))
+    deltas, covs = preintegrate(t_odo, U, model, kt)
+
+    calib: dict[str, tuple[int, float, float]] = {}
+    for m in models.values():
+        clones = set(getattr(m, "clones", lambda: {})())
+        prior = getattr(m, "calib_prior", lambda: {})()
+        for state in getattr(m, "calib_states", ()):
+            if state in clones or state in calib:
+                continue
+            value, sigma = prior.get(state, (0.0, 1.0))
+            calib[state] = (_C(len(calib)), float(value), float(sigma))
+
+    robust = {s: options.robust.get(s, ("none", 0.0)) for s in models}
+    robust[odometry_stream_name(model)] = options.robust.get(
+        odometry_stream_name(model), ("none", 0.0)
+    )
+    problem = GraphProblem(
+        kt,
+        deltas,
+        covs,
+        pose0,
+        P0,
+        models,
+        [m for _, m in pending],
+        calib,
+        {int(i): np.asarray(p, dtype=float) for i, p in log.landmarks.items()},
+        options,
+        odometry_stream_name(model),
+        len(U),
+        rejected,
+        robust,
+    )
+    if options.slam:
+        problem.landmarks = slam_initial_landmarks(problem, problem.dead_reckoning())
+    return problem
+
+
+def _log_with_ids(log):
+    """A view of ``log`` whose map lists every landmark id seen (positions unused in SLAM)."""
+    import dataclasses
+
+    ids = set(log.landmarks)
+    for name, stream in log.streams.items():
+        if "id" in stream.columns:
+            ids.update(int(i) for i in np.unique(stream["id"]) if np.isfinite(i))
+    return dataclasses.replace(log, landmarks={i: np.zeros(2) for i in ids})
+
+
+def slam_initial_landmarks(problem: GraphProblem, poses) -> dict[int, np.ndarray]:
+    """Robust initial positions of unknown landmarks from ranges and a pose guess.
+
+    For every landmark id with range rows (range or range-bearing sensors) a grid of cell
+    ``slam_grid`` m over the poses' bounding box grown by the largest range is scored with a
+    truncated quadratic of ``||p_k - l|| - r_k`` (truncated at 3 sigma, so multipath outliers
+    and a few-percent scale error cannot pull the minimum), then refined by Gauss-Newton on the
+    inliers. The range-only ring ambiguity is broken by the robot's own motion: a landmark seen
+    from a 2-D path has one minimum. Bearings, when present, go through the same cost.
+
+    Returns
+    -------
+    dict
+        id -> ``(2,)`` world position (m).
+    """
+    poses = np.asarray(poses, dtype=float)
+    per_id: dict[int, list[tuple[np.ndarray, float, float]]] = {}
+    for meas in problem.measurements:
+        if meas.landmark is None:
+            continue
+        m = problem.models[meas.stream]
+        kind = _model_kind(m)
+        if kind == "BeaconRange":
+            r, sigma = float(meas.row["range"]), float(m.sigma)
+        elif kind == "LandmarkRangeBearing":
+            r, sigma = float(meas.row["range"]), float(m.sigma)
+        else:
+            continue
+        per_id.setdefault(meas.landmark, []).append((poses[meas.keyframe, :2], r, sigma))
+    out: dict[int, np.ndarray] = {}
+    cell = problem.options.slam_grid
+    for lid, obs in sorted(per_id.items()):
+        P = np.array([o[0] for o in obs])
+        R = np.array([o[1] for o in obs])
+        sig = np.array([o[2] for o in obs])
+        if len(obs) > 400:  # a spread-out subsample is plenty for the grid
+            pick = np.linspace(0, len(obs) - 1, 400).astype(int)
+            Pg, Rg, Sg = P[pick], R[pick], sig[pick]
+        else:
+            Pg, Rg, Sg = P, R, sig
+        lo = P.min(0) - R.max()
+        hi = P.max(0) + R.max()
+        gx = np.arange(lo[0], hi[0] + cell, cell)
+        gy = np.arange(lo[1], hi[1] + cell, cell)
+        G = np.stack(np.meshgrid(gx, gy, indexing="ij"), -1).reshape(-1, 2)
+        best, best_cost = None, np.inf
+        for chunk in np.array_split(np.arange(len(G)), max(1, len(G) // 4000)):
+            d = np.linalg.norm(G[chunk, None, :] - Pg[None], axis=2)
+            e = np.minimum(((d - Rg) / Sg) ** 2, 9.0)
+            cost = e.sum(1)
+            j = int(np.argmin(cost))
+            if cost[j] < best_cost:
+                best, best_cost = G[chunk][j].copy(), float(cost[j])
+        lm = best
+        for _ in range(20):  # Gauss-Newton on the 3-sigma inliers
+            diff = lm - P
+            d = np.maximum(np.linalg.norm(diff, axis=1), 1e-9)
+            e = (d - R) / sig
+            inl = np.abs(e) < 3.0
+            if inl.sum() < 3:
+                break
+            J = diff[inl] / d[inl, None] / sig[inl, None]
+            step = np.linalg.lstsq(J, -e[inl], rcond=None)[0]
+            lm = lm + step
+            if np.linalg.norm(step) < 1e-6:
+                break
+        out[lid] = lm
+    return out
+
+
+# --------------------------------------------------------------------------- factors
+class _Factors:
+    """Turns a :class:`GraphProblem` into GTSAM factors and initial values, keyframe by keyframe."""
+
+    def __init__(self, problem: GraphProblem) -> None:
+        import gtsam
+
+        self.p = problem
+        self.gtsam = gtsam
+        self.dims: dict[int, int] = {}
+        self.python_factors = 0
+        self.used: dict[str, int] = {problem.odometry_stream: problem.odometry_rows}
+        for s in problem.models:
+            self.used.setdefault(s, 0)
+        self.by_kf: dict[int, list[_Measurement]] = {}
+        for meas in problem.measurements:
+            self.by_kf.setdefault(meas.keyframe, []).append(meas)
+        self.landmark_keys: dict[int, int] = {}
+        needs_landmarks = {m.landmark for m in problem.measurements if m.landmark is not None}
+        for lid in sorted(needs_landmarks):
+            if self._landmark_variable_needed(lid):
+                self.landmark_keys[lid] = _L(lid)
+        self.calib_keys = {name: key for name, (key, _, _) in problem.calib.items()}
+
+    def _landmark_variable_needed(self, lid) -> bool:
+        if self.p.options.slam:
+            return True
+        # Known landmarks become pinned variables only for factors without calibration keys.
+        return any(
+            m.landmark == lid and not self._model_calib(self.p.models[m.stream])
+            for m in self.p.measurements
+        )
+
+    def _model_calib(self, model) -> dict:
+        clones = set(getattr(model, "clones", lambda: {})())
+        return {
+            s: self.p.calib[s][0]
+            for s in getattr(model, "calib_states", ())
+            if s in self.p.calib and s not in clones
+        }
+
+    def static(self):
+        """Priors on the first pose, calibration states and landmarks, with their values."""
+        gtsam = self.gtsam
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        p = self.p
+        pose0 = gtsam.Pose2(*p.pose0)
+        g.add(
+            gtsam.PriorFactorPose2(
+                _X(0),
+                pose0,
+                gtsam.noiseModel.Gaussian.Covariance(se2.cov_world_to_body(p.pose0, p.P0)),
+            )
+        )
+        v.insert(_X(0), pose0)
+        self.dims[_X(0)] = 3
+        for _name, (key, value, sigma) in p.calib.items():
+            v.insert(key, np.array([value]))
+            g.add(
+                gtsam.PriorFactorVector(
+                    key, np.array([value]), gtsam.noiseModel.Isotropic.Sigma(1, sigma)
+                )
+            )
+            self.dims[key] = 1
+        for lid, key in self.landmark_keys.items():
+            pos = p.landmarks.get(lid)
+            v.insert(key, gtsam.Point2(*pos))
+            self.dims[key] = 2
+            if not p.options.slam:
+                g.add(
+                    gtsam.PriorFactorPoint2(
+                        key,
+                        gtsam.Point2(*pos),
+                        gtsam.noiseModel.Isotropic.Sigma(2, p.options.known_landmark_sigma),
+                    )
+                )
+        return g, v
+
+    def odometry(self, i: int):
+        """``BetweenFactorPose2`` from keyframe ``i-1`` to ``i``."""
+        d = self.p.deltas[i - 1]
+        loss, k = self.p.robust.get(self.p.odometry_stream, ("none", 0.0))
+        nm = robust_noise(_odometry_noise(self.p.covs[i - 1]), loss, k)
+        return self.gtsam.BetweenFactorPose2(_X(i - 1), _X(i), self.gtsam.Pose2(*d), nm)
+
+    def measurement(self, meas: _Measurement):
+        """The factor of one sensor row (robust loss of its stream applied)."""
+        gtsam = self.gtsam
+        m = self.p.models[meas.stream]
+        kind = _model_kind(m)
+        calib = self._model_calib(m)
+        loss, k = self.p.robust.get(meas.stream, ("none", 0.0))
+        key = _X(meas.keyframe)
+        if kind == "GyroYawRate":
+            dt = float(meas.row["dt"])
+            base = gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(m.R(meas.row)[0, 0]) * dt)
+            f = m.factor(
+                (_X(meas.prev_keyframe), key), meas.row, calib, robust_noise(base, loss, k)
+            )
+            self.python_factors += 1
+            return f
+        if kind == "LandmarkRangeBearing" and meas.landmark in self.landmark_keys:
+            # GTSAM's BearingRange measurement is ordered (bearing, range).
+            R = m.R(meas.row)
+            base = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt([R[1, 1], R[0, 0]]))
+            return m.factor(
+                key,
+                meas.row,
+                None,
+                robust_noise(base, loss, k),
+                landmark_key=self.landmark_keys[meas.landmark],
+            )
+        base = m.noise(meas.row)
+        nm = robust_noise(base, loss, k)
+        if kind == "BeaconRange" and meas.landmark in self.landmark_keys:
+            lkey = self.landmark_keys[meas.landmark]
+            if calib:
+                self.python_factors += 1
+                return range_landmark_factor(
+                    key,
+                    lkey,
+                    meas.row["range"],
+                    nm,
+                    calib.get("range_scale"),
+                    calib.get("range_offset"),
+                )
+            return gtsam.RangeFactor2D(key, lkey, float(meas.row["range"]), nm)
+        if kind == "LandmarkBearing" and meas.landmark in self.landmark_keys:
+            return m.factor(key, meas.row, None, nm, landmark_key=self.landmark_keys[meas.landmark])
+        f = m.factor(key, meas.row, calib, nm)
+        if isinstance(f, gtsam.CustomFactor):
+            self.python_factors += 1
+        return f
+
+    def keyframe(self, i: int, values_guess):
+        """Factors and new values of keyframe ``i`` (odometry from ``i-1`` and its sensors)."""
+        gtsam = self.gtsam
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if i > 0:
+            g.add(self.odometry(i))
+            v.insert(_X(i), values_guess)
+            self.dims[_X(i)] = 3
+        for meas in self.by_kf.get(i, ()):
+            g.add(self.measurement(meas))
+            self.used[meas.stream] = self.used.get(meas.stream, 0) + 1
+        return g, v
+
+
+# --------------------------------------------------------------------------- results
+def _pose_array(values, K) -> np.ndarray:
+    out = np.empty((K, 3))
+    for i in range(K):
+        p = values.atPose2(_X(i))
+        out[i] = (p.x(), p.y(), p.theta())
+    out[:, 2] = se2.wrap(out[:, 2])
+    return out
+
+
+def _extra(problem: GraphProblem, fac: _Factors, values, estimator: str) -> dict:
+    extra: dict = {"keyframes": int(len(problem.kt)), "python_factors": fac.python_factors}
+    if problem.calib:
+        cal = {}
+        for name, (key, _, _) in problem.calib.items():
+            if values.exists(key):
+                cal[name] = float(values.atVector(key)[0])
+        extra["calibration"] = cal
+    if problem.options.slam:
+        extra["landmarks"] = {
+            int(lid): [float(c) for c in values.atPoint2(key)]
+            for lid, key in fac.landmark_keys.items()
+            if values.exists(key)
+        }
+    return extra
+
+
+def _outliers(problem: GraphProblem, fac: _Factors, values) -> dict[str, int]:
+    """Per stream: factors whose whitened residual exceeds the model's chi-square gate."""
+    from odofuse.measurements import gate_threshold
+
+    out: dict[str, int] = {}
+    for meas in problem.measurements:
+        m = problem.models[meas.stream]
+        if getattr(m, "gate", None) is None:
+            continue
+        f = fac.measurement(meas)
+        fac.python_factors -= isinstance(f, fac.gtsam.CustomFactor)
+        e = np.atleast_1d(f.unwhitenedError(values))
+        R = m.R(meas.row)
+        if e.size == 2 and _model_kind(m) == "LandmarkRangeBearing":
+            e = e[::-1]
+        nis = float(e @ np.linalg.solve(R, e))
+        if nis > gate_threshold(m.gate, e.size):
+            out[meas.stream] = out.get(meas.stream, 0) + 1
+    return out
+
+
+def _world_covs(problem, poses, cov_of) -> np.ndarray:
+    covs = np.empty((len(poses), 3, 3))
+    for i in range(len(poses)):
+        covs[i] = se2.cov_body_to_world(poses[i], cov_of(_X(i)))
+    return 0.5 * (covs + np.swapaxes(covs, 1, 2))
+
+
+def _finish(problem, fac, values, covs, estimator, extra) -> EstimateResult:
+    poses = _pose_array(values, len(problem.kt))
+    extra = {**_extra(problem, fac, values, estimator), **extra}
+    outliers = _outliers(problem, fac, values)
+    if outliers:
+        extra["outliers"] = outliers
+    traj = Trajectory(problem.kt.copy(), poses, covs)
+    used = {k: int(v) for k, v in fac.used.items()}
+    return EstimateResult(estimator, traj, used, dict(problem.rejected), extra)
+
+
+# --------------------------------------------------------------------------- solvers
+def build_graph(problem: GraphProblem):
+    """The whole graph and its dead-reckoned / SLAM-initialised values (batch form)."""
+    fac = _Factors(problem)
+    graph, values = fac.static()
+    guess = problem.dead_reckoning()
+    import gtsam
+
+    for i in range(len(problem.kt)):
+        g, v = fac.keyframe(i, gtsam.Pose2(*guess[i]))
+        graph.push_back(g)
+        values.insert(v)
+    return fac, graph, values
+
+
+def run_smoother(log, config) -> EstimateResult:
+    """Batch Levenberg-Marquardt over the whole log (``estimator: smoother``).
+
+    Returns
+    -------
+    EstimateResult
+        Keyframe poses with world-frame marginal covariances; ``used``/``rejected`` per
+        stream; ``extra``: ``calibration`` (state -> value), ``landmarks`` (SLAM: id -> [x, y]),
+        ``outliers`` (per stream, beyond the model's gate at the optimum), ``keyframes``,
+        ``iterations``, ``final_error``, ``solve_s``.
+    """
+    import gtsam
+
+    problem = build_problem(log, config, "smoother")
+    fac, graph, values = build_graph(problem)
+    opts = problem.options
+    t0 = time.perf_counter()
+    if fac.python_factors:
+        result, iterations, err = levenberg_marquardt(
+            graph, values, fac.dims, opts.max_iterations, opts.relative_tolerance
+        )
+    else:
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(opts.max_iterations)
+        params.setRelativeErrorTol(opts.relative_tolerance)
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        result = optimizer.optimize()
+        iterations, err = optimizer.iterations(), graph.error(result)
+    solve_s = time.perf_counter() - t0
+    covs = None
+    if opts.covariances:
+        marginals = gtsam.Marginals(graph, result)
+        poses = _pose_array(result, len(problem.kt))
+        covs = _world_covs(problem, poses, marginals.marginalCovariance)
+        if problem.calib:
+            sig = {
+                name: float(np.sqrt(marginals.marginalCovariance(key)[0, 0]))
+                for name, (key, _, _) in problem.calib.items()
+            }
+    extra = {"iterations": int(iterations), "final_error": float(err), "solve_s": solve_s}
+    if opts.covariances and problem.calib:
+        extra["calibration_sigma"] = sig
+    return _finish(problem, fac, result, covs, "smoother", extra)
+
+
+def _latency_summary(lat) -> dict:
+    lat = np.asarray(lat) * 1e3
+    if lat.size == 0:
+        return {}
+    return {
+        "median_ms": float(np.median(lat)),
+        "p99_ms": float(np.percentile(lat, 99)),
+        "max_ms": float(lat.max()),
+        "updates": int(lat.size),
+    }
+
+
+def _isam2_params(options: GraphOptions):
+    """iSAM2 parameters. Relinearisation is kept coarse (0.1 m / rad every 10 updates by
+    default) because a calibration variable touches every range factor: relinearising it
+    re-runs all their Python callbacks."""
+    import gtsam
+
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(options.relinearize_threshold)
+    params.relinearizeSkip = options.relinearize_skip
+    # QR: pinned landmarks (sigma 1e-6 m) and 0.1 mm odometry floors make the normal
+    # equations too ill-conditioned for iSAM2's Cholesky.
+    params.setFactorization("QR")
+    return params
+
+
+def run_isam2(log, config) -> EstimateResult:
+    """iSAM2, one update per keyframe in time order (``estimator: isam2``).
+
+    The trajectory is the final iSAM2 estimate (after two extra relinearising updates);
+    ``extra["latency"]`` summarises the per-update wall time (median, p99, max in ms).
+    """
+    import gtsam
+
+    problem = build_problem(log, config, "isam2")
+    fac = _Factors(problem)
+    params = _isam2_params(problem.options)
+    isam = gtsam.ISAM2(params)
+    graph, values = fac.static()
+    latency = []
+    current = gtsam.Pose2(*problem.pose0)
+    for i in range(len(problem.kt)):
+        if i > 0:
+            current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
+        g, v = fac.keyframe(i, current)
+        graph.push_back(g)
+        values.insert(v)
+        t0 = time.perf_counter()
+        isam.update(graph, values)
+        latency.append(time.perf_counter() - t0)
+        if i > 0:
+            current = isam.calculateEstimatePose2(_X(i))
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for _ in range(2):
+        isam.update()
+    result = isam.calculateEstimate()
+    covs = None
+    if problem.options.covariances:
+        poses = _pose_array(result, len(problem.kt))
+        covs = _world_covs(problem, poses, isam.marginalCovariance)
+    return _finish(problem, fac, result, covs, "isam2", {"latency": _latency_summary(latency)})
+
+
+def run_fixed_lag(log, config) -> EstimateResult:
+    """GTSAM ``IncrementalFixedLagSmoother`` with a ``lag``-second window (``fixed_lag``).
+
+    Each keyframe's pose (and world-frame covariance) is the one held just before it leaves
+    the window, i.e. smoothed with ``lag`` seconds of future data; memory is bounded by the
+    window. Calibration and landmark variables are kept in the window.
+    """
+    import gtsam
+
+    problem = build_problem(log, config, "fixed_lag")
+    fac = _Factors(problem)
+    lag = problem.options.lag
+    params = _isam2_params(problem.options)
+    smoother = gtsam.IncrementalFixedLagSmoother(lag, params)
+    graph, values = fac.static()
+    persistent = [k for k in values.keys() if k != _X(0)]
+    K = len(problem.kt)
+    poses = np.empty((K, 3))
+    covs = np.empty((K, 3, 3)) if problem.options.covariances else None
+    done = 0  # keyframes [0, done) are final
+    latency = []
+    final_values = gtsam.Values()
+    current = gtsam.Pose2(*problem.pose0)
+
+    def freeze(upto: int) -> None:
+        nonlocal done
+        while done < upto:
+            p = smoother.calculateEstimatePose2(_X(done))
+            poses[done] = (p.x(), p.y(), p.theta())
+            if covs is not None:
+                covs[done] = se2.cov_body_to_world(
+                    poses[done], smoother.marginalCovariance(_X(done))
+                )
+            done += 1
+
+    for i in range(K):
+        t = float(problem.kt[i])
+        if i > 0:
+            current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
+        # keyframes that this update will marginalise: take their final estimate first
+        freeze(int(np.searchsorted(problem.kt, t - lag, side="left")) if i > 0 else 0)
+        g, v = fac.keyframe(i, current)
+        graph.push_back(g)
+        values.insert(v)
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        stamps.insert((_X(i), t))
+        for key in persistent:
+            stamps.insert((key, t))
+        t0 = time.perf_counter()
+        smoother.update(graph, values, stamps)
+        latency.append(time.perf_counter() - t0)
+        current = smoother.calculateEstimatePose2(_X(i))
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    freeze(K)
+    poses[:, 2] = se2.wrap(poses[:, 2])
+    est = smoother.calculateEstimate()
+    for key in persistent:
+        if est.exists(key):
+            final_values.insert(
+                key, est.atVector(key) if gtsam.Symbol(key).chr() == ord("c") else est.atPoint2(key)
+            )
+    for i in range(K):
+        final_values.insert(_X(i), gtsam.Pose2(*poses[i]))
+    extra = {"latency": _latency_summary(latency), "lag_s": lag}
+    return _finish(problem, fac, final_values, covs, "fixed_lag", extra)
