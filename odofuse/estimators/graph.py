@@ -75,6 +75,7 @@ OPTION_KEYS = (
     "known_landmark_sigma",
     "relinearize_threshold",
     "relinearize_skip",
+    "odometry_floor",
 )
 ROBUST_KINDS = ("none", "huber", "cauchy", "tukey")
 LANDMARK_SENSORS = ("BeaconRange", "LandmarkBearing", "LandmarkRangeBearing")
@@ -145,6 +146,7 @@ class GraphOptions:
     known_landmark_sigma: float = 1e-6
     relinearize_threshold: float = 0.1
     relinearize_skip: int = 10
+    odometry_floor: float = 1e-8
 
 
 def _nonneg_option(value, key, source) -> float:
@@ -225,7 +227,7 @@ def parse_options(config, estimator: str) -> GraphOptions:
             kw[key] = v
         elif key in ("keyframe_every_step", "slam", "covariances"):
             kw[key] = _bool_option(value, k, source)
-        elif key == "relinearize_threshold":
+        elif key in ("relinearize_threshold", "odometry_floor"):
             kw[key] = _nonneg_option(value, k, source)
         elif key in ("max_iterations", "relinearize_skip"):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -314,17 +316,17 @@ def preintegrate(t_odo, U, model, kt) -> tuple[np.ndarray, np.ndarray]:
     ends = np.searchsorted(owner, np.arange(len(kt) - 1), side="right")
     deltas = np.zeros((len(kt) - 1, 3))
     covs = np.zeros((len(kt) - 1, 3, 3))
-    for i, (s, e) in enumerate(zip(starts, ends)):
+    for i, (s, e) in enumerate(zip(starts, ends, strict=True)):
         if e > s:
             deltas[i], covs[i] = model.relative(pieces[s:e])
     return deltas, covs
 
 
-def _odometry_noise(cov):
+def _odometry_noise(cov, floor: float = _COV_FLOOR):
     import gtsam
 
     cov = 0.5 * (cov + cov.T)
-    return gtsam.noiseModel.Gaussian.Covariance(cov + _COV_FLOOR * np.eye(3))
+    return gtsam.noiseModel.Gaussian.Covariance(cov + floor * np.eye(3))
 
 
 # --------------------------------------------------------------------------- problem
@@ -501,7 +503,7 @@ def _log_with_ids(log):
     import dataclasses
 
     ids = set(log.landmarks)
-    for name, stream in log.streams.items():
+    for stream in log.streams.values():
         if "id" in stream.columns:
             ids.update(int(i) for i in np.unique(stream["id"]) if np.isfinite(i))
     return dataclasses.replace(log, landmarks={i: np.zeros(2) for i in ids})
@@ -659,7 +661,9 @@ class _Factors:
         """``BetweenFactorPose2`` from keyframe ``i-1`` to ``i``."""
         d = self.p.deltas[i - 1]
         loss, k = self.p.robust.get(self.p.odometry_stream, ("none", 0.0))
-        nm = robust_noise(_odometry_noise(self.p.covs[i - 1]), loss, k)
+        nm = robust_noise(
+            _odometry_noise(self.p.covs[i - 1], self.p.options.odometry_floor), loss, k
+        )
         return self.gtsam.BetweenFactorPose2(_X(i - 1), _X(i), self.gtsam.Pose2(*d), nm)
 
     def measurement(self, meas: _Measurement):

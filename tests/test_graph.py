@@ -1,0 +1,282 @@
+"""Tests of the GTSAM factor-graph back end (odofuse.estimators.graph, docs/graph.md)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+from odofuse import se2  # noqa: E402
+from odofuse.config import RunConfig  # noqa: E402
+from odofuse.errors import ConfigError  # noqa: E402
+from odofuse.estimators import graph  # noqa: E402
+from odofuse.estimators.graph_factors import range_landmark_factor  # noqa: E402
+from odofuse.io.log import SensorLog, Stream  # noqa: E402
+from odofuse.motion import dead_reckon, motion_model_from_config  # noqa: E402
+from odofuse.testing import numerical_jacobian  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+BEACONS = {0: np.array([20.0, 5.0]), 1: np.array([-5.0, 25.0]), 2: np.array([10.0, -15.0])}
+
+
+def _config(estimator="smoother", sensors=None, options=None, k=(1e-3, 1e-4)):
+    return RunConfig(
+        log="<memory>",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": list(k), "var_floor": [1e-6, 1e-8]},
+        estimator=estimator,
+        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.01, 0.01, 0.01]},
+        sensors=sensors or {},
+        options={estimator: options or {}},
+        source="test.yaml",
+    )
+
+
+def _simulate(seed=1, T=120.0, scale=1.0, offset=0.0, outliers=0.0, sigma=0.2):
+    """A 5 Hz increments log driving a loop, 2 Hz ranges to three beacons (seeded)."""
+    rng = np.random.default_rng(seed)
+    dt = 0.2
+    n = int(T / dt)
+    t = np.arange(1, n + 1) * dt
+    ds_true = np.full(n, 0.1)
+    dth_true = 0.02 * np.sin(2 * np.pi * t / 60.0) + 0.01
+    truth = np.zeros((n + 1, 3))
+    for i in range(n):
+        w = dth_true[i]
+        dx = ds_true[i] * (np.sinc(w / 2 / np.pi) * np.cos(w / 2))
+        dy = ds_true[i] * (np.sinc(w / 2 / np.pi) * np.sin(w / 2))
+        truth[i + 1] = se2.compose(truth[i], np.array([dx, dy, w]))
+    ds = ds_true + rng.normal(0, 0.003, n)
+    dth = dth_true + rng.normal(0, 0.002, n)
+    tr = np.arange(0.5, T, 0.5)
+    ids = np.arange(tr.size) % 3
+    xy = np.column_stack([np.interp(tr, np.r_[0, t], truth[:, j]) for j in range(2)])
+    d = np.array([np.linalg.norm(xy[i] - BEACONS[ids[i]]) for i in range(tr.size)])
+    r = scale * d + offset + rng.normal(0, sigma, tr.size)
+    if outliers:
+        bad = rng.random(tr.size) < outliers
+        r[bad] += rng.uniform(5.0, 20.0, bad.sum())
+    streams = {
+        "odometry": Stream("odometry", "sim", t, ("ds", "dtheta"), np.column_stack([ds, dth])),
+        "ranges": Stream("ranges", "sim", tr, ("id", "range"), np.column_stack([ids, r])),
+    }
+    gt = Stream("groundtruth", "sim", np.r_[0.0, t], ("x", "y", "theta"), truth)
+    return SensorLog("sim", streams, dict(BEACONS), gt, {}, np.zeros(3))
+
+
+def _rmse(result, log):
+    tr = result.trajectory
+    gx = np.interp(tr.t, log.groundtruth.t, log.groundtruth["x"])
+    gy = np.interp(tr.t, log.groundtruth.t, log.groundtruth["y"])
+    return float(np.sqrt(np.mean((tr.poses[:, 0] - gx) ** 2 + (tr.poses[:, 1] - gy) ** 2)))
+
+
+# --------------------------------------------------------------------------- odometry
+def test_odometry_only_graph_equals_dead_reckoning():
+    log = _simulate(T=40.0)
+    log = dataclasses.replace(log, streams={"odometry": log.streams["odometry"]})
+    opts = {"keyframe_every_step": True, "keyframe_dt": 0.0, "odometry_floor": 1e-9}
+    cfg = _config(options=opts)
+    res = graph.run_smoother(log, cfg)
+    model = motion_model_from_config(cfg)
+    U = log.streams["odometry"].values
+    poses, covs = dead_reckon(model, np.zeros(3), np.diag([0.01**2] * 3), U)
+    assert res.trajectory.poses.shape == poses.shape
+    np.testing.assert_allclose(res.trajectory.poses, poses, atol=1e-9)
+    # GTSAM marginals (body frame) converted with se2.cov_body_to_world against the
+    # independent world-frame propagation of dead reckoning (odometry_floor made negligible).
+    np.testing.assert_allclose(res.trajectory.covariances, covs, atol=2e-6, rtol=1e-3)
+    assert res.used == {"odometry": U.shape[0]}
+
+
+def test_split_steps_compose_to_the_full_step():
+    log = _simulate(T=10.0)
+    cfg = _config()
+    model = motion_model_from_config(cfg)
+    U = log.streams["odometry"].values
+    t_odo = np.r_[0.0, log.streams["odometry"].t]
+    kt = np.array([0.0, 0.33, 1.01, 4.5, t_odo[-1]])
+    deltas, covs = graph.preintegrate(t_odo, U, model, kt)
+    pose = np.zeros(3)
+    for d in deltas:
+        pose = se2.compose(pose, d)
+    full, _ = dead_reckon(model, np.zeros(3), np.zeros((3, 3)), U, with_cov=False)
+    np.testing.assert_allclose(pose, full[-1], atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(covs[1:]) > -1e-15)
+
+
+def test_keyframe_triggers():
+    log = _simulate(T=20.0)
+    cfg = _config()
+    model = motion_model_from_config(cfg)
+    U = log.streams["odometry"].values
+    t_odo = np.r_[0.0, log.streams["odometry"].t]
+    opts = graph.GraphOptions(keyframe_dt=0.0, keyframe_ds=1.0)
+    kt = graph.keyframe_times(t_odo, U, model, np.array([3.3]), opts)
+    assert 3.3 in kt and kt[0] == 0.0 and kt[-1] == t_odo[-1]
+    # one keyframe per metre of the 0.1 m steps (10 m in all), plus the ends and 3.3 s
+    assert 11 <= kt.size <= 13
+    kt = graph.keyframe_times(t_odo, U, model, np.array([]), graph.GraphOptions(keyframe_dt=5))
+    np.testing.assert_allclose(kt, [0, 5, 10, 15, 20])
+
+
+# --------------------------------------------------------------------------- factors
+def test_range_landmark_factor_jacobians():
+    values = gtsam.Values()
+    values.insert(1, gtsam.Pose2(1.0, -2.0, 0.7))
+    values.insert(2, gtsam.Point2(4.0, 3.0))
+    values.insert(3, np.array([1.05]))
+    values.insert(4, np.array([0.3]))
+    nm = gtsam.noiseModel.Isotropic.Sigma(1, 1.0)
+    f = range_landmark_factor(1, 2, 6.0, nm, 3, 4)
+    lin = f.linearize(values)
+    A = lin.jacobian()[0]
+    x0 = np.zeros(7)
+
+    def err(dx):
+        v = gtsam.Values()
+        v.insert(1, values.atPose2(1).retract(dx[:3]))
+        v.insert(2, values.atPoint2(2) + dx[3:5])
+        v.insert(3, values.atVector(3) + dx[5:6])
+        v.insert(4, values.atVector(4) + dx[6:7])
+        return f.unwhitenedError(v)
+
+    np.testing.assert_allclose(A, numerical_jacobian(err, x0), atol=1e-7)
+    d = np.hypot(3.0, 5.0)
+    np.testing.assert_allclose(f.unwhitenedError(values), [1.05 * d + 0.3 - 6.0])
+
+
+# --------------------------------------------------------------------------- estimation
+def test_robust_loss_reduces_injected_outliers():
+    log = _simulate(seed=3, outliers=0.15)
+    sensors = {"ranges": {"sigma": 0.2}}
+    plain = graph.run_smoother(log, _config(sensors=sensors))
+    huber = graph.run_smoother(log, _config(sensors=sensors, options={"robust": "huber"}))
+    cauchy = graph.run_smoother(
+        log, _config(sensors=sensors, options={"robust": {"ranges": {"type": "cauchy"}}})
+    )
+    e_plain, e_huber, e_cauchy = (_rmse(r, log) for r in (plain, huber, cauchy))
+    assert e_huber < 0.7 * e_plain
+    assert e_cauchy < 0.5 * e_plain
+    assert cauchy.extra["outliers"]["ranges"] > 0
+
+
+def test_calibration_recovers_simulated_range_scale():
+    log = _simulate(seed=5, T=200.0, scale=1.05, offset=0.3)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
+    res = graph.run_smoother(log, _config(sensors=sensors))
+    cal, sig = res.extra["calibration"], res.extra["calibration_sigma"]
+    assert abs(cal["range_scale"] - 1.05) < max(3 * sig["range_scale"], 2e-3)
+    assert abs(cal["range_offset"] - 0.3) < max(3 * sig["range_offset"], 0.05)
+    uncal = graph.run_smoother(log, _config(sensors={"ranges": {"sigma": 0.2}}))
+    assert _rmse(res, log) < _rmse(uncal, log)
+
+
+def test_world_covariance_matches_monte_carlo():
+    """Marginal of the last pose of an odometry chain against sampled trajectories."""
+    log = _simulate(T=20.0)
+    log = dataclasses.replace(log, streams={"odometry": log.streams["odometry"]})
+    cfg = _config(options={"keyframe_dt": 5.0}, k=(1e-2, 1e-3))
+    res = graph.run_smoother(log, cfg)
+    model = motion_model_from_config(cfg)
+    U = log.streams["odometry"].values
+    rng = np.random.default_rng(7)
+    M = 4000
+    var = model.errors.variances(model.drive, U)  # (N, 2)
+    poses = np.zeros((M, 3))
+    P0 = np.diag([0.01**2] * 3)
+    poses += rng.multivariate_normal(np.zeros(3), P0, M)
+    for i in range(U.shape[0]):
+        u = U[i] + rng.normal(0, 1, (M, 2)) * np.sqrt(var[i])
+        delta, _ = model.increment(u)
+        poses = se2.compose(poses, delta)
+    mc = np.cov(poses.T)
+    P = res.trajectory.covariances[-1]
+    np.testing.assert_allclose(P, mc, rtol=0.15, atol=2e-5)
+
+
+def test_isam2_and_fixed_lag_close_to_smoother():
+    log = _simulate(seed=11, T=60.0)
+    sensors = {"ranges": {"sigma": 0.2}}
+    batch = graph.run_smoother(log, _config(sensors=sensors))
+    inc = graph.run_isam2(
+        log, _config("isam2", sensors, {"relinearize_threshold": 0.01, "relinearize_skip": 1})
+    )
+    lag = graph.run_fixed_lag(log, _config("fixed_lag", sensors, {"lag": 5.0}))
+    np.testing.assert_allclose(
+        inc.trajectory.poses[:, :2], batch.trajectory.poses[:, :2], atol=0.02
+    )
+    assert _rmse(lag, log) < 1.5 * _rmse(batch, log) + 0.05
+    assert inc.extra["latency"]["updates"] == len(inc.trajectory)
+    assert lag.trajectory.covariances.shape == (len(lag.trajectory), 3, 3)
+
+
+# --------------------------------------------------------------------------- options
+@pytest.mark.parametrize(
+    "options, key",
+    [
+        ({"keyframe_dtt": 1.0}, "options.smoother.keyframe_dtt"),
+        ({"keyframe_dt": -1.0}, "options.smoother.keyframe_dt"),
+        ({"robust": "l1"}, "options.smoother.robust"),
+        ({"robust": {"gps": "huber"}}, "options.smoother.robust.gps"),
+        ({"robust": {"ranges": {"type": "huber", "k": 0}}}, "options.smoother.robust.ranges.k"),
+        ({"slam": "yes"}, "options.smoother.slam"),
+        ({"max_iterations": 0}, "options.smoother.max_iterations"),
+    ],
+)
+def test_bad_options_name_the_key(options, key):
+    cfg = _config(sensors={"ranges": {"sigma": 0.2}}, options=options)
+    with pytest.raises(ConfigError) as exc:
+        graph.parse_options(cfg, "smoother")
+    assert exc.value.key == key and exc.value.file == "test.yaml"
+
+
+def test_slam_only_for_the_smoother():
+    log = _simulate(T=10.0)
+    cfg = _config("isam2", {"ranges": {"sigma": 0.2}}, {"slam": True})
+    with pytest.raises(ConfigError, match="slam"):
+        graph.run_isam2(log, cfg)
+
+
+# --------------------------------------------------------------------------- Plaza1
+def _plaza_config(name):
+    from odofuse.config import load_config
+
+    return load_config(REPO / "configs" / name)
+
+
+@pytest.fixture(scope="module")
+def plaza1():
+    from odofuse.io.builtin import load_builtin
+
+    return load_builtin("builtin:plaza1")
+
+
+@pytest.mark.slow
+def test_plaza1_known_beacons_rmse(plaza1):
+    from odofuse.evaluation import ate, trajectory_from_stream
+
+    res = graph.run_smoother(plaza1, _plaza_config("plaza1-smoother.yaml"))
+    a = ate(res.trajectory, trajectory_from_stream(plaza1.groundtruth))
+    assert a.rmse_m <= 0.20
+    assert 1.03 < res.extra["calibration"]["range_scale"] < 1.10
+    assert res.used["ranges"] + res.rejected["ranges"] == len(plaza1.streams["ranges"])
+
+
+@pytest.mark.slow
+def test_plaza1_range_only_slam(plaza1):
+    from odofuse.evaluation import align_se2, associate, trajectory_from_stream
+
+    res = graph.run_smoother(plaza1, _plaza_config("plaza1-slam.yaml"))
+    gt = trajectory_from_stream(plaza1.groundtruth)
+    idx, g = associate(res.trajectory, gt)
+    R, t, _ = align_se2(res.trajectory.xy[idx], g[:, :2])
+    aligned = res.trajectory.xy[idx] @ R.T + t
+    rmse = float(np.sqrt(np.mean(np.sum((aligned - g[:, :2]) ** 2, axis=1))))
+    assert rmse <= 0.5
+    for lid, p in res.extra["landmarks"].items():
+        assert np.linalg.norm(R @ np.asarray(p) + t - plaza1.landmarks[lid]) <= 1.0
