@@ -11,21 +11,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
 
 import numpy as np
+from _timing import best_of
 
 from odofuse.drives import Differential
 from odofuse.motion import MotionModel, OdometryErrorModel, dead_reckon
-
-
-def best_of(fn, repeats: int = 3) -> float:
-    best = math.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def python_loop(U, r, b):

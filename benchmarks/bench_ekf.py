@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
 
 import numpy as np
+from _timing import best_of
 
 from odofuse.config import RunConfig
 from odofuse.estimators.ekf import EkfBackend
@@ -30,15 +30,6 @@ from odofuse.motion import motion_model_from_config
 
 BEACONS = {0: np.array([20.0, 0.0]), 1: np.array([0.0, 25.0]), 2: np.array([-15.0, -10.0])}
 K = (1e-2, 1e-4)
-
-
-def best_of(fn, repeats: int = 3) -> float:
-    best = math.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def inputs(steps: int, seed: int = 0):

@@ -1,0 +1,16 @@
+"""Timing helper shared by the benchmark scripts (run them as ``python benchmarks/NAME.py``)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+
+def best_of(fn, repeats: int = 3) -> float:
+    """Smallest wall-clock time of ``repeats`` calls of ``fn()``, in seconds."""
+    best = math.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
