@@ -109,6 +109,26 @@ def test_split_steps_compose_to_the_full_step():
     assert np.all(np.linalg.eigvalsh(covs[1:]) > -1e-15)
 
 
+@pytest.mark.parametrize(
+    "robot",
+    [
+        {"drive": "increments"},
+        {"drive": "differential", "wheel_radius": 0.05, "track_width": 0.3},
+    ],
+)
+def test_vectorised_preintegration_equals_motion_model_relative(robot):
+    cfg = RunConfig(log="x", robot=robot, motion={"k": 1e-3, "var_floor": 1e-7})
+    model = motion_model_from_config(cfg)
+    rng = np.random.default_rng(0)
+    pieces = rng.normal(0.1, 0.05, (30, 2)) if len(robot) == 1 else rng.normal(2, 0.5, (30, 2))
+    owner = np.repeat([0, 1, 2], [10, 1, 19])
+    deltas, covs = graph._preintegrate_pieces(model, pieces, owner, 3)
+    for i in range(3):
+        d, c = model.relative(pieces[owner == i])
+        np.testing.assert_allclose(deltas[i], d, atol=1e-14)
+        np.testing.assert_allclose(covs[i], c, atol=1e-15)
+
+
 def test_keyframe_triggers():
     log = _simulate(T=20.0)
     cfg = _config()

@@ -1,0 +1,241 @@
+"""Benchmarks of the factor-graph back end (prints figures and ratios; asserts nothing).
+
+Run: ``python benchmarks/bench_graph.py [plaza|isam2|hour|all] [--custom]``
+
+* ``plaza``: Plaza1 batch smoothing with odofuse (``run_smoother``, no covariances) against a
+  minimal hand-written GTSAM script that builds the same graph from the same arrays
+  (keyframes at range times + every second, per-step midpoint pre-integration,
+  ``BetweenFactorPose2``, ``RangeFactor2D`` to pinned beacons, Huber, GTSAM's LM). Both run
+  without range calibration so that both graphs are built-in factors only; ``--custom`` also
+  times the calibrated graph (CustomFactor) with GTSAM's own LM against odofuse's Python LM.
+  Target ratio <= 1.3.
+* ``isam2``: per-update latency of iSAM2 on Plaza1 as the log grows (median / p99 per quarter).
+* ``hour``: a one-hour 100 Hz simulated log (360 000 odometry steps, 1 Hz GPS) smoothed in
+  batch; wall time (target <= 60 s) and peak resident memory (target <= 2 GiB).
+"""
+
+from __future__ import annotations
+
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _plaza_config(estimator="smoother", calibrate=False, covariances=False):
+    from odofuse.config import RunConfig
+
+    return RunConfig(
+        log="builtin:plaza1",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": [1e-6, 1e-8]},
+        estimator=estimator,
+        initial={"sigma": [0.1, 0.1, 0.05]},
+        sensors={"ranges": {"sigma": 0.5, "calibrate": calibrate, "gate": 0.999}},
+        options={estimator: {"robust": {"ranges": "huber"}, "covariances": covariances}},
+    )
+
+
+def minimal_script(log, calibrate=False):
+    """A plain GTSAM script building the Plaza1 graph (what a user would write by hand)."""
+    import gtsam
+
+    X = gtsam.symbol_shorthand.X
+    L = gtsam.symbol_shorthand.L
+    o, r = log.streams["odometry"], log.streams["ranges"]
+    t_odo = np.r_[o.t[0] - np.median(np.diff(o.t)), o.t]
+    ds, dth = o["ds"], o["dtheta"]
+    order = np.argsort(r.t, kind="stable")
+    rt, rid, rr = r.t[order], r["id"][order].astype(int), r["range"][order]
+    keep = (rt >= t_odo[0]) & (rt <= t_odo[-1])
+    rt, rid, rr = rt[keep], rid[keep], rr[keep]
+    kt = np.unique(np.r_[t_odo[0], t_odo[-1], rt, np.arange(t_odo[0], t_odo[-1], 1.0)])
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    pose = gtsam.Pose2(*log.initial_pose)
+    graph.add(
+        gtsam.PriorFactorPose2(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas([0.1, 0.1, 0.05]))
+    )
+    values.insert(X(0), pose)
+    # per-step pieces (split at keyframes), first-order covariance propagation
+    breaks = np.unique(np.r_[t_odo, kt])
+    step = np.clip(np.searchsorted(t_odo, breaks[1:]) - 1, 0, len(ds) - 1)
+    frac = np.diff(breaks) / (t_odo[step + 1] - t_odo[step])
+    owner = np.searchsorted(kt, breaks[1:]) - 1
+    k = 0
+    for i in range(1, len(kt)):
+        rel, cov = gtsam.Pose2(), np.zeros((3, 3))
+        while k < len(owner) and owner[k] == i - 1:
+            s, w = ds[step[k]] * frac[k], dth[step[k]] * frac[k]
+            inc = gtsam.Pose2(s * np.cos(w / 2), s * np.sin(w / 2), w)
+            A = inc.inverse().AdjointMap()
+            B = np.array([[np.cos(w / 2), 0.0], [np.sin(w / 2), 0.0], [0.0, 1.0]])
+            Q = B @ np.diag([1e-3 * abs(s) + 1e-6 * frac[k], 1e-4 * abs(w) + 1e-8 * frac[k]]) @ B.T
+            cov = A @ cov @ A.T + Q
+            rel = rel.compose(inc)
+            k += 1
+        graph.add(
+            gtsam.BetweenFactorPose2(
+                X(i - 1), X(i), rel, gtsam.noiseModel.Gaussian.Covariance(cov + 1e-8 * np.eye(3))
+            )
+        )
+        pose = pose.compose(rel)
+        values.insert(X(i), pose)
+    for lid, p in log.landmarks.items():
+        values.insert(L(lid), gtsam.Point2(*p))
+        graph.add(
+            gtsam.PriorFactorPoint2(
+                L(lid), gtsam.Point2(*p), gtsam.noiseModel.Isotropic.Sigma(2, 1e-6)
+            )
+        )
+    nm = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(1.345), gtsam.noiseModel.Isotropic.Sigma(1, 0.5)
+    )
+    ki = np.searchsorted(kt, rt)
+    if calibrate:
+        C = gtsam.symbol("c", 0)
+        values.insert(C, np.array([1.0, 0.0]))
+        graph.add(
+            gtsam.PriorFactorVector(
+                C, np.array([1.0, 0.0]), gtsam.noiseModel.Diagonal.Sigmas([0.05, 0.5])
+            )
+        )
+
+        def make(z, lm):
+            def err(this, v, H):
+                p, c = v.atPose2(this.keys()[0]), v.atVector(C)
+                dx, dy = p.x() - lm[0], p.y() - lm[1]
+                d = np.hypot(dx, dy)
+                if H is not None:
+                    ct, st = np.cos(p.theta()), np.sin(p.theta())
+                    H[0] = c[0] * np.array(
+                        [[dx / d * ct + dy / d * st, -dx / d * st + dy / d * ct, 0]]
+                    )
+                    H[1] = np.array([[d, 1.0]])
+                return np.array([c[0] * d + c[1] - z])
+
+            return err
+
+        for j in range(len(rt)):
+            graph.add(gtsam.CustomFactor(nm, [X(ki[j]), C], make(rr[j], log.landmarks[rid[j]])))
+    else:
+        for j in range(len(rt)):
+            graph.add(gtsam.RangeFactor2D(X(ki[j]), L(rid[j]), rr[j], nm))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-6)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    return kt, np.array(
+        [[result.atPose2(X(i)).x(), result.atPose2(X(i)).y()] for i in range(len(kt))]
+    )
+
+
+def bench_plaza(custom=False):
+    from odofuse.estimators.graph import run_smoother
+    from odofuse.evaluation import ate, trajectory_from_stream
+    from odofuse.io.builtin import load_builtin
+    from odofuse.trajectory import Trajectory
+
+    log = load_builtin("builtin:plaza1")
+    gt = trajectory_from_stream(log.groundtruth)
+    cases = [False, True] if custom else [False]
+    for calibrate in cases:
+        t0 = time.perf_counter()
+        res = run_smoother(log, _plaza_config(calibrate=calibrate))
+        t_ours = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        kt, xy = minimal_script(log, calibrate)
+        t_min = time.perf_counter() - t0
+        e_ours = ate(res.trajectory, gt).rmse_m
+        e_min = ate(Trajectory(kt, np.c_[xy, np.zeros(len(kt))]), gt).rmse_m
+        label = "calibrated (CustomFactor)" if calibrate else "built-in factors"
+        print(
+            f"plaza1 batch, {label}: odofuse {t_ours:.2f} s (RMSE {e_ours:.3f} m), "
+            f"minimal GTSAM script {t_min:.2f} s (RMSE {e_min:.3f} m), "
+            f"ratio {t_ours / t_min:.2f} (target <= 1.3)"
+        )
+
+
+def bench_isam2():
+    from odofuse.estimators.graph import run_isam2
+    from odofuse.io.builtin import load_builtin
+
+    log = load_builtin("builtin:plaza1")
+    t0 = time.perf_counter()
+    res = run_isam2(log, _plaza_config("isam2"))
+    lat = res.extra["latency"]
+    print(
+        f"plaza1 iSAM2 ({lat['updates']} updates, {time.perf_counter() - t0:.1f} s): "
+        f"median {lat['median_ms']:.2f} ms, p99 {lat['p99_ms']:.2f} ms, max {lat['max_ms']:.1f} ms"
+    )
+    print(
+        "  per quarter of the log: median",
+        " ".join(f"{m:.2f}" for m in lat["quarters_median_ms"]),
+        "ms; p99",
+        " ".join(f"{m:.2f}" for m in lat["quarters_p99_ms"]),
+        "ms",
+    )
+
+
+def simulate_hour(rate=100.0, duration=3600.0, seed=0):
+    """A lawn-mower-like 100 Hz increments log with 1 Hz GPS (seeded)."""
+    from odofuse import se2
+    from odofuse.io.log import SensorLog, Stream
+
+    rng = np.random.default_rng(seed)
+    n = int(rate * duration)
+    dt = 1.0 / rate
+    t = np.arange(1, n + 1) * dt
+    ds_true = np.full(n, 0.5 * dt)
+    dth_true = 0.2 * dt * np.sin(2 * np.pi * t / 120.0)
+    theta = np.cumsum(dth_true) - dth_true / 2
+    xy = np.cumsum(np.column_stack([ds_true * np.cos(theta), ds_true * np.sin(theta)]), axis=0)
+    odo = np.column_stack([ds_true + rng.normal(0, 1e-4, n), dth_true + rng.normal(0, 1e-4, n)])
+    g = np.arange(int(rate) - 1, n, int(rate))
+    gps = xy[g] + rng.normal(0, 0.5, (g.size, 2))
+    streams = {
+        "odometry": Stream("odometry", "sim", t, ("ds", "dtheta"), odo),
+        "gps": Stream("gps", "sim", t[g], ("x", "y"), gps),
+    }
+    truth = np.column_stack([xy, se2.wrap(np.cumsum(dth_true))])
+    gt = Stream("groundtruth", "sim", t, ("x", "y", "theta"), truth)
+    return SensorLog("sim-hour", streams, {}, gt, {}, np.zeros(3))
+
+
+def bench_hour():
+    from odofuse.config import RunConfig
+    from odofuse.estimators.graph import run_smoother
+    from odofuse.evaluation import ate, trajectory_from_stream
+
+    log = simulate_hour()
+    cfg = RunConfig(
+        log="sim",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-4, 1e-4], "var_floor": [1e-8, 1e-8]},
+        estimator="smoother",
+        initial={"pose": [0, 0, 0], "sigma": [0.1, 0.1, 0.05]},
+        sensors={"gps": {"sigma": 0.5}},
+        options={"smoother": {"robust": {"gps": "huber"}}},
+    )
+    t0 = time.perf_counter()
+    res = run_smoother(log, cfg)
+    wall = time.perf_counter() - t0
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2  # KiB -> GiB
+    e = ate(res.trajectory, trajectory_from_stream(log.groundtruth)).rmse_m
+    print(
+        f"one-hour 100 Hz log ({len(log.streams['odometry'])} steps, {len(res.trajectory)} "
+        f"keyframes): {wall:.1f} s (target <= 60), peak RSS {rss:.2f} GiB (target <= 2), "
+        f"RMSE {e:.3f} m"
+    )
+
+
+if __name__ == "__main__":
+    what = sys.argv[1] if len(sys.argv) > 1 and not sys.argv[1].startswith("-") else "all"
+    if what in ("plaza", "all"):
+        bench_plaza("--custom" in sys.argv)
+    if what in ("isam2", "all"):
+        bench_isam2()
+    if what in ("hour", "all"):
+        bench_hour()
