@@ -82,11 +82,14 @@ class FastIncrement:
         try:
             for u in (np.zeros(n), rng.normal(0, 0.1, n), rng.normal(0, 1e-4, n)):
                 d, J, var = self(u)
+                *dt, G = self.terms(u)
                 d0, J0 = model.increment(u)
                 var0 = model.errors.variances(drive, u)
                 if not (
                     np.allclose(d, d0, rtol=0, atol=1e-12)
+                    and np.allclose(dt, d0, rtol=0, atol=1e-12)
                     and np.allclose(J, J0, rtol=0, atol=1e-12)
+                    and np.allclose(G, J0 * np.sqrt(var0), rtol=0, atol=1e-12)
                     and np.allclose(var, var0, rtol=1e-12, atol=1e-15)
                 ):
                     return
@@ -94,28 +97,25 @@ class FastIncrement:
             return
         self.ok = True
 
-    def __call__(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(delta (3,), J_delta_u (3, n), var_u (n,))`` of one step."""
-        M = self.M
-        w, vx, vy = M @ u
+    def _increment(self, w: float, vx: float, vy: float):
+        """Scalar ``delta`` and ``J_delta_twist`` (3 x 3 tuples) of the model's integrator."""
         if self.integrator == "exact":
             A, B, dA, dB = _exp_coeffs(w)
-            delta = np.array([A * vx - B * vy, B * vx + A * vy, w])
-            Jt = np.array([[dA * vx - dB * vy, A, -B], [dB * vx + dA * vy, B, A], [1.0, 0.0, 0.0]])
+            d = (A * vx - B * vy, B * vx + A * vy, w)
+            Jt = ((dA * vx - dB * vy, A, -B), (dB * vx + dA * vy, B, A))
         elif self.integrator == "rk2":
             c, s = math.cos(0.5 * w), math.sin(0.5 * w)
-            delta = np.array([c * vx - s * vy, s * vx + c * vy, w])
-            Jt = np.array(
-                [
-                    [0.5 * (-s * vx - c * vy), c, -s],
-                    [0.5 * (c * vx - s * vy), s, c],
-                    [1.0, 0.0, 0.0],
-                ]
-            )
+            d = (c * vx - s * vy, s * vx + c * vy, w)
+            Jt = ((0.5 * (-s * vx - c * vy), c, -s), (0.5 * (c * vx - s * vy), s, c))
         else:
-            delta = np.array([vx, vy, w])
-            Jt = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
-        return delta, Jt @ M, self.k_eff * np.abs(u) + self.floor
+            d = (vx, vy, w)
+            Jt = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+        return d, Jt + ((1.0, 0.0, 0.0),)
+
+    def __call__(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(delta (3,), J_delta_u (3, n), var_u (n,))`` of one step."""
+        d, Jt = self._increment(*(self.M @ u).tolist())
+        return np.array(d), np.array(Jt) @ self.M, self.k_eff * np.abs(u) + self.floor
 
     def terms(self, u) -> tuple[float, float, float, list[list[float]]]:
         """Scalar form for the EKF: ``delta`` as floats and ``G = J_delta_u diag(sigma_u)``.
@@ -129,18 +129,7 @@ class FastIncrement:
             w, vx, vy = m00 * u0 + m01 * u1, m10 * u0 + m11 * u1, m20 * u0 + m21 * u1
         else:
             w, vx, vy = (self.M @ u).tolist()
-        if self.integrator == "exact":
-            A, B, dA, dB = _exp_coeffs(w)
-            d = (A * vx - B * vy, B * vx + A * vy, w)
-            Jt = ((dA * vx - dB * vy, A, -B), (dB * vx + dA * vy, B, A))
-        elif self.integrator == "rk2":
-            c, s = math.cos(0.5 * w), math.sin(0.5 * w)
-            d = (c * vx - s * vy, s * vx + c * vy, w)
-            Jt = ((0.5 * (-s * vx - c * vy), c, -s), (0.5 * (c * vx - s * vy), s, c))
-        else:
-            d = (vx, vy, w)
-            Jt = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-        Jt = Jt + ((1.0, 0.0, 0.0),)
+        d, Jt = self._increment(w, vx, vy)
         if self._two:
             # Two inputs (increments, differential, skid-steer): unrolled.
             k0, k1 = self._k
