@@ -76,6 +76,7 @@ OPTION_KEYS = (
     "relinearize_threshold",
     "relinearize_skip",
     "odometry_floor",
+    "final_relinearizations",
 )
 ROBUST_KINDS = ("none", "huber", "cauchy", "tukey")
 LANDMARK_SENSORS = ("BeaconRange", "LandmarkBearing", "LandmarkRangeBearing")
@@ -147,6 +148,7 @@ class GraphOptions:
     relinearize_threshold: float = 0.1
     relinearize_skip: int = 10
     odometry_floor: float = 1e-8
+    final_relinearizations: int = 3
 
 
 def _nonneg_option(value, key, source) -> float:
@@ -229,7 +231,7 @@ def parse_options(config, estimator: str) -> GraphOptions:
             kw[key] = _bool_option(value, k, source)
         elif key in ("relinearize_threshold", "odometry_floor"):
             kw[key] = _nonneg_option(value, k, source)
-        elif key in ("max_iterations", "relinearize_skip"):
+        elif key in ("max_iterations", "relinearize_skip", "final_relinearizations"):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ConfigError(f"expected a positive integer, got {value!r}", source, k)
             kw[key] = value
@@ -936,6 +938,12 @@ def run_isam2(log, config) -> EstimateResult:
     params = _isam2_params(problem.options)
     isam = gtsam.ISAM2(params)
     graph, values = fac.static()
+    # Calibration states touch every factor of their sensor: relinearising them online would
+    # re-run all those (Python) factors, so they are relinearised only in the final passes
+    # (range and gyro models are linear in them anyway).
+    frozen = gtsam.KeyList()
+    for key, _, _ in problem.calib.values():
+        frozen.push_back(key)
     latency = []
     current = gtsam.Pose2(*problem.pose0)
     for i in range(len(problem.kt)):
@@ -945,13 +953,13 @@ def run_isam2(log, config) -> EstimateResult:
         graph.push_back(g)
         values.insert(v)
         t0 = time.perf_counter()
-        isam.update(graph, values)
+        isam.update(graph, values, noRelinKeys=frozen)
         latency.append(time.perf_counter() - t0)
         if i > 0:
             current = isam.calculateEstimatePose2(_X(i))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    for _ in range(2):
-        isam.update()
+    for _ in range(problem.options.final_relinearizations):
+        isam.update(force_relinearize=True)
     result = isam.calculateEstimate()
     covs = None
     if problem.options.covariances:
