@@ -141,13 +141,16 @@ def bench_plaza(custom=False):
     log = load_builtin("builtin:plaza1")
     gt = trajectory_from_stream(log.groundtruth)
     cases = [False, True] if custom else [False]
+    repeats = 3  # best of 3: the machine is shared, the minimum is the least disturbed run
     for calibrate in cases:
-        t0 = time.perf_counter()
-        res = run_smoother(log, _plaza_config(calibrate=calibrate))
-        t_ours = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        kt, xy = minimal_script(log, calibrate)
-        t_min = time.perf_counter() - t0
+        t_ours = t_min = np.inf
+        for _ in range(repeats if not calibrate else 1):
+            t0 = time.perf_counter()
+            res = run_smoother(log, _plaza_config(calibrate=calibrate))
+            t_ours = min(t_ours, time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            kt, xy = minimal_script(log, calibrate)
+            t_min = min(t_min, time.perf_counter() - t0)
         e_ours = ate(res.trajectory, gt).rmse_m
         e_min = ate(Trajectory(kt, np.c_[xy, np.zeros(len(kt))]), gt).rmse_m
         label = "calibrated (CustomFactor)" if calibrate else "built-in factors"

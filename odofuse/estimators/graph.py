@@ -361,7 +361,10 @@ def _odometry_noise(cov, floor: float = _COV_FLOOR):
     import gtsam
 
     cov = 0.5 * (cov + cov.T)
-    return gtsam.noiseModel.Gaussian.Covariance(cov + floor * np.eye(3))
+    cov[0, 0] += floor
+    cov[1, 1] += floor
+    cov[2, 2] += floor
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
 # --------------------------------------------------------------------------- problem
@@ -416,11 +419,14 @@ class GraphProblem:
 
     def dead_reckoning(self) -> np.ndarray:
         """Keyframe poses ``(K, 3)`` obtained by composing the odometry factors from ``pose0``."""
-        poses = np.empty((len(self.kt), 3))
-        poses[0] = self.pose0
-        for i, d in enumerate(self.deltas):
-            poses[i + 1] = se2.compose(poses[i], d)
-        return poses
+        # pose_{i+1} = pose_i (+) d_i: theta by a running sum, positions by summing the
+        # increments rotated into the world (head-to-tail composition, 002 source)
+        theta = self.pose0[2] + np.concatenate([[0.0], np.cumsum(self.deltas[:, 2])])
+        c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
+        dx, dy = self.deltas[:, 0], self.deltas[:, 1]
+        step = np.column_stack([c * dx - s * dy, s * dx + c * dy])
+        xy = self.pose0[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])
+        return np.column_stack([xy, se2.wrap(theta)])
 
 
 def _model_kind(model) -> str:
@@ -628,6 +634,7 @@ class _Factors:
         self.used: dict[str, int] = {problem.odometry_stream: problem.odometry_rows}
         for s in problem.models:
             self.used.setdefault(s, 0)
+        self.created: list = []  # (measurement, factor) in the order added
         self.by_kf: dict[int, list[_Measurement]] = {}
         for meas in problem.measurements:
             self.by_kf.setdefault(meas.keyframe, []).append(meas)
@@ -750,16 +757,20 @@ class _Factors:
             self.python_factors += 1
         return f
 
-    def keyframe(self, i: int, values_guess):
-        """Factors and new values of keyframe ``i`` (odometry from ``i-1`` and its sensors)."""
+    def keyframe(self, i: int, values_guess, g=None, v=None):
+        """Factors and new values of keyframe ``i`` (odometry from ``i-1`` and its sensors),
+        added to ``g``/``v`` (new containers when omitted)."""
         gtsam = self.gtsam
-        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if g is None:
+            g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if i > 0:
             g.add(self.odometry(i))
             v.insert(_X(i), values_guess)
             self.dims[_X(i)] = 3
         for meas in self.by_kf.get(i, ()):
-            g.add(self.measurement(meas))
+            f = self.measurement(meas)
+            g.add(f)
+            self.created.append((meas, f))
             self.used[meas.stream] = self.used.get(meas.stream, 0) + 1
         return g, v
 
@@ -797,17 +808,18 @@ def _outliers(problem: GraphProblem, fac: _Factors, values) -> dict[str, int]:
 
     out: dict[str, int] = {}
     thresholds: dict[tuple, float] = {}
-    for meas in problem.measurements:
+    for meas, f in fac.created:
         m = problem.models[meas.stream]
         if getattr(m, "gate", None) is None:
             continue
-        f = fac.measurement(meas)
-        fac.python_factors -= isinstance(f, fac.gtsam.CustomFactor)
         e = np.atleast_1d(f.unwhitenedError(values))
         R = m.R(meas.row)
-        if e.size == 2 and _model_kind(m) == "LandmarkRangeBearing":
+        kind = _model_kind(m)
+        if kind == "GyroYawRate":  # the factor's error is a heading change (rad), R a rate
+            e = e / float(meas.row["dt"])
+        elif e.size == 2 and kind == "LandmarkRangeBearing":  # GTSAM: (bearing, range)
             e = e[::-1]
-        nis = float(e @ np.linalg.solve(R, e))
+        nis = float(e[0] * e[0] / R[0, 0]) if e.size == 1 else float(e @ np.linalg.solve(R, e))
         key = (m.gate, e.size)
         if key not in thresholds:
             thresholds[key] = gate_threshold(m.gate, e.size)
@@ -843,9 +855,7 @@ def build_graph(problem: GraphProblem):
     import gtsam
 
     for i in range(len(problem.kt)):
-        g, v = fac.keyframe(i, gtsam.Pose2(*guess[i]))
-        graph.push_back(g)
-        values.insert(v)
+        fac.keyframe(i, gtsam.Pose2(*guess[i]), graph, values)
     return fac, graph, values
 
 
