@@ -235,6 +235,81 @@ def test_isam2_and_fixed_lag_close_to_smoother():
     assert lag.trajectory.covariances.shape == (len(lag.trajectory), 3, 3)
 
 
+def _with_sensors(log, seed=2, gyro_bias=0.01, lever=(0.3, 0.1)):
+    """Add GPS (antenna at ``lever``), compass, biased gyro and range-bearing rows."""
+    rng = np.random.default_rng(seed)
+    gt = log.groundtruth
+    truth = gt.values
+    t = gt.t
+
+    def at(tt):
+        xy = np.column_stack([np.interp(tt, t, truth[:, j]) for j in range(2)])
+        th = np.interp(tt, t, np.unwrap(truth[:, 2]))
+        return xy, th
+
+    tg = np.arange(1.0, t[-1], 1.0)
+    xy, th = at(tg)
+    ant = xy + np.column_stack(
+        [
+            np.cos(th) * lever[0] - np.sin(th) * lever[1],
+            np.sin(th) * lever[0] + np.cos(th) * lever[1],
+        ]
+    )
+    gps = ant + rng.normal(0, 0.3, ant.shape)
+    tc = np.arange(0.7, t[-1], 2.0)
+    compass = se2.wrap(at(tc)[1] + rng.normal(0, 0.02, tc.size))
+    tw = np.arange(0.1, t[-1], 0.1)
+    rate = np.gradient(np.interp(tw, t, np.unwrap(truth[:, 2])), tw)
+    wz = rate + gyro_bias + rng.normal(0, 0.005, tw.size)
+    tl = np.arange(0.3, t[-1], 1.5)
+    xy_l, th_l = at(tl)
+    ids = np.arange(tl.size) % 3
+    rel = np.array([BEACONS[i] for i in ids]) - xy_l
+    rng_l = np.hypot(rel[:, 0], rel[:, 1]) + rng.normal(0, 0.1, tl.size)
+    brg = se2.wrap(np.arctan2(rel[:, 1], rel[:, 0]) - th_l + rng.normal(0, 0.01, tl.size))
+    streams = dict(log.streams)
+    streams.pop("ranges", None)
+    streams["gps"] = Stream("gps", "sim", tg, ("x", "y"), gps)
+    streams["compass"] = Stream("compass", "sim", tc, ("heading",), compass[:, None])
+    streams["gyro"] = Stream("gyro", "sim", tw, ("wz",), wz[:, None])
+    streams["landmarks"] = Stream(
+        "landmarks", "sim", tl, ("id", "range", "bearing"), np.column_stack([ids, rng_l, brg])
+    )
+    return dataclasses.replace(log, streams=streams)
+
+
+def test_every_sensor_model_becomes_a_factor():
+    log = _with_sensors(_simulate(seed=13, T=120.0))
+    sensors = {
+        "gps": {"sigma": 0.3, "lever_arm": [0.3, 0.1]},
+        "compass": {"sigma": 0.02},
+        "gyro": {"sigma": 0.005, "calibrate": True},
+        "landmarks": {"sigma_range": 0.1, "sigma_bearing": 0.01},
+    }
+    res = graph.run_smoother(log, _config(sensors=sensors, k=(1e-2, 1e-2)))
+    assert res.used["gps"] == len(log.streams["gps"])
+    assert res.used["compass"] == len(log.streams["compass"])
+    assert res.used["landmarks"] == len(log.streams["landmarks"])
+    assert res.used["gyro"] == len(log.streams["gyro"]) - 1  # the first has no predecessor
+    assert res.rejected["gyro"] == 1
+    assert abs(res.extra["calibration"]["gyro_bias"] - 0.01) < 2e-3
+    assert _rmse(res, log) < 0.1
+    dr = graph.run_smoother(
+        dataclasses.replace(log, streams={"odometry": log.streams["odometry"]}),
+        _config(k=(1e-2, 1e-2)),
+    )
+    assert _rmse(res, log) < 0.5 * _rmse(dr, log)
+
+
+def test_range_bearing_slam_recovers_the_map():
+    log = _with_sensors(_simulate(seed=17, T=120.0))
+    log = dataclasses.replace(log, streams={k: log.streams[k] for k in ("odometry", "landmarks")})
+    sensors = {"landmarks": {"sigma_range": 0.1, "sigma_bearing": 0.01}}
+    res = graph.run_smoother(log, _config(sensors=sensors, options={"slam": True}))
+    for lid, p in res.extra["landmarks"].items():
+        assert np.linalg.norm(np.asarray(p) - BEACONS[lid]) < 0.5
+
+
 # --------------------------------------------------------------------------- options
 @pytest.mark.parametrize(
     "options, key",
@@ -278,11 +353,16 @@ def plaza1():
 
 @pytest.mark.slow
 def test_plaza1_known_beacons_rmse(plaza1):
+    from odofuse.estimators import run_estimator
     from odofuse.evaluation import ate, trajectory_from_stream
 
+    gt = trajectory_from_stream(plaza1.groundtruth)
     res = graph.run_smoother(plaza1, _plaza_config("plaza1-smoother.yaml"))
-    a = ate(res.trajectory, trajectory_from_stream(plaza1.groundtruth))
+    a = ate(res.trajectory, gt)
     assert a.rmse_m <= 0.20
+    # at least as accurate as the EKF on the same data (its own packaged config)
+    ekf = run_estimator("ekf", plaza1, _plaza_config("plaza1-ekf.yaml"))
+    assert a.rmse_m <= ate(ekf.trajectory, gt).rmse_m
     assert 1.03 < res.extra["calibration"]["range_scale"] < 1.10
     assert res.used["ranges"] + res.rejected["ranges"] == len(plaza1.streams["ranges"])
 
