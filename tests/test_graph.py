@@ -310,6 +310,87 @@ def test_range_bearing_slam_recovers_the_map():
         assert np.linalg.norm(np.asarray(p) - BEACONS[lid]) < 0.5
 
 
+# --------------------------------------------------------------------------- odometry calibration
+def test_calibrated_between_factor_jacobians():
+    from odofuse.estimators.graph_factors import calibrated_between_factor
+
+    values = gtsam.Values()
+    values.insert(1, gtsam.Pose2(1.0, -2.0, 0.7))
+    values.insert(2, gtsam.Pose2(2.1, -1.5, 1.1))
+    values.insert(3, np.array([1.02, 0.97, 0.01]))
+    G = np.array([[0.9, 0.0, 0.1], [0.05, 0.3, 0.2], [0.0, 0.4, 0.5]])
+    f = calibrated_between_factor(
+        1, 2, 3, [1.1, 0.3, 0.35], G, [1.0, 1.0, 0.0], gtsam.noiseModel.Unit.Create(3)
+    )
+    A = f.linearize(values).jacobian()[0]
+
+    def err(dx):
+        v = gtsam.Values()
+        v.insert(1, values.atPose2(1).retract(dx[:3]))
+        v.insert(2, values.atPose2(2).retract(dx[3:6]))
+        v.insert(3, values.atVector(3) + dx[6:])
+        return f.unwhitenedError(v)
+
+    np.testing.assert_allclose(A, numerical_jacobian(err, np.zeros(9)), atol=1e-7)
+
+
+@pytest.mark.parametrize(
+    "robot",
+    [
+        {"drive": "increments"},
+        {"drive": "differential", "wheel_radius": 0.05, "track_width": 0.3},
+    ],
+)
+def test_calibration_sensitivity_matches_perturbed_preintegration(robot):
+    """``delta(p0 + dp) ~= delta(p0) Exp(G dp)`` (the first-order model of the factor)."""
+    cfg = RunConfig(log="x", robot=robot, motion={"k": 1e-3, "var_floor": 1e-7})
+    model = motion_model_from_config(cfg)
+    oc = graph.odometry_calibration_for(model, True, "k", "f")
+    rng = np.random.default_rng(4)
+    n = 25
+    U = rng.normal(0.1, 0.05, (n, 2)) if len(robot) == 1 else rng.normal(2, 0.5, (n, 2))
+    t_odo = np.arange(n + 1) * 0.2
+    kt = np.array([0.0, 2.3, t_odo[-1]])
+    deltas, _, G = graph.preintegrate(t_odo, U, model, kt, oc)
+    eps = 1e-6
+    for j in range(len(oc.names)):
+        p = np.array(oc.nominal)
+        p[j] += eps
+        dt = np.diff(t_odo)[:, None]
+        if robot["drive"] == "increments":
+            Up = np.column_stack([p[0] * U[:, 0], p[1] * U[:, 1] + p[2] * dt[:, 0]])
+        else:
+            E, B = p
+            left, right = U[:, 0] * 2 / (1 + E), U[:, 1] * 2 * E / (1 + E)
+            mean, half = 0.5 * (left + right), 0.5 * (right - left) / B
+            Up = np.column_stack([mean - half, mean + half])
+        dp, _ = graph.preintegrate(t_odo, Up, model, kt)
+        for i in range(len(kt) - 1):
+            xi = gtsam.Pose2.Logmap(gtsam.Pose2(*deltas[i]).between(gtsam.Pose2(*dp[i])))
+            np.testing.assert_allclose(np.ravel(xi) / eps, G[i, :, j], atol=1e-4)
+
+
+def test_odometry_calibration_recovers_simulated_scales():
+    log = _simulate(seed=21, T=200.0)
+    log = _with_sensors(log)
+    odo = log.streams["odometry"]
+    # the log reads 3 % short in ds and 4 % long in dtheta: true = (1.03 ds, 0.96 dtheta)
+    bad = np.column_stack([odo["ds"] / 1.03, odo["dtheta"] / 0.96])
+    streams = {
+        "odometry": Stream("odometry", "sim", odo.t, ("ds", "dtheta"), bad),
+        "gps": log.streams["gps"],
+    }
+    log = dataclasses.replace(log, streams=streams)
+    sensors = {"gps": {"sigma": 0.3, "lever_arm": [0.3, 0.1]}}
+    res = graph.run_smoother(log, _config(sensors=sensors, options={"odometry_calibration": True}))
+    cal = res.extra["calibration"]
+    assert abs(cal["ds_scale"] - 1.03) < 0.005
+    assert abs(cal["dtheta_scale"] - 0.96) < 0.01
+    assert abs(cal["dtheta_bias"]) < 2e-3
+    plain = graph.run_smoother(log, _config(sensors=sensors))
+    assert _rmse(res, log) < _rmse(plain, log)
+
+
 # --------------------------------------------------------------------------- options
 @pytest.mark.parametrize(
     "options, key",
@@ -321,6 +402,7 @@ def test_range_bearing_slam_recovers_the_map():
         ({"robust": {"ranges": {"type": "huber", "k": 0}}}, "options.smoother.robust.ranges.k"),
         ({"slam": "yes"}, "options.smoother.slam"),
         ({"max_iterations": 0}, "options.smoother.max_iterations"),
+        ({"odometry_calibration": "yes"}, "options.smoother.odometry_calibration"),
     ],
 )
 def test_bad_options_name_the_key(options, key):
@@ -380,3 +462,20 @@ def test_plaza1_range_only_slam(plaza1):
     assert rmse <= 0.5
     for lid, p in res.extra["landmarks"].items():
         assert np.linalg.norm(R @ np.asarray(p) + t - plaza1.landmarks[lid]) <= 1.0
+
+
+def test_odometry_calibration_option_errors():
+    cfg = RunConfig(log="x", robot={"drive": "increments"}, motion={"k": 1e-3})
+    model = motion_model_from_config(cfg)
+    with pytest.raises(ConfigError) as exc:
+        graph.odometry_calibration_for(model, [0.1, 0.1], "options.smoother.oc", "f.yaml")
+    assert exc.value.key == "options.smoother.oc"
+    oc = graph.odometry_calibration_for(model, [0.1, 0.2, 0.01], "k", "f.yaml")
+    assert oc.sigma == (0.1, 0.2, 0.01) and oc.names[0] == "ds_scale"
+    omni = RunConfig(
+        log="x",
+        robot={"drive": "omni3", "wheel_radius": 0.03, "wheel_distance": 0.15},
+        motion={"k": 1e-3},
+    )
+    with pytest.raises(ConfigError, match="odometry calibration supports"):
+        graph.odometry_calibration_for(motion_model_from_config(omni), True, "k", "f.yaml")

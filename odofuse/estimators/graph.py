@@ -39,6 +39,7 @@ from odofuse.errors import ConfigError
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.graph_factors import (
     ROBUST_DEFAULT_K,
+    calibrated_between_factor,
     levenberg_marquardt,
     range_landmark_factor,
     robust_noise,
@@ -77,6 +78,7 @@ OPTION_KEYS = (
     "relinearize_skip",
     "odometry_floor",
     "final_relinearizations",
+    "odometry_calibration",
 )
 ROBUST_KINDS = ("none", "huber", "cauchy", "tukey")
 LANDMARK_SENSORS = ("BeaconRange", "LandmarkBearing", "LandmarkRangeBearing")
@@ -149,6 +151,7 @@ class GraphOptions:
     relinearize_skip: int = 10
     odometry_floor: float = 1e-8
     final_relinearizations: int = 3
+    odometry_calibration: object = False
 
 
 def _nonneg_option(value, key, source) -> float:
@@ -235,6 +238,12 @@ def parse_options(config, estimator: str) -> GraphOptions:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ConfigError(f"expected a positive integer, got {value!r}", source, k)
             kw[key] = value
+        elif key == "odometry_calibration":
+            if not isinstance(value, bool | list):
+                raise ConfigError(
+                    f"expected true, false or a list of prior sigmas, got {value!r}", source, k
+                )
+            kw[key] = value
         elif key == "robust":
             streams = set(getattr(config, "sensors", {}) or {}) | {"odometry", "wheels"}
             if isinstance(value, dict) and (set(value) - {"type", "k"}):
@@ -290,7 +299,7 @@ def keyframe_times(t_odo, U, model, sensor_times, options: GraphOptions) -> np.n
     return np.unique(np.concatenate(parts))
 
 
-def preintegrate(t_odo, U, model, kt) -> tuple[np.ndarray, np.ndarray]:
+def preintegrate(t_odo, U, model, kt, odometry_calibration=None):
     """Relative poses and body-frame covariances between consecutive keyframes.
 
     Odometry step ``k`` spans ``(t_odo[k], t_odo[k+1]]``; a step cut by a keyframe is split
@@ -302,6 +311,9 @@ def preintegrate(t_odo, U, model, kt) -> tuple[np.ndarray, np.ndarray]:
         ``[dx, dy, dtheta]`` of keyframe ``i+1`` in the frame of keyframe ``i``.
     covs : ndarray (K-1, 3, 3)
         Their covariances in GTSAM's ``Pose2`` tangent convention (``MotionModel.relative``).
+    G : ndarray (K-1, 3, m)
+        Only with ``odometry_calibration`` (an :class:`OdometryCalibration`): the tangent
+        change of each relative pose per unit change of the calibration parameters.
     """
     t_odo = np.asarray(t_odo, dtype=float)
     kt = np.asarray(kt, dtype=float)
@@ -314,10 +326,13 @@ def preintegrate(t_odo, U, model, kt) -> tuple[np.ndarray, np.ndarray]:
     scaled = np.array([kind != "steer" for kind in kinds])
     pieces = np.where(scaled, U[step] * frac[:, None], U[step])
     owner = np.searchsorted(kt, b, side="left") - 1  # keyframe interval of each piece
-    return _preintegrate_pieces(model, pieces, owner, len(kt) - 1)
+    if odometry_calibration is None:
+        return _preintegrate_pieces(model, pieces, owner, len(kt) - 1)
+    D = odometry_calibration.input_jacobian(pieces, b - a)
+    return _preintegrate_pieces(model, pieces, owner, len(kt) - 1, D)
 
 
-def _preintegrate_pieces(model, pieces, owner, n_intervals):
+def _preintegrate_pieces(model, pieces, owner, n_intervals, D=None):
     """Vectorised ``MotionModel.relative`` of every keyframe interval at once.
 
     The body-frame (GTSAM tangent) covariance obeys, piece by piece,
@@ -326,11 +341,14 @@ def _preintegrate_pieces(model, pieces, owner, n_intervals):
     noise into the tangent at the piece's end; the same first-order propagation as the
     world-frame recursion of ``dead_reckon`` followed by ``se2.cov_world_to_body`` (tested
     equal to ``MotionModel.relative``). Intervals run in parallel, padded with identity pieces.
+    With ``D`` ``(P, n, m)`` (input change per unit calibration parameter) the sensitivity
+    ``G <- Ad(inc^-1) G + T J D`` is accumulated by the same recursion and returned third.
     """
     deltas = np.zeros((n_intervals, 3))
     covs = np.zeros((n_intervals, 3, 3))
+    G = None if D is None else np.zeros((n_intervals, 3, D.shape[2]))
     if len(pieces) == 0:
-        return deltas, covs
+        return (deltas, covs) if D is None else (deltas, covs, G)
     inc, J = model.increment(pieces)
     var = model.errors.variances(model.drive, pieces)
     Qa = np.einsum("pik,pk,pjk->pij", J, var, J)
@@ -338,6 +356,7 @@ def _preintegrate_pieces(model, pieces, owner, n_intervals):
     T = np.zeros((len(pieces), 3, 3))
     T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1], T[:, 2, 2] = c, sn, -sn, c, 1.0
     Q = T @ Qa @ np.swapaxes(T, 1, 2)
+    TJD = None if D is None else T @ J @ D
     # Adjoint of inc^-1 (GTSAM Pose2::AdjointMap of the inverse): [[R^T, R^T [-y; x]], [0, 1]]
     x, y = inc[:, 0], inc[:, 1]
     A = np.zeros((len(pieces), 3, 3))
@@ -353,8 +372,85 @@ def _preintegrate_pieces(model, pieces, owner, n_intervals):
         deltas[live] = se2.compose(deltas[live], inc[idx])
         Ai = A[idx]
         covs[live] = Ai @ covs[live] @ np.swapaxes(Ai, 1, 2) + Q[idx]
+        if G is not None:
+            G[live] = Ai @ G[live] + TJD[idx]
     covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
-    return deltas, covs
+    return (deltas, covs) if G is None else (deltas, covs, G)
+
+
+@dataclass(frozen=True)
+class OdometryCalibration:
+    """Systematic odometry parameters as an input transformation ``u' = f(u, p)``.
+
+    * ``increments`` (Plaza-style ``ds, dtheta`` logs): ``p = (ds_scale, dtheta_scale,
+      dtheta_bias)``, ``u' = (a ds, b dtheta + c dt)`` (``c`` in rad/s), nominal ``(1, 1, 0)``.
+    * ``differential`` / ``skid_steer`` (Borenstein's systematic errors,
+      ``002_88fc37db58155723.txt``): ``p = (wheel_radius_ratio E_d = r_R / r_L,
+      track_width_scale E_b)`` with the mean radius kept: ``phi_R' = phi_R 2 E_d / (1 + E_d)``,
+      ``phi_L' = phi_L 2 / (1 + E_d)``, then the half difference ``h = (phi_R' - phi_L') / 2``
+      divided by ``E_b``; nominal ``(1, 1)``.
+
+    The graph uses the first-order Jacobian ``D = du'/dp`` at the nominal values.
+    """
+
+    names: tuple[str, ...]
+    nominal: tuple[float, ...]
+    sigma: tuple[float, ...]
+    drive: str
+
+    def input_jacobian(self, pieces, durations) -> np.ndarray:
+        """``D = d u' / d p`` at the nominal parameters, shape ``(P, n, m)``."""
+        pieces = np.asarray(pieces, dtype=float)
+        D = np.zeros((pieces.shape[0], pieces.shape[1], len(self.names)))
+        if self.drive == "increments":
+            D[:, 0, 0] = pieces[:, 0]
+            D[:, 1, 1] = pieces[:, 1]
+            D[:, 1, 2] = np.asarray(durations, dtype=float)
+        else:  # (left, right) wheel angles
+            left, right = pieces[:, 0], pieces[:, 1]
+            half = 0.5 * (right - left)
+            D[:, 0, 0], D[:, 1, 0] = -0.5 * left, 0.5 * right
+            D[:, 0, 1], D[:, 1, 1] = half, -half
+        return D
+
+
+_ODO_CAL = {
+    "increments": (
+        ("ds_scale", "dtheta_scale", "dtheta_bias"),
+        (1.0, 1.0, 0.0),
+        (0.05, 0.05, 0.01),
+    ),
+    "differential": (("wheel_radius_ratio", "track_width_scale"), (1.0, 1.0), (0.05, 0.05)),
+    "skid_steer": (("wheel_radius_ratio", "track_width_scale"), (1.0, 1.0), (0.05, 0.05)),
+}
+
+
+def odometry_calibration_for(model, value, key, source) -> OdometryCalibration | None:
+    """The :class:`OdometryCalibration` of ``options.<est>.odometry_calibration``.
+
+    ``value`` is ``false`` (none), ``true`` (default prior sigmas) or a list of prior sigmas.
+    """
+    if value is False or value is None:
+        return None
+    name = model.drive.name
+    if name not in _ODO_CAL:
+        raise ConfigError(
+            f"odometry calibration supports the {', '.join(_ODO_CAL)} drives, not '{name}'",
+            file=source,
+            key=key,
+        )
+    names, nominal, sigma = _ODO_CAL[name]
+    if value is not True:
+        if not isinstance(value, list) or len(value) != len(names):
+            raise ConfigError(
+                f"expected true or {len(names)} prior sigmas for {', '.join(names)}",
+                file=source,
+                key=key,
+            )
+        sigma = tuple(_nonneg_option(v, f"{key}[{i}]", source) for i, v in enumerate(value))
+        if min(sigma) <= 0:
+            raise ConfigError("prior sigmas must be positive", file=source, key=key)
+    return OdometryCalibration(names, nominal, tuple(sigma), name)
 
 
 def _odometry_noise(cov, floor: float = _COV_FLOOR):
@@ -416,6 +512,15 @@ class GraphProblem:
     odometry_rows: int
     rejected: dict
     robust: dict
+    odometry_calibration: OdometryCalibration | None = None
+    G: np.ndarray | None = None
+
+    @property
+    def odometry_key(self) -> int:
+        """Key of the odometry calibration vector (``o0``)."""
+        import gtsam
+
+        return gtsam.symbol("o", 0)
 
     def dead_reckoning(self) -> np.ndarray:
         """Keyframe poses ``(K, 3)`` obtained by composing the odometry factors from ``pose0``."""
@@ -502,7 +607,17 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         if meas.prev_keyframe is not None:
             meas.prev_keyframe = int(np.searchsorted(kt, meas.row["t_prev"]))
     pending.sort(key=lambda tm: (tm[1].keyframe, tm[1].stream))
-    deltas, covs = preintegrate(t_odo, U, model, kt)
+    odo_cal = odometry_calibration_for(
+        model,
+        options.odometry_calibration,
+        f"options.{estimator}.odometry_calibration",
+        config.source,
+    )
+    G = None
+    if odo_cal is None:
+        deltas, covs = preintegrate(t_odo, U, model, kt)
+    else:
+        deltas, covs, G = preintegrate(t_odo, U, model, kt, odo_cal)
 
     calib: dict[str, tuple[int, float, float]] = {}
     for m in models.values():
@@ -533,6 +648,8 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         len(U),
         rejected,
         robust,
+        odo_cal,
+        G,
     )
     if options.slam:
         problem.landmarks = slam_initial_landmarks(problem, problem.dead_reckoning())
@@ -685,6 +802,12 @@ class _Factors:
                 )
             )
             self.dims[key] = 1
+        if p.odometry_calibration is not None:
+            oc = p.odometry_calibration
+            v.insert(p.odometry_key, np.array(oc.nominal))
+            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array(oc.sigma))
+            g.add(gtsam.PriorFactorVector(p.odometry_key, np.array(oc.nominal), prior))
+            self.dims[p.odometry_key] = len(oc.nominal)
         for lid, key in self.landmark_keys.items():
             pos = p.landmarks.get(lid)
             v.insert(key, gtsam.Point2(*pos))
@@ -706,6 +829,12 @@ class _Factors:
         nm = robust_noise(
             _odometry_noise(self.p.covs[i - 1], self.p.options.odometry_floor), loss, k
         )
+        oc = self.p.odometry_calibration
+        if oc is not None:
+            self.python_factors += 1
+            return calibrated_between_factor(
+                _X(i - 1), _X(i), self.p.odometry_key, d, self.p.G[i - 1], oc.nominal, nm
+            )
         return self.gtsam.BetweenFactorPose2(_X(i - 1), _X(i), self.gtsam.Pose2(*d), nm)
 
     def measurement(self, meas: _Measurement):
@@ -787,11 +916,15 @@ def _pose_array(values, K) -> np.ndarray:
 
 def _extra(problem: GraphProblem, fac: _Factors, values, estimator: str) -> dict:
     extra: dict = {"keyframes": int(len(problem.kt)), "python_factors": fac.python_factors}
-    if problem.calib:
-        cal = {}
-        for name, (key, _, _) in problem.calib.items():
-            if values.exists(key):
-                cal[name] = float(values.atVector(key)[0])
+    cal = {}
+    for name, (key, _, _) in problem.calib.items():
+        if values.exists(key):
+            cal[name] = float(values.atVector(key)[0])
+    oc = problem.odometry_calibration
+    if oc is not None and values.exists(problem.odometry_key):
+        vec = values.atVector(problem.odometry_key)
+        cal.update({n: float(x) for n, x in zip(oc.names, vec, strict=True)})
+    if cal:
         extra["calibration"] = cal
     if problem.options.slam:
         extra["landmarks"] = {
@@ -954,6 +1087,8 @@ def run_isam2(log, config) -> EstimateResult:
     frozen = gtsam.KeyList()
     for key, _, _ in problem.calib.values():
         frozen.push_back(key)
+    if problem.odometry_calibration is not None:
+        frozen.push_back(problem.odometry_key)
     latency = []
     current = gtsam.Pose2(*problem.pose0)
     for i in range(len(problem.kt)):

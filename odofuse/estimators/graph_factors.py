@@ -6,6 +6,8 @@ Everything here is used by :mod:`odofuse.estimators.graph`. The measurement mode
 * :func:`range_landmark_factor`: range ``z = s * ||p - l|| + o`` to a landmark *variable*
   ``l`` with range scale ``s`` and offset ``o`` variables (SLAM with range calibration;
   GTSAM's ``RangeFactor2D`` has no scale and ``RangeFactorWithTransformBias2D`` no scale);
+* :func:`calibrated_between_factor`: odometry between factor corrected to first order in
+  odometry calibration parameters (wheel radius ratio, track scale, ds/dtheta scale, bias);
 * :func:`robust_noise`: Huber / Cauchy / Tukey wrappers of a Gaussian noise model;
 * :func:`levenberg_marquardt`: a Levenberg-Marquardt loop driven from Python.
 
@@ -23,7 +25,13 @@ import math
 
 import numpy as np
 
-__all__ = ["ROBUST_DEFAULT_K", "robust_noise", "range_landmark_factor", "levenberg_marquardt"]
+__all__ = [
+    "ROBUST_DEFAULT_K",
+    "robust_noise",
+    "range_landmark_factor",
+    "calibrated_between_factor",
+    "levenberg_marquardt",
+]
 
 #: Default tuning constants (95 % asymptotic efficiency on Gaussian data; in units of sigma).
 ROBUST_DEFAULT_K = {"huber": 1.345, "cauchy": 2.3849, "tukey": 4.6851}
@@ -160,3 +168,60 @@ def levenberg_marquardt(
         if not improved or decrease < relative_tolerance:
             break
     return values, iterations, float(err)
+
+
+def calibrated_between_factor(key_i, key_j, calib_key, delta0, G, p0, noise):
+    """Odometry between factor whose measurement depends on odometry calibration parameters.
+
+    The pre-integrated relative pose is corrected to first order in the parameters ``p``
+    (as the bias correction of IMU pre-integration, Forster et al. 2017)::
+
+        m(p) = delta0 * Exp(G (p - p0))
+        e    = Log(m(p)^-1 * (x_i^-1 * x_j))          (GTSAM's BetweenFactor error)
+
+    Parameters
+    ----------
+    key_i, key_j : int
+        Pose2 keys of the interval's start and end keyframes.
+    calib_key : int
+        Key of the parameter vector ``p`` (m,).
+    delta0 : ndarray (3,)
+        Pre-integrated relative pose at the nominal parameters ``p0``.
+    G : ndarray (3, m)
+        ``d xi / d p``: tangent (body frame at the interval end) change of the relative pose
+        per unit parameter change, from the pre-integration.
+    p0 : ndarray (m,)
+    noise : gtsam.noiseModel.Base
+        The pre-integrated covariance (and optional robust loss).
+
+    Returns
+    -------
+    gtsam.CustomFactor
+        Analytic Jacobians from GTSAM's ``between``/``compose``/``Expmap``/``Logmap``.
+    """
+    import gtsam
+
+    D = gtsam.Pose2(*np.asarray(delta0, dtype=float))
+    G = np.asarray(G, dtype=float)
+    p0 = np.asarray(p0, dtype=float)
+
+    def error(this, values, H):
+        xi, xj = values.atPose2(key_i), values.atPose2(key_j)
+        dp = np.asarray(values.atVector(calib_key), dtype=float) - p0
+        He = np.zeros((3, 3), order="F")
+        E = gtsam.Pose2.Expmap(G @ dp, He)
+        Hc1, Hc2 = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
+        m = D.compose(E, Hc1, Hc2)
+        H1, H2 = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
+        h = xi.between(xj, H1, H2)
+        Hm, Hh = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
+        r = m.between(h, Hm, Hh)
+        Hl = np.zeros((3, 3), order="F")
+        e = np.asarray(gtsam.Pose2.Logmap(r, Hl)).reshape(3)
+        if H is not None:
+            H[0] = Hl @ Hh @ H1
+            H[1] = Hl @ Hh @ H2
+            H[2] = Hl @ Hm @ Hc2 @ He @ G
+        return e
+
+    return gtsam.CustomFactor(noise, gtsam.KeyVector([key_i, key_j, calib_key]), error)
