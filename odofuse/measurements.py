@@ -668,7 +668,7 @@ STREAM_DEFAULTS: dict[str, str] = {
 }
 
 # Sensor-block keys read by the estimators themselves (not model parameters).
-_ESTIMATOR_KEYS = ("gyrodometry", "threshold")
+_ESTIMATOR_KEYS = ("gyrodometry", "threshold", "robust")  # read by estimators, not models
 
 # Config key -> model field, per model.
 _KEYS: dict[str, dict[str, str]] = {

@@ -183,6 +183,24 @@ def test_robust_loss_reduces_injected_outliers():
     assert e_huber < 0.7 * e_plain
     assert e_cauchy < 0.5 * e_plain
     assert cauchy.extra["outliers"]["ranges"] > 0
+    # the same loss set in the sensor's own block gives the same estimate
+    own = graph.run_smoother(
+        log, _config(sensors={"ranges": {"sigma": 0.2, "robust": {"type": "cauchy"}}})
+    )
+    np.testing.assert_allclose(own.trajectory.poses, cauchy.trajectory.poses, atol=1e-9)
+
+
+def test_sensor_block_robust_is_validated_and_overridden_by_options():
+    cfg = _config(sensors={"ranges": {"sigma": 0.2, "robust": "tukey"}})
+    assert graph.parse_options(cfg, "smoother").robust["ranges"][0] == "tukey"
+    cfg = _config(
+        sensors={"ranges": {"sigma": 0.2, "robust": "tukey"}}, options={"robust": "huber"}
+    )
+    assert graph.parse_options(cfg, "smoother").robust["ranges"][0] == "huber"
+    cfg = _config(sensors={"ranges": {"sigma": 0.2, "robust": "l7"}})
+    with pytest.raises(ConfigError) as exc:
+        graph.parse_options(cfg, "smoother")
+    assert exc.value.key == "sensors.ranges.robust"
 
 
 def test_calibration_recovers_simulated_range_scale():

@@ -206,7 +206,9 @@ def parse_options(config, estimator: str) -> GraphOptions:
     """Validate ``config.options[estimator]`` into :class:`GraphOptions`.
 
     ``robust`` is either one loss for every sensor (``huber`` or ``{type: cauchy, k: 2}``) or
-    a mapping stream -> loss (``{ranges: {type: huber, k: 1.345}, gps: cauchy}``).
+    a mapping stream -> loss (``{ranges: {type: huber, k: 1.345}, gps: cauchy}``). A sensor's
+    own block may carry it too (``sensors: {ranges: {sigma: 0.5, robust: huber}}``); the option
+    block wins where both name a stream.
 
     Raises
     ------
@@ -217,6 +219,11 @@ def parse_options(config, estimator: str) -> GraphOptions:
     block = config.option_block(estimator)
     prefix = f"options.{estimator}"
     kw: dict = {}
+    per_sensor = {
+        s: _robust_entry(b["robust"], f"sensors.{s}.robust", source)
+        for s, b in (getattr(config, "sensors", {}) or {}).items()
+        if isinstance(b, dict) and "robust" in b
+    }
     for key, value in block.items():
         k = f"{prefix}.{key}"
         if key not in OPTION_KEYS:
@@ -258,6 +265,8 @@ def parse_options(config, estimator: str) -> GraphOptions:
             else:
                 entry = _robust_entry(value, k, source)
                 kw[key] = {s: entry for s in streams - {"odometry", "wheels"}}
+    if per_sensor:
+        kw["robust"] = {**per_sensor, **kw.get("robust", {})}
     return GraphOptions(**kw)
 
 
