@@ -233,18 +233,23 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
     )
 
 
-def nees_values(est: Trajectory, gt: Trajectory) -> np.ndarray:
+def nees_values(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> np.ndarray:
     """NEES ``e^T P^-1 e`` (world frame) at every estimate pose with a positive-definite covariance.
 
-    Poses whose covariance is not positive definite (e.g. a perfectly known initial pose with
-    ``P = 0``) are skipped. Returns an array of shape (K,), empty without covariances.
+    ``dims`` selects the pose components: ``(0, 1)`` scores the position alone (expected value
+    2), for datasets whose "true" heading is not independent of the estimate (Plaza's ground
+    truth heading is the odometry heading). Poses whose covariance is not positive definite
+    (e.g. a perfectly known initial pose with ``P = 0``) are skipped. Returns an array of shape
+    (K,), empty without covariances.
     """
     if est.covariances is None:
         return np.empty(0)
+    dims = list(dims)
     idx, g = associate(est, gt)
     e = est.poses[idx] - g
     e[:, 2] = _wrap(e[:, 2])
-    covs = est.covariances[idx]
+    e = e[:, dims]
+    covs = est.covariances[idx][:, dims][:, :, dims]
     covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
     out = []
     for ek, pk in zip(e, covs, strict=False):
@@ -257,12 +262,13 @@ def nees_values(est: Trajectory, gt: Trajectory) -> np.ndarray:
     return np.asarray(out)
 
 
-def nees(est: Trajectory, gt: Trajectory) -> float:
+def nees(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> float:
     """Mean NEES over the poses with a positive-definite covariance (NaN if none).
 
-    For a consistent estimator of the 3-D pose the expected value is 3.
+    For a consistent estimator the expected value is ``len(dims)``: 3 for the pose, 2 for the
+    position alone.
     """
-    v = nees_values(est, gt)
+    v = nees_values(est, gt, dims)
     return float(v.mean()) if v.size else math.nan
 
 
@@ -286,7 +292,8 @@ def metrics(
     dict
         Always ``estimator, poses, runtime_s, sensors {name: {used, rejected}}, repairs``; with
         ground truth also ``ate_rmse_m, ate_aligned_rmse_m, final_error_m, rpe_trans_m,
-        rpe_rot_rad, rpe_delta_m, nees_mean`` (``nees_mean`` is None without covariances).
+        rpe_rot_rad, rpe_delta_m, nees_mean, nees_position_mean`` (3-D pose NEES, expected 3,
+        and position-only NEES, expected 2; None without covariances).
     """
     traj = result.trajectory
     names = sorted(set(result.used) | set(result.rejected))
@@ -312,8 +319,9 @@ def metrics(
         out["rpe_trans_m"] = r.trans_rmse_m
         out["rpe_rot_rad"] = r.rot_rmse_rad
         out["rpe_delta_m"] = r.delta
-        n = nees(traj, gt)
-        out["nees_mean"] = None if math.isnan(n) else n
+        for key, dims in (("nees_mean", (0, 1, 2)), ("nees_position_mean", (0, 1))):
+            n = nees(traj, gt, dims)
+            out[key] = None if math.isnan(n) else n
     if result.extra:
         out["extra"] = result.extra
     return out

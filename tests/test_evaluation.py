@@ -126,6 +126,8 @@ def test_nees_full_covariance():
     p = np.array([[0.5, 0.1, 0.0], [0.1, 0.4, 0.05], [0.0, 0.05, 0.2]])
     est = Trajectory([0.0], [e], p[None])
     assert nees(est, gt) == pytest.approx(e @ np.linalg.solve(p, e))
+    # position only: the marginal 2x2 block, not the conditional
+    assert nees(est, gt, (0, 1)) == pytest.approx(e[:2] @ np.linalg.solve(p[:2, :2], e[:2]))
 
 
 def test_metrics_keys():
@@ -152,5 +154,6 @@ def test_metrics_keys():
     assert m["rpe_trans_m"] == pytest.approx(0.0, abs=1e-12)
     assert m["rpe_rot_rad"] == pytest.approx(0.0)
     assert m["nees_mean"] == pytest.approx(0.04 / 0.04)
+    assert m["nees_position_mean"] == pytest.approx(0.04 / 0.04)
     m2 = metrics(res, SensorLog("mem", {}), 0.5)
     assert "ate_rmse_m" not in m2 and m2["repairs"] == {}

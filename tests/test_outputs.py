@@ -138,3 +138,17 @@ def test_evo_reads_our_tum(tmp_path):
         )
     )
     assert rmse == pytest.approx(ate(est, gt).rmse_m, abs=5e-7)  # evo prints 6 decimals
+
+
+def test_outputs_get_the_permissions_open_would_give(tmp_path):
+    import os
+    import stat
+
+    from odofuse.outputs import atomic_write_text
+
+    umask = os.umask(0o022)
+    try:
+        path = atomic_write_text(tmp_path / "a.txt", "x")
+    finally:
+        os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644
