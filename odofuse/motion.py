@@ -226,41 +226,35 @@ def _cumulative_poses(pose0, twist, integrator: str):
     return poses, theta[:-1]
 
 
-def _step_jacobians(theta_start, twist, integrator: str) -> np.ndarray:
-    """World-frame Jacobian of each step's end pose w.r.t. its twist, ``(N, 3, 3)``.
+def _process_noise(model: MotionModel, theta_start, twist, U) -> tuple[np.ndarray, ...]:
+    """Unique entries ``(q00, q01, q02, q11, q12, q22)`` of each step's world-frame process
+    noise ``Q_k = F_u Sigma_u F_u^T``, each ``(N,)``.
 
-    From the complex form of :func:`_chord`: ``dz/dv_x = g e^{i phi}``,
-    ``dz/dv_y = i g e^{i phi}`` and ``dz/dw = (v_x + i v_y) e^{i phi} (g' + i g dphi/dw)``.
+    ``F_u = J_pose_twist J_twist_u`` with the rows of ``J_pose_twist`` taken from the complex
+    form of :func:`_chord`: ``dz/dv_x = g e^{i phi}``, ``dz/dv_y = i g e^{i phi}`` and
+    ``dz/dw = (v_x + i v_y) e^{i phi} (g' + i g dphi/dw)``; the theta row is ``(1, 0, 0)``.
+    Plain 1-D arithmetic: numpy's batched 3x3 matmuls are several times slower here.
     """
-    zr, zi, c, s, g = _chord(theta_start, twist, integrator)
-    J = np.zeros((twist.shape[0], 3, 3))
-    J[:, 2, 0] = 1.0
-    if integrator == "exact":
+    zr, zi, c, s, g = _chord(theta_start, twist, model.integrator)
+    if model.integrator == "exact":
         a, b = _dsinc_half(twist[:, 0]), 0.5 * g
-        J[:, 0, 0], J[:, 1, 0] = zr * a - zi * b, zr * b + zi * a
+        jw0, jw1 = zr * a - zi * b, zr * b + zi * a
         c, s = g * c, g * s
-    elif integrator == "rk2":
-        J[:, 0, 0], J[:, 1, 0] = -0.5 * zi, 0.5 * zr
-    J[:, 0, 1], J[:, 1, 1] = c, s
-    J[:, 0, 2], J[:, 1, 2] = -s, c
-    return J
-
-
-def _process_noise(model: MotionModel, theta_start, twist, U) -> np.ndarray:
-    """``Q_k = F_u Sigma_u F_u^T`` of each step, ``(N, 3, 3)``, world frame.
-
-    Built from element-wise products: numpy's batched 3x3 matmul is several times slower here.
-    """
-    J_pt = _step_jacobians(theta_start, twist, model.integrator)
+    elif model.integrator == "rk2":
+        jw0, jw1 = -0.5 * zi, 0.5 * zr
+    else:
+        jw0 = jw1 = np.zeros_like(zr)
     J_tu = model.drive.J_twist_u(U)
-    F_u = sum(J_pt[:, :, j, None] * J_tu[:, None, j, :] for j in range(3))
-    Fv = F_u * model.errors.variances(model.drive, U)[:, None, :]
-    Q = np.empty((U.shape[0], 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            Q[:, i, j] = np.einsum("nk,nk->n", Fv[:, i, :], F_u[:, j, :])
-            Q[:, j, i] = Q[:, i, j]
-    return Q
+    Tw, Tx, Ty = J_tu[:, 0, :], J_tu[:, 1, :], J_tu[:, 2, :]
+    F0 = jw0[:, None] * Tw + c[:, None] * Tx - s[:, None] * Ty
+    F1 = jw1[:, None] * Tw + s[:, None] * Tx + c[:, None] * Ty
+    var = model.errors.variances(model.drive, U)
+    V0, V1, V2 = F0 * var, F1 * var, Tw * var
+
+    def dot(x, y):
+        return np.einsum("nk,nk->n", x, y)
+
+    return dot(V0, F0), dot(V0, F1), dot(V0, Tw), dot(V1, F1), dot(V1, Tw), dot(V2, Tw)
 
 
 # Block length of the closed-form covariance recursion. Within a block, positions are taken
@@ -302,45 +296,60 @@ def dead_reckon(model: MotionModel, pose0, P0, U, with_cov: bool = True):
         return poses, None
     n_steps = U.shape[0]
     covs = np.empty((n_steps + 1, 3, 3))
-    covs[0] = P0
-    P_m = np.asarray(P0, dtype=float)
+    P_m = 0.5 * (np.asarray(P0, dtype=float) + np.asarray(P0, dtype=float).T)
+    covs[0] = P_m
+    cs = np.cumsum
     # Blocks also keep every temporary small enough to stay in cache.
     for m in range(0, n_steps, _COV_BLOCK):
         stop = min(m + _COV_BLOCK, n_steps)
-        Qb = _process_noise(model, theta_start[m:stop], twist[m:stop], U[m:stop])
-        rel = poses[m + 1 : stop + 1, :2] - poses[m, :2]  # p_{j+1} - p_m for j in block
-        f = np.column_stack([-rel[:, 1], rel[:, 0], np.zeros(len(rel))])  # L(p_{j+1} - p_m)
-        q = Qb[:, 2, :]
-        q22 = Qb[:, 2, 2]
-        S0 = np.cumsum(Qb, axis=0)
-        Sq = np.cumsum(q, axis=0)
-        Sfq = np.cumsum(f[:, :, None] * q[:, None, :], axis=0)
-        S22 = np.cumsum(q22)
-        Sf22 = np.cumsum(f * q22[:, None], axis=0)
-        Sff = np.cumsum(f[:, :, None] * f[:, None, :] * q22[:, None, None], axis=0)
-        e = f  # e_n = L(p_n - p_m) for the block's end points n = j + 1
-        outer = lambda a, b: a[:, :, None] * b[:, None, :]  # noqa: E731
-        # sum_j Phi(n, j+1) Q_j Phi(n, j+1)^T with e_j = e_n - f_j
-        mixed = outer(e, Sq) - Sfq
-        acc = (
-            S0
-            + mixed
-            + np.swapaxes(mixed, 1, 2)
-            + outer(e, e) * S22[:, None, None]
-            - outer(e, Sf22)
-            - outer(Sf22, e)
-            + Sff
+        q00, q01, q02, q11, q12, q22 = _process_noise(
+            model, theta_start[m:stop], twist[m:stop], U[m:stop]
         )
-        # Phi(n, m) P_m Phi(n, m)^T
-        p2 = P_m[2, :]
-        init = (
-            P_m
-            + outer(e, np.broadcast_to(p2, e.shape))
-            + outer(np.broadcast_to(p2, e.shape), e)
-            + outer(e, e) * P_m[2, 2]
+        # f_j = L(p_{j+1} - p_m) = (-(y - y_m), x - x_m); it is also e_n for the end pose n.
+        e0 = poses[m, 1] - poses[m + 1 : stop + 1, 1]
+        e1 = poses[m + 1 : stop + 1, 0] - poses[m, 0]
+        # sum_j Phi(n, j+1) Q_j Phi(n, j+1)^T with a_j = e_n - f_j, entry by entry:
+        # Q + a q^T + q a^T + q22 a a^T, q = Q[:, 2] and a_2 = 0.
+        S22, S02, S12 = cs(q22), cs(q02), cs(q12)
+        F0, F1 = cs(e0 * q22), cs(e1 * q22)
+        P22 = S22 + P_m[2, 2]
+        P02 = S02 + e0 * S22 - F0
+        P12 = S12 + e1 * S22 - F1
+        P00 = (
+            cs(q00)
+            + 2.0 * (e0 * S02 - cs(e0 * q02))
+            + e0 * (e0 * S22 - 2.0 * F0)
+            + cs(e0 * e0 * q22)
         )
-        block = init + acc
-        covs[m + 1 : stop + 1] = 0.5 * (block + np.swapaxes(block, 1, 2))
+        P11 = (
+            cs(q11)
+            + 2.0 * (e1 * S12 - cs(e1 * q12))
+            + e1 * (e1 * S22 - 2.0 * F1)
+            + cs(e1 * e1 * q22)
+        )
+        P01 = (
+            cs(q01)
+            + e0 * S12
+            - cs(e0 * q12)
+            + e1 * S02
+            - cs(e1 * q02)
+            + e0 * e1 * S22
+            - e0 * F1
+            - e1 * F0
+            + cs(e0 * e1 * q22)
+        )
+        # + Phi(n, m) P_m Phi(n, m)^T with a = e_n
+        p02, p12, p22 = P_m[0, 2], P_m[1, 2], P_m[2, 2]
+        P00 += P_m[0, 0] + e0 * (2.0 * p02 + e0 * p22)
+        P11 += P_m[1, 1] + e1 * (2.0 * p12 + e1 * p22)
+        P01 += P_m[0, 1] + e0 * p12 + e1 * p02 + e0 * e1 * p22
+        P02 += p02 + e0 * p22
+        P12 += p12 + e1 * p22
+        block = covs[m + 1 : stop + 1]
+        block[:, 0, 0], block[:, 1, 1], block[:, 2, 2] = P00, P11, P22
+        block[:, 0, 1] = block[:, 1, 0] = P01
+        block[:, 0, 2] = block[:, 2, 0] = P02
+        block[:, 1, 2] = block[:, 2, 1] = P12
         P_m = covs[stop]
     return poses, covs
 
