@@ -9,7 +9,8 @@ Run: ``python benchmarks/bench_graph.py [plaza|isam2|hour|all] [--custom]``
   without range calibration so that both graphs are built-in factors only; ``--custom`` also
   times the calibrated graph (CustomFactor) with GTSAM's own LM against odofuse's Python LM.
   Target ratio <= 1.3.
-* ``isam2``: per-update latency of iSAM2 on Plaza1 as the log grows (median / p99 per quarter).
+* ``isam2``: per-update latency of iSAM2 on Plaza1 as the log grows (median / p99 per quarter),
+  without calibration, with range scale/offset variables, and with ``calibration_freeze``.
 * ``hour``: a one-hour 100 Hz simulated log (360 000 odometry steps, 1 Hz GPS) smoothed in
   batch; wall time (target <= 60 s) and peak resident memory (target <= 2 GiB).
 """
@@ -163,26 +164,40 @@ def bench_plaza(custom=False):
 
 def bench_isam2():
     from odofuse.estimators.graph import run_isam2
+    from odofuse.evaluation import ate, trajectory_from_stream
     from odofuse.io.builtin import load_builtin
 
     log = load_builtin("builtin:plaza1")
-    for calibrate in (False, True):
+    gt = trajectory_from_stream(log.groundtruth)
+    # the packaged configs/plaza1-isam2.yaml freeze thresholds
+    freeze = {"sigma": {"range_scale": 0.003, "range_offset": 0.08}, "check_every": 10}
+    cases = (
+        ("built-in factors", False, None),
+        ("range scale/offset variables", True, None),
+        ("range scale/offset variables, calibration_freeze", True, freeze),
+    )
+    for label, calibrate, frz in cases:
+        cfg = _plaza_config("isam2", calibrate=calibrate)
+        if frz:
+            cfg.options["isam2"]["calibration_freeze"] = frz
         t0 = time.perf_counter()
-        res = run_isam2(log, _plaza_config("isam2", calibrate=calibrate))
-        lat = res.extra["latency"]
-        label = "range scale/offset variables" if calibrate else "built-in factors"
-        print(
-            f"plaza1 iSAM2, {label} ({lat['updates']} updates, "
-            f"{time.perf_counter() - t0:.1f} s): median {lat['median_ms']:.2f} ms, "
-            f"p99 {lat['p99_ms']:.2f} ms, max {lat['max_ms']:.1f} ms"
-        )
-        print(
-            "  per quarter of the log: median",
-            " ".join(f"{m:.2f}" for m in lat["quarters_median_ms"]),
-            "ms; p99",
-            " ".join(f"{m:.2f}" for m in lat["quarters_p99_ms"]),
-            "ms",
-        )
+        res = run_isam2(log, cfg)
+        wall = time.perf_counter() - t0
+        rmse = ate(res.trajectory, gt).rmse_m
+        print(f"plaza1 iSAM2, {label}: {wall:.1f} s, position RMSE {rmse:.3f} m")
+        if frz:
+            info = res.extra["calibration_freeze"]["range_scale"]
+            print(f"  frozen at keyframe {info['keyframe']} of {len(res.trajectory)}")
+        for key, what in (("latency", "ISAM2.update"), ("latency_step", "whole step")):
+            lat = res.extra[key]
+            print(
+                f"  {what:13s} ({lat['updates']} updates): median {lat['median_ms']:.2f} ms, "
+                f"p99 {lat['p99_ms']:.2f} ms, max {lat['max_ms']:.1f} ms; per quarter: median",
+                " ".join(f"{m:.2f}" for m in lat["quarters_median_ms"]),
+                "| p99",
+                " ".join(f"{m:.2f}" for m in lat["quarters_p99_ms"]),
+                "ms",
+            )
 
 
 def simulate_hour(rate=100.0, duration=3600.0, seed=0):

@@ -497,3 +497,137 @@ def test_odometry_calibration_option_errors():
     )
     with pytest.raises(ConfigError, match="odometry calibration supports"):
         graph.odometry_calibration_for(motion_model_from_config(omni), True, "k", "f.yaml")
+
+
+# --------------------------------------------------------------------------- calibration freeze
+def _range_model(calibrate=True):
+    from odofuse.measurements import BeaconRange
+
+    return BeaconRange(name="ranges", sigma=0.2, landmarks=dict(BEACONS), calibrate=calibrate)
+
+
+def test_frozen_calibration_factor_equals_calibrated_factor_with_constants():
+    from odofuse.estimators.graph_factors import frozen_calibration_factor
+
+    m = _range_model()
+    row = {"id": 1.0, "range": 30.0, "t": 0.0}
+    pose = gtsam.Pose2(2.0, -1.0, 0.4)
+    values = gtsam.Values()
+    values.insert(1, pose)
+    values.insert(2, np.array([1.07]))
+    values.insert(3, np.array([-0.2]))
+    calibrated = m.factor(1, row, {"range_scale": 2, "range_offset": 3})
+    frozen = frozen_calibration_factor(m, 1, row, {"range_scale": 1.07, "range_offset": -0.2})
+    assert list(frozen.keys()) == [1]
+    np.testing.assert_allclose(frozen.unwhitenedError(values), calibrated.unwhitenedError(values))
+    d = np.linalg.norm(np.array([2.0, -1.0]) - BEACONS[1])
+    np.testing.assert_allclose(frozen.unwhitenedError(values), [1.07 * d - 0.2 - 30.0])
+
+    def err(dx):
+        v = gtsam.Values()
+        v.insert(1, pose.retract(dx))
+        return frozen.unwhitenedError(v)
+
+    A = frozen.linearize(values).jacobian()[0] * 0.2  # undo the whitening by sigma = 0.2
+    np.testing.assert_allclose(A, numerical_jacobian(err, np.zeros(3)), atol=1e-7)
+
+
+def test_frozen_beacon_range_is_local_built_in_and_equivalent():
+    log = _simulate(seed=4, T=20.0, scale=1.05, offset=0.3)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
+    problem = graph.build_problem(log, _config("isam2", sensors, {"robust": "huber"}), "isam2")
+    calib_keys = {key for key, _, _ in problem.calib.values()}
+    fac = graph._Factors(problem)
+    _, values = fac.static()
+    i = next(m.keyframe for m in problem.measurements if m.stream == "ranges")
+    calibrated, _ = fac.keyframe(i, gtsam.Pose2())
+    fac.frozen.update({"range_scale": 1.05, "range_offset": 0.3})
+    frozen, new_values = fac.keyframe(i, gtsam.Pose2())
+    assert fac.python_factors == 1  # only the calibrated (unfrozen) factor is Python
+    n_ranges = 0
+    for j in range(frozen.size()):
+        keys = set(frozen.at(j).keys())
+        assert not keys & calib_keys  # structural: frozen factors never touch calibration
+        if isinstance(frozen.at(j), gtsam.RangeFactor2D):
+            n_ranges += 1
+            assert graph._X(i) in keys and len(keys) == 2  # the pose and a private beacon
+    assert n_ranges == len(fac.by_kf[i])
+    values.insert(new_values)
+    values.update(graph._X(i), gtsam.Pose2(3.0, 1.0, 0.2))
+    # same whitened (robust) error as the calibrated factor with scale 1.05, offset 0.3
+    values.update(problem.calib["range_scale"][0], np.array([1.05]))
+    values.update(problem.calib["range_offset"][0], np.array([0.3]))
+    ranges_c = [
+        calibrated.at(j)
+        for j in range(calibrated.size())
+        if calib_keys & set(calibrated.at(j).keys())
+    ]
+    ranges_f = [
+        frozen.at(j) for j in range(frozen.size()) if isinstance(frozen.at(j), gtsam.RangeFactor2D)
+    ]
+    for fc, ff in zip(ranges_c, ranges_f, strict=True):
+        assert ff.error(values) == pytest.approx(fc.error(values), rel=1e-9)
+
+
+def test_isam2_calibration_freeze_stops_touching_the_calibration():
+    log = _simulate(seed=5, T=200.0, scale=1.05, offset=0.3)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
+    freeze = {"sigma": {"range_scale": 0.004, "range_offset": 0.1}, "check_every": 5}
+    res = graph.run_isam2(log, _config("isam2", sensors, {"calibration_freeze": freeze}))
+    ref = graph.run_isam2(log, _config("isam2", sensors))
+    info = res.extra["calibration_freeze"]
+    assert set(info) == {"range_scale", "range_offset"}
+    k = info["range_scale"]["keyframe"]
+    assert 0 < k < len(res.trajectory) - 1 and k % 5 == 0
+    for s, truth in (("range_scale", 1.05), ("range_offset", 0.3)):
+        assert info[s]["sigma"] < freeze["sigma"][s]
+        assert abs(info[s]["value"] - truth) < 3 * info[s]["sigma"]
+    # structural: only the range rows up to the freeze keyframe got Python (calibrated)
+    # factors; every later range is a built-in factor without the calibration keys
+    problem = graph.build_problem(log, _config("isam2", sensors), "isam2")
+    before = sum(m.stream == "ranges" and m.keyframe <= k for m in problem.measurements)
+    assert res.extra["python_factors"] == before < ref.extra["python_factors"]
+    assert res.used == ref.used
+    # what the freeze trades away: the later ranges' information on the calibration (here
+    # the offset froze ~1 sigma off); still far better than no calibration at all
+    uncal = graph.run_isam2(log, _config("isam2", {"ranges": {"sigma": 0.2}}))
+    assert _rmse(res, log) < min(1.25 * _rmse(ref, log), 0.1 * _rmse(uncal, log))
+
+
+@pytest.mark.parametrize(
+    "estimator, freeze, key",
+    [
+        ("smoother", {"sigma": {"range_scale": 0.01}}, "options.smoother.calibration_freeze"),
+        ("isam2", {"sigma": 0.01}, "options.isam2.calibration_freeze"),
+        (
+            "isam2",
+            {"sigma": {"range_scale": -1}},
+            "options.isam2.calibration_freeze.sigma.range_scale",
+        ),
+        ("isam2", {"sigma": {}, "every": 3}, "options.isam2.calibration_freeze.every"),
+        ("isam2", {"sigma": {}, "check_every": 0}, "options.isam2.calibration_freeze.check_every"),
+    ],
+)
+def test_calibration_freeze_option_errors(estimator, freeze, key):
+    cfg = _config(
+        estimator, {"ranges": {"sigma": 0.2, "calibrate": True}}, {"calibration_freeze": freeze}
+    )
+    with pytest.raises(ConfigError) as exc:
+        graph.parse_options(cfg, estimator)
+    assert exc.value.key == key and exc.value.file == "test.yaml"
+
+
+@pytest.mark.parametrize(
+    "sigma, key",
+    [
+        ({"gyro_bias": 0.01}, "options.isam2.calibration_freeze.sigma.gyro_bias"),
+        ({"range_scale": 0.01}, "options.isam2.calibration_freeze.sigma.range_offset"),
+    ],
+)
+def test_calibration_freeze_states_are_validated(sigma, key):
+    log = _simulate(T=10.0)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
+    cfg = _config("isam2", sensors, {"calibration_freeze": {"sigma": sigma}})
+    with pytest.raises(ConfigError) as exc:
+        graph.run_isam2(log, cfg)
+    assert exc.value.key == key and exc.value.file == "test.yaml"

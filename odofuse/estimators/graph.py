@@ -40,6 +40,7 @@ from odofuse.estimators.common import initial_state, odometry_inputs, odometry_s
 from odofuse.estimators.graph_factors import (
     ROBUST_DEFAULT_K,
     calibrated_between_factor,
+    frozen_calibration_factor,
     levenberg_marquardt,
     range_landmark_factor,
     robust_noise,
@@ -79,6 +80,7 @@ OPTION_KEYS = (
     "odometry_floor",
     "final_relinearizations",
     "odometry_calibration",
+    "calibration_freeze",
 )
 ROBUST_KINDS = ("none", "huber", "cauchy", "tukey")
 LANDMARK_SENSORS = ("BeaconRange", "LandmarkBearing", "LandmarkRangeBearing")
@@ -98,6 +100,12 @@ def _L(i: int) -> int:
     import gtsam
 
     return gtsam.symbol("l", int(i))
+
+
+def _B(i: int) -> int:
+    import gtsam
+
+    return gtsam.symbol("b", int(i))
 
 
 def _C(i: int) -> int:
@@ -133,6 +141,11 @@ class GraphOptions:
         m, cell of the landmark initialisation grid.
     known_landmark_sigma : float
         m, sigma of the prior that pins a known landmark variable.
+    calibration_freeze : dict or None
+        ``isam2`` only: ``{"sigma": {state: threshold}, "check_every": n}``. Every ``n``
+        updates the marginal sigma of each named calibration state is checked; once all the
+        states of a sensor are below their thresholds, that sensor's later factors use the
+        current estimate as constants (see :func:`run_isam2`).
     """
 
     keyframe_dt: float = 1.0
@@ -152,6 +165,7 @@ class GraphOptions:
     odometry_floor: float = 1e-8
     final_relinearizations: int = 3
     odometry_calibration: object = False
+    calibration_freeze: dict | None = None
 
 
 def _nonneg_option(value, key, source) -> float:
@@ -200,6 +214,30 @@ def _robust_entry(value, key, source) -> tuple[str, float]:
     if kv == 0.0:
         raise ConfigError("robust threshold k must be positive", file=source, key=f"{key}.k")
     return (kind, kv)
+
+
+def _freeze_option(value, key, source, estimator) -> dict:
+    """``{sigma: {state: positive float}, check_every: positive int}`` (isam2 only)."""
+    if estimator != "isam2":
+        raise ConfigError("only the isam2 estimator freezes calibration states", source, key)
+    if not isinstance(value, dict) or not isinstance(value.get("sigma"), dict):
+        raise ConfigError(
+            f"expected {{sigma: {{state: threshold}}, check_every: n}}, got {value!r}", source, key
+        )
+    bad = set(value) - {"sigma", "check_every"}
+    if bad:
+        raise ConfigError("unknown key; allowed: sigma, check_every", source, f"{key}.{min(bad)}")
+    sigma = {}
+    for state, v in value["sigma"].items():
+        sigma[str(state)] = _nonneg_option(v, f"{key}.sigma.{state}", source)
+        if sigma[str(state)] == 0.0:
+            raise ConfigError("must be positive", source, f"{key}.sigma.{state}")
+    every = value.get("check_every", 10)
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ConfigError(
+            f"expected a positive integer, got {every!r}", source, f"{key}.check_every"
+        )
+    return {"sigma": sigma, "check_every": every}
 
 
 def parse_options(config, estimator: str) -> GraphOptions:
@@ -251,6 +289,8 @@ def parse_options(config, estimator: str) -> GraphOptions:
                     f"expected true, false or a list of prior sigmas, got {value!r}", source, k
                 )
             kw[key] = value
+        elif key == "calibration_freeze":
+            kw[key] = _freeze_option(value, k, source, estimator)
         elif key == "robust":
             streams = set(getattr(config, "sensors", {}) or {}) | {"odometry", "wheels"}
             if isinstance(value, dict) and (set(value) - {"type", "k"}):
@@ -770,6 +810,12 @@ class _Factors:
             if self._landmark_variable_needed(lid):
                 self.landmark_keys[lid] = _L(lid)
         self.calib_keys = {name: key for name, (key, _, _) in problem.calib.items()}
+        # calibration state -> constant used by new factors once frozen (iSAM2 only)
+        self.frozen: dict[str, float] = {}
+        # frozen beacon ranges: (factor, private beacon key, beacon position) to add with
+        # the next keyframe, and the factor -> range scale its unwhitened error is divided by
+        self._pending: list = []
+        self.error_scale: dict[int, float] = {}
 
     def _landmark_variable_needed(self, lid) -> bool:
         if self.p.options.slam:
@@ -890,9 +936,40 @@ class _Factors:
             return gtsam.RangeFactor2D(key, lkey, float(meas.row["range"]), nm)
         if kind == "LandmarkBearing" and meas.landmark in self.landmark_keys:
             return m.factor(key, meas.row, None, nm, landmark_key=self.landmark_keys[meas.landmark])
+        if calib and all(s in self.frozen for s in calib) and kind == "BeaconRange":
+            return self._frozen_beacon_range(m, meas, loss, k)
+        if calib and all(s in self.frozen for s in calib):
+            self.python_factors += 1
+            consts = {s: self.frozen[s] for s in calib}
+            return frozen_calibration_factor(m, key, meas.row, consts, nm)
         f = m.factor(key, meas.row, calib, nm)
         if isinstance(f, gtsam.CustomFactor):
             self.python_factors += 1
+        return f
+
+    def _frozen_beacon_range(self, m, meas, loss, k):
+        """A frozen ``s ||p - b|| + o = z`` range as built-in GTSAM factors.
+
+        ``(s d + o - z) / sigma = (d - z') / sigma'`` with ``z' = (z - o) / s`` and
+        ``sigma' = sigma / s``: the same whitened error (and robust weight, whose threshold
+        is in sigma), so ``RangeFactor2D(x, b_n, z', sigma')`` to a *private* copy ``b_n``
+        of the beacon, pinned by a ``known_landmark_sigma`` prior, is the calibrated factor
+        with constant ``s, o``. A private copy per factor keeps the factor local (a shared
+        beacon variable would tie all range factors together again) and built-in (a Python
+        ``CustomFactor`` linearised inside iSAM2 costs a copy of all the values).
+        """
+        gtsam = self.gtsam
+        scale = self.frozen.get("range_scale", 1.0)
+        offset = self.frozen.get("range_offset", 0.0)
+        sigma = math.sqrt(float(m.R(meas.row)[0, 0])) / scale
+        nm = robust_noise(gtsam.noiseModel.Isotropic.Sigma(1, sigma), loss, k)
+        z = (float(meas.row["range"]) - offset) / scale
+        bkey = _B(len(self.error_scale))
+        f = gtsam.RangeFactor2D(_X(meas.keyframe), bkey, z, nm)
+        pos = np.asarray(self.p.landmarks[meas.landmark], dtype=float)
+        self._pending.append((bkey, gtsam.Point2(*pos)))
+        self.error_scale[id(f)] = 1.0 / scale
+        self.dims[bkey] = 2
         return f
 
     def keyframe(self, i: int, values_guess, g=None, v=None):
@@ -910,6 +987,11 @@ class _Factors:
             g.add(f)
             self.created.append((meas, f))
             self.used[meas.stream] = self.used.get(meas.stream, 0) + 1
+        pin = gtsam.noiseModel.Isotropic.Sigma(2, self.p.options.known_landmark_sigma)
+        for bkey, pos in self._pending:
+            v.insert(bkey, pos)
+            g.add(gtsam.PriorFactorPoint2(bkey, pos, pin))
+        self._pending.clear()
         return g, v
 
 
@@ -954,7 +1036,7 @@ def _outliers(problem: GraphProblem, fac: _Factors, values) -> dict[str, int]:
         m = problem.models[meas.stream]
         if getattr(m, "gate", None) is None:
             continue
-        e = np.atleast_1d(f.unwhitenedError(values))
+        e = np.atleast_1d(f.unwhitenedError(values)) / fac.error_scale.get(id(f), 1.0)
         R = m.R(meas.row)
         kind = _model_kind(m)
         if kind == "GyroYawRate":  # the factor's error is a heading change (rad), R a rate
@@ -1077,16 +1159,76 @@ def _isam2_params(options: GraphOptions):
     return params
 
 
+def _freeze_groups(problem: GraphProblem, fac: _Factors, source: str) -> dict[str, tuple[str, ...]]:
+    """Stream -> calibration states that ``calibration_freeze`` freezes together.
+
+    A sensor's later factors can use constants only when *all* its calibration states are
+    frozen, so each stream with calibration states forms one group; every group must have a
+    threshold for each of its states. Only unary sensor factors can be frozen (the gyro's
+    heading-increment factor is not).
+    """
+    spec = problem.options.calibration_freeze
+    if not spec:
+        return {}
+    key = "options.isam2.calibration_freeze.sigma"
+    known = set(problem.calib)
+    bad = sorted(set(spec["sigma"]) - known)
+    if bad:
+        raise ConfigError(
+            f"'{bad[0]}' is not an estimated calibration state "
+            f"(estimated: {', '.join(sorted(known)) or 'none'})",
+            source,
+            f"{key}.{bad[0]}",
+        )
+    groups: dict[str, tuple[str, ...]] = {}
+    for stream, m in problem.models.items():
+        states = tuple(fac._model_calib(m))
+        if not states or not set(states) & set(spec["sigma"]):
+            continue
+        if _model_kind(m) == "GyroYawRate":
+            raise ConfigError(
+                "the gyro's heading-increment factor cannot be frozen (unary sensors only)",
+                source,
+                f"{key}.{next(s for s in states if s in spec['sigma'])}",
+            )
+        missing = [s for s in states if s not in spec["sigma"]]
+        if missing:
+            raise ConfigError(
+                f"sensor '{stream}' estimates {', '.join(states)}: give a threshold for each",
+                source,
+                f"{key}.{missing[0]}",
+            )
+        groups[stream] = states
+    return groups
+
+
 def run_isam2(log, config) -> EstimateResult:
     """iSAM2, one update per keyframe in time order (``estimator: isam2``).
 
-    The trajectory is the final iSAM2 estimate (after two extra relinearising updates);
-    ``extra["latency"]`` summarises the per-update wall time (median, p99, max in ms).
+    The trajectory is the final iSAM2 estimate (after ``final_relinearizations`` forced
+    relinearising updates); ``extra["latency"]`` summarises the wall time of each
+    ``ISAM2.update`` and ``extra["latency_step"]`` that of the whole per-keyframe step
+    (factor creation, update, freeze check, current-pose estimate), median / p99 / max and per
+    quarter of the log, ms.
+
+    Calibration freezing (``options.isam2.calibration_freeze``): a calibration variable
+    (e.g. range scale/offset) is connected to every factor of its sensor, so each update
+    touches it and iSAM2's cost grows with the number of those factors. Every
+    ``check_every`` updates the marginal sigma of each calibration state is read from the
+    Bayes tree; once all the states of a sensor are below their thresholds, that sensor's
+    later factors hold the current estimate as constants
+    (:func:`graph_factors.frozen_calibration_factor`) and no longer involve the variable. The
+    variable stays in the graph, still estimated from the factors added before the freeze;
+    what is given up is the information of the later measurements about the calibration
+    (and its correlation with the later poses). ``extra["calibration_freeze"]`` gives, per
+    frozen state, the constant, its sigma, the keyframe index and time of the freeze.
     """
     import gtsam
 
     problem = build_problem(log, config, "isam2")
     fac = _Factors(problem)
+    groups = _freeze_groups(problem, fac, getattr(config, "source", "<config>"))
+    spec = problem.options.calibration_freeze or {}
     params = _isam2_params(problem.options)
     isam = gtsam.ISAM2(params)
     graph, values = fac.static()
@@ -1098,9 +1240,12 @@ def run_isam2(log, config) -> EstimateResult:
         frozen.push_back(key)
     if problem.odometry_calibration is not None:
         frozen.push_back(problem.odometry_key)
-    latency = []
+    latency, step = [], []
+    freeze_info: dict[str, dict] = {}
+    frozen_streams: set[str] = set()
     current = gtsam.Pose2(*problem.pose0)
     for i in range(len(problem.kt)):
+        t_step = time.perf_counter()
         if i > 0:
             current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
         g, v = fac.keyframe(i, current)
@@ -1109,9 +1254,27 @@ def run_isam2(log, config) -> EstimateResult:
         t0 = time.perf_counter()
         isam.update(graph, values, noRelinKeys=frozen)
         latency.append(time.perf_counter() - t0)
+        if groups and i % spec["check_every"] == 0:
+            for stream in [s for s in groups if s not in frozen_streams]:
+                sig = {
+                    s: float(np.sqrt(isam.marginalCovariance(problem.calib[s][0])[0, 0]))
+                    for s in groups[stream]
+                }
+                if all(sig[s] < spec["sigma"][s] for s in groups[stream]):
+                    for s in groups[stream]:
+                        value = float(isam.calculateEstimateVector(problem.calib[s][0])[0])
+                        fac.frozen[s] = value
+                        freeze_info[s] = {
+                            "value": value,
+                            "sigma": sig[s],
+                            "keyframe": i,
+                            "t": float(problem.kt[i]),
+                        }
+                    frozen_streams.add(stream)
         if i > 0:
             current = isam.calculateEstimatePose2(_X(i))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        step.append(time.perf_counter() - t_step)
     for _ in range(problem.options.final_relinearizations):
         isam.update(force_relinearize=True)
     result = isam.calculateEstimate()
@@ -1119,7 +1282,10 @@ def run_isam2(log, config) -> EstimateResult:
     if problem.options.covariances:
         poses = _pose_array(result, len(problem.kt))
         covs = _world_covs(problem, poses, isam.marginalCovariance)
-    return _finish(problem, fac, result, covs, "isam2", {"latency": _latency_summary(latency)})
+    extra = {"latency": _latency_summary(latency), "latency_step": _latency_summary(step)}
+    if groups:
+        extra["calibration_freeze"] = freeze_info
+    return _finish(problem, fac, result, covs, "isam2", extra)
 
 
 def run_fixed_lag(log, config) -> EstimateResult:

@@ -6,6 +6,9 @@ Everything here is used by :mod:`odofuse.estimators.graph`. The measurement mode
 * :func:`range_landmark_factor`: range ``z = s * ||p - l|| + o`` to a landmark *variable*
   ``l`` with range scale ``s`` and offset ``o`` variables (SLAM with range calibration;
   GTSAM's ``RangeFactor2D`` has no scale and ``RangeFactorWithTransformBias2D`` no scale);
+* :func:`frozen_calibration_factor`: a unary sensor factor whose calibration states are
+  constants (iSAM2's ``calibration_freeze``: once converged, new factors stop touching the
+  global calibration variables);
 * :func:`calibrated_between_factor`: odometry between factor corrected to first order in
   odometry calibration parameters (wheel radius ratio, track scale, ds/dtheta scale, bias);
 * :func:`robust_noise`: Huber / Cauchy / Tukey wrappers of a Gaussian noise model;
@@ -30,6 +33,7 @@ __all__ = [
     "robust_noise",
     "range_landmark_factor",
     "calibrated_between_factor",
+    "frozen_calibration_factor",
     "levenberg_marquardt",
 ]
 
@@ -225,3 +229,50 @@ def calibrated_between_factor(key_i, key_j, calib_key, delta0, G, p0, noise):
         return e
 
     return gtsam.CustomFactor(noise, gtsam.KeyVector([key_i, key_j, calib_key]), error)
+
+
+def frozen_calibration_factor(model, key, row, constants, noise=None):
+    """A unary sensor factor on pose ``key`` with the model's calibration states held constant.
+
+    The same error as ``model.factor(key, row, calib_keys, noise)`` (``h(x, c) - z`` with the
+    model's angle wrapping, whitened by ``noise`` or ``R(row)``), evaluated at fixed values
+    ``c`` of the calibration states instead of reading them from graph variables, so the
+    factor involves the pose only. Jacobian: the model's analytic ``H`` w.r.t. world
+    ``[x, y, theta]`` moved to GTSAM's Pose2 body tangent, ``H @ blockdiag(R(theta), 1)``.
+
+    Parameters
+    ----------
+    model : odofuse.measurements.MeasurementModel
+        A unary model (``h(x, row)`` of the pose and its ``calib_states``).
+    key : int
+        GTSAM key of the ``Pose2`` variable.
+    row : mapping
+        The sensor row.
+    constants : dict[str, float]
+        State name -> value (units of the state, e.g. ``range_scale`` [-], ``range_offset``
+        [m]); states of ``model.calib_states`` not given take their nominal values.
+    noise : gtsam.noiseModel.Base, optional
+        Noise model (robust wrapper included); default ``model.noise(row)``.
+
+    Returns
+    -------
+    gtsam.CustomFactor
+    """
+    import gtsam
+
+    names = [s for s in getattr(model, "calib_states", ()) if s in constants]
+    consts = np.array([float(constants[s]) for s in names])
+    bound = model.bind({s: 3 + i for i, s in enumerate(names)})
+    z = model.z(row)
+
+    def error(this, values, H):
+        p = values.atPose2(key)
+        x = np.concatenate([[p.x(), p.y(), p.theta()], consts])
+        err = -bound.residual(z, bound.h(x, row))
+        if H is not None:
+            c, s = math.cos(x[2]), math.sin(x[2])
+            T = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            H[0] = bound.H(x, row)[:, :3] @ T
+        return err
+
+    return gtsam.CustomFactor(model.noise(row, noise), gtsam.KeyVector([key]), error)
