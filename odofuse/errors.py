@@ -10,8 +10,13 @@ class OdofuseError(ValueError):
 class InputError(OdofuseError):
     """Bad data in a log: names the file, and the row (1-based, header = row 1) and column."""
 
-    def __init__(self, message: str, file: str | None = None, row: int | None = None,
-                 column: str | None = None) -> None:
+    def __init__(
+        self,
+        message: str,
+        file: str | None = None,
+        row: int | None = None,
+        column: str | None = None,
+    ) -> None:
         self.file, self.row, self.column = file, row, column
         where = []
         if file is not None:

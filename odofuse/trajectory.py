@@ -29,7 +29,9 @@ class Trajectory:
         t = np.asarray(self.t, dtype=float)
         poses = np.asarray(self.poses, dtype=float)
         if t.ndim != 1 or poses.shape != (t.size, 3):
-            raise ValueError(f"Trajectory needs t (N,) and poses (N, 3); got {t.shape}, {poses.shape}")
+            raise ValueError(
+                f"Trajectory needs t (N,) and poses (N, 3); got {t.shape}, {poses.shape}"
+            )
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "poses", poses)
         if self.covariances is not None:

@@ -37,8 +37,9 @@ def get_estimator(name: str):
     """The ``run(log, config)`` of estimator ``name`` (a table key or ``module:function``)."""
     spec = ESTIMATORS.get(name, name)
     if ":" not in spec:
-        raise ConfigError(f"unknown estimator '{name}'; known: {', '.join(ESTIMATORS)}",
-                          key="estimator")
+        raise ConfigError(
+            f"unknown estimator '{name}'; known: {', '.join(ESTIMATORS)}", key="estimator"
+        )
     return load_object(spec, "estimator")
 
 
