@@ -838,7 +838,8 @@ def measurement_models(config, log=None) -> dict[str, MeasurementModel]:
         and the model's own keys (``lever_arm``, ``datum``, ``calibrate``, ``sigma_bearing``,
         ...). Keys used by the estimators (``gyrodometry``, ``threshold``) are skipped here.
     log : SensorLog, optional
-        Supplies the landmark map.
+        Supplies the landmark map, and the first fix of a lat/lon GPS stream as its datum
+        when the sensor block sets none.
 
     Returns
     -------
@@ -858,4 +859,20 @@ def measurement_models(config, log=None) -> dict[str, MeasurementModel]:
         raise ConfigError(
             f"expected a mapping of stream -> block, got {sensors!r}", source, "sensors"
         )
-    return {str(s): _build_one(str(s), b or {}, landmarks, source) for s, b in sensors.items()}
+    models = {str(s): _build_one(str(s), b or {}, landmarks, source) for s, b in sensors.items()}
+    # A lat/lon GPS stream without a datum is expressed about its first fix (the usual default
+    # of robot_localization's navsat_transform when no datum is set).
+    streams = getattr(log, "streams", {}) or {}
+    for name, model in models.items():
+        stream = streams.get(name)
+        if (
+            isinstance(model, GpsPosition)
+            and model.datum is None
+            and stream is not None
+            and len(stream)
+            and {"lat", "lon"} <= set(stream.columns)
+        ):
+            models[name] = dataclasses.replace(
+                model, datum=(float(stream["lat"][0]), float(stream["lon"][0]))
+            )
+    return models

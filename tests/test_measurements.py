@@ -115,6 +115,20 @@ def test_gps_latlon_converted_about_the_datum():
         GpsPosition("gps").z({"lat": 48.0, "lon": 11.0})
 
 
+def test_latlon_gps_without_datum_uses_its_first_fix():
+    from odofuse.io.log import SensorLog, Stream
+
+    fixes = Stream("gps", "gps.csv", [0.0, 1.0], ("lat", "lon"), [[48.0, 11.0], [48.001, 11.0]])
+    log = SensorLog("mem", {"gps": fixes})
+    model = measurement_models(_config({"gps": {"sigma": 2.0}}), log)["gps"]
+    assert model.datum == (48.0, 11.0)
+    np.testing.assert_allclose(model.z(fixes.row(0)), [0.0, 0.0], atol=1e-9)
+    assert model.z(fixes.row(1))[1] == pytest.approx(111.2, abs=0.3)
+    # an explicit datum is kept
+    kept = measurement_models(_config({"gps": {"sigma": 2.0, "datum": [47.9, 11.0]}}), log)
+    assert kept["gps"].datum == (47.9, 11.0)
+
+
 def test_residual_wraps_angles_only():
     c = CompassHeading("compass")
     np.testing.assert_allclose(c.residual([math.pi - 0.01], [-math.pi + 0.01]), [-0.02], atol=1e-12)
