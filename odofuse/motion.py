@@ -208,20 +208,26 @@ def _chord(theta_start, twist, integrator: str):
 
 
 def _cumulative_poses(pose0, twist, integrator: str):
-    """Poses after each step of ``twist`` ``(N, 3)`` (N+1, 3), and the step-start headings."""
+    """Poses after each step of ``twist`` ``(N, 3)`` (N+1, 3), and the step-start headings.
+
+    Each running sum starts from the initial value, so it adds in the same order as the
+    step-by-step loop (``x_{k+1} = x_k + dx_k``).
+    """
     n = twist.shape[0]
     theta = np.empty(n + 1)
     theta[0] = pose0[2]
-    np.cumsum(twist[:, 0], out=theta[1:])
-    theta[1:] += pose0[2]
+    theta[1:] = twist[:, 0]
+    np.cumsum(theta, out=theta)
     zr, zi, _, _, g = _chord(theta[:-1], twist, integrator)
     if g is not None:
-        zr, zi = g * zr, g * zi
+        zr *= g
+        zi *= g
     poses = np.empty((n + 1, 3))
-    poses[0, :2] = pose0[:2]
-    np.cumsum(zr, out=poses[1:, 0])
-    np.cumsum(zi, out=poses[1:, 1])
-    poses[1:, :2] += pose0[:2]
+    for axis, step in ((0, zr), (1, zi)):
+        column = np.empty(n + 1)
+        column[0] = pose0[axis]
+        column[1:] = step
+        np.cumsum(column, out=poses[:, axis])
     poses[:, 2] = se2.wrap(theta)
     return poses, theta[:-1]
 
