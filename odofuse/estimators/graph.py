@@ -28,6 +28,7 @@ Options are documented in ``docs/graph.md``.
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from dataclasses import dataclass, field
@@ -142,10 +143,15 @@ class GraphOptions:
     known_landmark_sigma : float
         m, sigma of the prior that pins a known landmark variable.
     calibration_freeze : dict or None
-        ``isam2`` only: ``{"sigma": {state: threshold}, "check_every": n}``. Every ``n``
-        updates the marginal sigma of each named calibration state is checked; once all the
-        states of a sensor are below their thresholds, that sensor's later factors use the
-        current estimate as constants (see :func:`run_isam2`).
+        ``isam2`` only, one of two forms. Absolute thresholds
+        ``{"sigma": {state: threshold}, "check_every": n}``: every ``n`` updates the marginal
+        sigma of each named calibration state is checked; once all the states of a sensor are
+        below their thresholds, that sensor's later factors use the current estimate as
+        constants (see :func:`run_isam2`). Convergence ``{"rel_change": r, "window": W [s],
+        "min_time": T [s], "check_every": n}``: a sensor is frozen once each of its
+        calibration sigmas shrank by less than the fraction ``r`` over the last ``W`` s of
+        log time (with at least one new factor of the sensor in that window) and at least
+        ``T`` s have elapsed since the first keyframe.
     """
 
     keyframe_dt: float = 1.0
@@ -217,27 +223,65 @@ def _robust_entry(value, key, source) -> tuple[str, float]:
 
 
 def _freeze_option(value, key, source, estimator) -> dict:
-    """``{sigma: {state: positive float}, check_every: positive int}`` (isam2 only)."""
+    """Validate ``calibration_freeze`` (isam2 only) into one of two forms.
+
+    Absolute thresholds: ``{sigma: {state: positive float}, check_every: n}``.
+    Convergence: ``{rel_change: r, window: W, min_time: T, check_every: n}`` with
+    ``0 < r < 1``, ``W > 0`` s of log time and ``T >= 0`` s (default 0). Exactly one of
+    ``sigma`` and ``rel_change`` must be given.
+    """
     if estimator != "isam2":
         raise ConfigError("only the isam2 estimator freezes calibration states", source, key)
-    if not isinstance(value, dict) or not isinstance(value.get("sigma"), dict):
-        raise ConfigError(
-            f"expected {{sigma: {{state: threshold}}, check_every: n}}, got {value!r}", source, key
-        )
-    bad = set(value) - {"sigma", "check_every"}
+    form = "{sigma: {state: threshold}} or {rel_change: r, window: s}"
+    if not isinstance(value, dict):
+        raise ConfigError(f"expected {form}, got {value!r}", source, key)
+    allowed = ("sigma", "rel_change", "window", "min_time", "check_every")
+    bad = set(value) - set(allowed)
     if bad:
-        raise ConfigError("unknown key; allowed: sigma, check_every", source, f"{key}.{min(bad)}")
-    sigma = {}
-    for state, v in value["sigma"].items():
-        sigma[str(state)] = _nonneg_option(v, f"{key}.sigma.{state}", source)
-        if sigma[str(state)] == 0.0:
-            raise ConfigError("must be positive", source, f"{key}.sigma.{state}")
+        raise ConfigError(
+            f"unknown key; allowed: {', '.join(allowed)}", source, f"{key}.{min(bad, key=str)}"
+        )
     every = value.get("check_every", 10)
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ConfigError(
             f"expected a positive integer, got {every!r}", source, f"{key}.check_every"
         )
-    return {"sigma": sigma, "check_every": every}
+    if "sigma" in value and "rel_change" in value:
+        raise ConfigError(
+            "give either sigma (absolute thresholds) or rel_change (convergence), not both",
+            source,
+            f"{key}.rel_change",
+        )
+    if "sigma" in value:
+        for extra in ("window", "min_time"):
+            if extra in value:
+                raise ConfigError("only with rel_change", source, f"{key}.{extra}")
+        if not isinstance(value["sigma"], dict):
+            raise ConfigError(
+                f"expected {{state: threshold}}, got {value['sigma']!r}", source, f"{key}.sigma"
+            )
+        sigma = {}
+        for state, v in value["sigma"].items():
+            sigma[str(state)] = _nonneg_option(v, f"{key}.sigma.{state}", source)
+            if sigma[str(state)] == 0.0:
+                raise ConfigError("must be positive", source, f"{key}.sigma.{state}")
+        return {"sigma": sigma, "check_every": every}
+    if "rel_change" not in value:
+        raise ConfigError(f"expected {form}, got {value!r}", source, key)
+    rel = _nonneg_option(value["rel_change"], f"{key}.rel_change", source)
+    if not 0.0 < rel < 1.0:
+        raise ConfigError(
+            f"must be a fraction in (0, 1), got {value['rel_change']!r}",
+            source,
+            f"{key}.rel_change",
+        )
+    if "window" not in value:
+        raise ConfigError("required with rel_change (s of log time)", source, f"{key}.window")
+    window = _nonneg_option(value["window"], f"{key}.window", source)
+    if window == 0.0:
+        raise ConfigError("must be positive", source, f"{key}.window")
+    min_time = _nonneg_option(value.get("min_time", 0.0), f"{key}.min_time", source)
+    return {"rel_change": rel, "window": window, "min_time": min_time, "check_every": every}
 
 
 def parse_options(config, estimator: str) -> GraphOptions:
@@ -1163,13 +1207,21 @@ def _freeze_groups(problem: GraphProblem, fac: _Factors, source: str) -> dict[st
     """Stream -> calibration states that ``calibration_freeze`` freezes together.
 
     A sensor's later factors can use constants only when *all* its calibration states are
-    frozen, so each stream with calibration states forms one group; every group must have a
-    threshold for each of its states. Only unary sensor factors can be frozen (the gyro's
-    heading-increment factor is not).
+    frozen, so each stream with calibration states forms one group. Only unary sensor
+    factors can be frozen (the gyro's heading-increment factor is not). With absolute
+    thresholds every group must have a threshold for each of its states and naming a gyro
+    state is an error; with the convergence form every freezable sensor forms a group and a
+    gyro's states simply stay estimated.
     """
     spec = problem.options.calibration_freeze
     if not spec:
         return {}
+    if "rel_change" in spec:
+        return {
+            stream: tuple(fac._model_calib(m))
+            for stream, m in problem.models.items()
+            if fac._model_calib(m) and _model_kind(m) != "GyroYawRate"
+        }
     key = "options.isam2.calibration_freeze.sigma"
     known = set(problem.calib)
     bad = sorted(set(spec["sigma"]) - known)
@@ -1202,6 +1254,37 @@ def _freeze_groups(problem: GraphProblem, fac: _Factors, source: str) -> dict[st
     return groups
 
 
+def _converged(history: list, t: float, n: int, sig: dict, spec: dict) -> tuple[bool, dict]:
+    """The convergence test of ``calibration_freeze: {rel_change, window}`` for one sensor.
+
+    Parameters
+    ----------
+    history : list of (t [s], n factors, {state: sigma})
+        Earlier checks of this sensor, in time order.
+    t : float
+        s, log time of this check; ``n`` the sensor's factor count so far; ``sig`` the
+        current marginal sigma of each of its calibration states.
+    spec : dict
+        The parsed option (``rel_change``, ``window`` [s]).
+
+    Returns
+    -------
+    (bool, dict)
+        Whether every sigma shrank by less than ``rel_change`` (relative) since the last check
+        at least ``window`` s ago, with at least one new factor of the sensor since then; and
+        the sigmas of that earlier check (empty if there is none yet).
+    """
+    times = [h[0] for h in history]
+    j = bisect.bisect_right(times, t - spec["window"]) - 1
+    if j < 0:
+        return False, {}
+    _, n_then, sig_then = history[j]
+    if n <= n_then:  # no new measurement: no evidence that the information stopped growing
+        return False, sig_then
+    ok = all(sig_then[s] - sig[s] < spec["rel_change"] * sig_then[s] for s in sig)
+    return ok, sig_then
+
+
 def run_isam2(log, config) -> EstimateResult:
     """iSAM2, one update per keyframe in time order (``estimator: isam2``).
 
@@ -1215,13 +1298,16 @@ def run_isam2(log, config) -> EstimateResult:
     (e.g. range scale/offset) is connected to every factor of its sensor, so each update
     touches it and iSAM2's cost grows with the number of those factors. Every
     ``check_every`` updates the marginal sigma of each calibration state is read from the
-    Bayes tree; once all the states of a sensor are below their thresholds, that sensor's
-    later factors hold the current estimate as constants
+    Bayes tree; once all the states of a sensor are below their thresholds (``sigma`` form)
+    or have converged (``rel_change`` form: each sigma shrank by less than ``rel_change``
+    over the last ``window`` s of log time, the sensor got new factors in that window and
+    ``min_time`` s have elapsed), that sensor's later factors hold the current estimate as constants
     (:func:`graph_factors.frozen_calibration_factor`) and no longer involve the variable. The
     variable stays in the graph, still estimated from the factors added before the freeze;
     what is given up is the information of the later measurements about the calibration
     (and its correlation with the later poses). ``extra["calibration_freeze"]`` gives, per
-    frozen state, the constant, its sigma, the keyframe index and time of the freeze.
+    frozen state, the constant, its sigma, the keyframe index and time of the freeze (and,
+    for the ``rel_change`` form, ``sigma_window_ago``: its sigma one window earlier).
     """
     import gtsam
 
@@ -1243,6 +1329,8 @@ def run_isam2(log, config) -> EstimateResult:
     latency, step = [], []
     freeze_info: dict[str, dict] = {}
     frozen_streams: set[str] = set()
+    history: dict[str, list] = {stream: [] for stream in groups}
+    n_factors: dict[str, int] = {}
     current = gtsam.Pose2(*problem.pose0)
     for i in range(len(problem.kt)):
         t_step = time.perf_counter()
@@ -1254,13 +1342,24 @@ def run_isam2(log, config) -> EstimateResult:
         t0 = time.perf_counter()
         isam.update(graph, values, noRelinKeys=frozen)
         latency.append(time.perf_counter() - t0)
+        for meas in fac.by_kf.get(i, ()):
+            n_factors[meas.stream] = n_factors.get(meas.stream, 0) + 1
         if groups and i % spec["check_every"] == 0:
+            t_i = float(problem.kt[i])
             for stream in [s for s in groups if s not in frozen_streams]:
                 sig = {
                     s: float(np.sqrt(isam.marginalCovariance(problem.calib[s][0])[0, 0]))
                     for s in groups[stream]
                 }
-                if all(sig[s] < spec["sigma"][s] for s in groups[stream]):
+                before: dict = {}
+                if "sigma" in spec:
+                    ok = all(sig[s] < spec["sigma"][s] for s in groups[stream])
+                else:
+                    n = n_factors.get(stream, 0)
+                    ok, before = _converged(history[stream], t_i, n, sig, spec)
+                    ok = ok and t_i - float(problem.kt[0]) >= spec["min_time"]
+                    history[stream].append((t_i, n, sig))
+                if ok:
                     for s in groups[stream]:
                         value = float(isam.calculateEstimateVector(problem.calib[s][0])[0])
                         fac.frozen[s] = value
@@ -1268,8 +1367,10 @@ def run_isam2(log, config) -> EstimateResult:
                             "value": value,
                             "sigma": sig[s],
                             "keyframe": i,
-                            "t": float(problem.kt[i]),
+                            "t": t_i,
                         }
+                        if before:
+                            freeze_info[s]["sigma_window_ago"] = before[s]
                     frozen_streams.add(stream)
         if i > 0:
             current = isam.calculateEstimatePose2(_X(i))
