@@ -594,11 +594,91 @@ def test_isam2_calibration_freeze_stops_touching_the_calibration():
     assert _rmse(res, log) < min(1.25 * _rmse(ref, log), 0.1 * _rmse(uncal, log))
 
 
+def test_isam2_convergence_freeze_triggers_and_stops_touching_the_calibration():
+    # 2 Hz ranges: the calibration sigmas shrink ~1/sqrt(t), so a 10 % shrink per 30 s
+    # window is reached after ~30 / (1 - 0.9**2) = 158 s of ranges, inside the 260 s log
+    log = _simulate(seed=6, T=260.0, scale=1.05, offset=0.3)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
+    freeze = {"rel_change": 0.1, "window": 30.0, "check_every": 5}
+    res = graph.run_isam2(log, _config("isam2", sensors, {"calibration_freeze": freeze}))
+    ref = graph.run_isam2(log, _config("isam2", sensors))
+    info = res.extra["calibration_freeze"]
+    assert set(info) == {"range_scale", "range_offset"}
+    k = info["range_scale"]["keyframe"]
+    assert 0 < k < len(res.trajectory) - 1 and k % 5 == 0
+    assert info["range_offset"]["keyframe"] == k
+    t0 = res.trajectory.t[0]
+    assert info["range_scale"]["t"] - t0 >= freeze["window"]
+    for s, truth in (("range_scale", 1.05), ("range_offset", 0.3)):
+        before, now = info[s]["sigma_window_ago"], info[s]["sigma"]
+        assert 0.9 * before < now <= before  # the criterion, as recorded
+        assert abs(info[s]["value"] - truth) < 3 * now
+    # structural: every range after the freeze keyframe is a built-in factor without the
+    # calibration keys; only the ranges up to it are Python (calibrated) factors
+    problem = graph.build_problem(log, _config("isam2", sensors), "isam2")
+    before = sum(m.stream == "ranges" and m.keyframe <= k for m in problem.measurements)
+    after = sum(m.stream == "ranges" and m.keyframe > k for m in problem.measurements)
+    assert after > 0
+    assert res.extra["python_factors"] == before < ref.extra["python_factors"]
+    assert res.used == ref.used
+
+
+def test_convergence_freeze_waits_for_min_time():
+    log = _simulate(seed=6, T=260.0, scale=1.05, offset=0.3)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
+    freeze = {"rel_change": 0.1, "window": 30.0, "min_time": 1000.0, "check_every": 5}
+    res = graph.run_isam2(log, _config("isam2", sensors, {"calibration_freeze": freeze}))
+    ref = graph.run_isam2(log, _config("isam2", sensors))
+    assert res.extra["calibration_freeze"] == {}
+    assert res.extra["python_factors"] == ref.extra["python_factors"]
+
+
+def test_converged_needs_a_full_window_and_new_measurements():
+    spec = {"rel_change": 0.1, "window": 30.0}
+    sig = {"range_scale": 0.0095, "range_offset": 0.19}
+    hist = [(0.0, 10, {"range_scale": 0.02, "range_offset": 0.4})]
+    hist.append((20.0, 50, {"range_scale": 0.01, "range_offset": 0.2}))
+    # no check a full window before t = 45 s yet apart from t = 0 (sigma halved since): no
+    assert graph._converged(hist, 45.0, 80, sig, spec) == (False, hist[0][2])
+    assert graph._converged(hist, 29.0, 80, sig, spec) == (False, {})
+    # at t = 50 s the reference is the t = 20 s check: 5 % shrink in both states -> yes
+    assert graph._converged(hist, 50.0, 80, sig, spec) == (True, hist[1][2])
+    # ... but not without any new factor of the sensor since then (a gap in the data)
+    assert graph._converged(hist, 50.0, 50, sig, spec) == (False, hist[1][2])
+    # one state still shrinking by >= 10 % is enough to wait
+    assert not graph._converged(hist, 50.0, 80, {**sig, "range_offset": 0.18}, spec)[0]
+
+
 @pytest.mark.parametrize(
     "estimator, freeze, key",
     [
         ("smoother", {"sigma": {"range_scale": 0.01}}, "options.smoother.calibration_freeze"),
-        ("isam2", {"sigma": 0.01}, "options.isam2.calibration_freeze"),
+        ("isam2", {"sigma": 0.01}, "options.isam2.calibration_freeze.sigma"),
+        ("isam2", {"check_every": 5}, "options.isam2.calibration_freeze"),
+        (
+            "isam2",
+            {"sigma": {"range_scale": 0.01}, "rel_change": 0.1, "window": 30.0},
+            "options.isam2.calibration_freeze.rel_change",
+        ),
+        (
+            "isam2",
+            {"sigma": {"range_scale": 0.01}, "window": 30.0},
+            "options.isam2.calibration_freeze.window",
+        ),
+        ("isam2", {"rel_change": 0.1}, "options.isam2.calibration_freeze.window"),
+        ("isam2", {"rel_change": 1.0, "window": 30}, "options.isam2.calibration_freeze.rel_change"),
+        ("isam2", {"rel_change": 0.0, "window": 30}, "options.isam2.calibration_freeze.rel_change"),
+        ("isam2", {"rel_change": 0.1, "window": 0}, "options.isam2.calibration_freeze.window"),
+        (
+            "isam2",
+            {"rel_change": 0.1, "window": 30, "min_time": -1},
+            "options.isam2.calibration_freeze.min_time",
+        ),
+        (
+            "isam2",
+            {"rel_change": 0.1, "window": 30, "check_every": 2.5},
+            "options.isam2.calibration_freeze.check_every",
+        ),
         (
             "isam2",
             {"sigma": {"range_scale": -1}},
