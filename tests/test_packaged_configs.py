@@ -11,7 +11,7 @@ PLAZA = sorted((ROOT / "configs").glob("plaza1-*.yaml")) + sorted(
     (ROOT / "odofuse" / "default_configs").glob("plaza1-*.yaml")
 )
 # Configs that keep their own, tighter numbers (docs/graph.md says why).
-OWN_NUMBERS = {"plaza1-isam2.yaml", "plaza1-slam.yaml"}
+OWN_NUMBERS = {"plaza1-slam.yaml"}
 
 
 @pytest.mark.parametrize("path", PLAZA, ids=lambda p: f"{p.parent.name}/{p.name}")
