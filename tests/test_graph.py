@@ -109,13 +109,14 @@ def test_split_steps_compose_to_the_full_step():
     assert np.all(np.linalg.eigvalsh(covs[1:]) > -1e-15)
 
 
-@pytest.mark.parametrize(
-    "robot",
-    [
-        {"drive": "increments"},
-        {"drive": "differential", "wheel_radius": 0.05, "track_width": 0.3},
-    ],
-)
+# An odometry log (increments) and a wheel log (differential drive), for calibration tests.
+INCREMENTS_AND_DIFFERENTIAL = [
+    {"drive": "increments"},
+    {"drive": "differential", "wheel_radius": 0.05, "track_width": 0.3},
+]
+
+
+@pytest.mark.parametrize("robot", INCREMENTS_AND_DIFFERENTIAL)
 def test_vectorised_preintegration_equals_motion_model_relative(robot):
     cfg = RunConfig(log="x", robot=robot, motion={"k": 1e-3, "var_floor": 1e-7})
     model = motion_model_from_config(cfg)
@@ -352,13 +353,7 @@ def test_calibrated_between_factor_jacobians():
     np.testing.assert_allclose(A, numerical_jacobian(err, np.zeros(9)), atol=1e-7)
 
 
-@pytest.mark.parametrize(
-    "robot",
-    [
-        {"drive": "increments"},
-        {"drive": "differential", "wheel_radius": 0.05, "track_width": 0.3},
-    ],
-)
+@pytest.mark.parametrize("robot", INCREMENTS_AND_DIFFERENTIAL)
 def test_calibration_sensitivity_matches_perturbed_preintegration(robot):
     """``delta(p0 + dp) ~= delta(p0) Exp(G dp)`` (the first-order model of the factor)."""
     cfg = RunConfig(log="x", robot=robot, motion={"k": 1e-3, "var_floor": 1e-7})
