@@ -21,13 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse.errors import InputError
+from odofuse.se2 import wrap
 from odofuse.trajectory import EstimateResult, Trajectory
-
-_TWO_PI = 2.0 * math.pi
-
-
-def _wrap(a):
-    return (np.asarray(a, dtype=float) + math.pi) % _TWO_PI - math.pi
 
 
 def trajectory_from_stream(stream) -> Trajectory:
@@ -75,7 +70,7 @@ def apply_alignment(traj: Trajectory, r: np.ndarray, t: np.ndarray) -> Trajector
     """
     angle = math.atan2(r[1, 0], r[0, 0])
     xy = traj.xy @ r.T + t
-    poses = np.column_stack([xy, _wrap(traj.poses[:, 2] + angle)])
+    poses = np.column_stack([xy, wrap(traj.poses[:, 2] + angle)])
     covs = None
     if traj.covariances is not None:
         j = np.eye(3)
@@ -98,7 +93,7 @@ def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
     a = np.where(dt > 0, (t - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)
     p0, p1 = traj.poses[k], traj.poses[k + 1]
     xy = p0[:, :2] + a[:, None] * (p1[:, :2] - p0[:, :2])
-    th = _wrap(p0[:, 2] + a * _wrap(p1[:, 2] - p0[:, 2]))
+    th = wrap(p0[:, 2] + a * wrap(p1[:, 2] - p0[:, 2]))
     return np.column_stack([xy, th])
 
 
@@ -155,7 +150,7 @@ def ate(est: Trajectory, gt: Trajectory, align: bool = False) -> ATE:
         r, t, _ = align_se2(e.xy, g[:, :2])
         e = apply_alignment(e, r, t)
     d = np.linalg.norm(e.xy - g[:, :2], axis=1)
-    rot = _wrap(e.poses[:, 2] - g[:, 2])
+    rot = wrap(e.poses[:, 2] - g[:, 2])
     return ATE(
         float(np.sqrt(np.mean(d**2))),
         float(d.mean()),
@@ -171,7 +166,7 @@ def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a^-1 b`` for SE(2) poses (N, 3): ``b`` expressed in the frame of ``a``."""
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
     dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, _wrap(b[:, 2] - a[:, 2])])
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, wrap(b[:, 2] - a[:, 2])])
 
 
 @dataclass(frozen=True)
@@ -223,7 +218,7 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
     rel_g = _between(g[i], g[j])
     err = _between(rel_g, rel_e)
     t_err = np.linalg.norm(err[:, :2], axis=1)
-    r_err = np.abs(_wrap(err[:, 2]))
+    r_err = np.abs(wrap(err[:, 2]))
     return RPE(
         float(np.sqrt(np.mean(t_err**2))),
         float(np.sqrt(np.mean(r_err**2))),
@@ -247,7 +242,7 @@ def nees_values(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> np.ndarray:
     dims = list(dims)
     idx, g = associate(est, gt)
     e = est.poses[idx] - g
-    e[:, 2] = _wrap(e[:, 2])
+    e[:, 2] = wrap(e[:, 2])
     e = e[:, dims]
     covs = est.covariances[idx][:, dims][:, :, dims]
     covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from odofuse.errors import ConfigError
+from odofuse.se2 import wrap
 
 __all__ = [
     "MeasurementModel",
@@ -58,13 +59,6 @@ __all__ = [
     "gate_threshold",
     "wrap",
 ]
-
-TWO_PI = 2.0 * math.pi
-
-
-def wrap(angle):
-    """Wrap angles (rad) to ``[-pi, pi)``."""
-    return (np.asarray(angle, dtype=float) + math.pi) % TWO_PI - math.pi
 
 
 def gate_threshold(probability: float | None, dim: int) -> float:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from odofuse.errors import InputError
+from odofuse.se2 import wrap
 from odofuse.trajectory import EstimateResult, Trajectory
 
 CSV_HEADER = (
@@ -72,10 +73,6 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return atomic_write(path, write)
 
 
-def _wrap(a):
-    return (np.asarray(a, dtype=float) + math.pi) % (2 * math.pi) - math.pi
-
-
 def trajectory_csv_text(traj: Trajectory) -> str:
     """The ``trajectory.csv`` content: one row per pose, covariance in the world frame.
 
@@ -89,7 +86,7 @@ def trajectory_csv_text(traj: Trajectory) -> str:
         if cov is None
         else np.stack([cov[:, i, j] for i, j in _COV_IDX], axis=1)
     )
-    table = np.column_stack([traj.t, traj.poses[:, :2], _wrap(traj.poses[:, 2]), covcols])
+    table = np.column_stack([traj.t, traj.poses[:, :2], wrap(traj.poses[:, 2]), covcols])
     lines = [",".join(CSV_HEADER)]
     fmt = ",".join(["%.17g"] * len(CSV_HEADER))
     lines += [fmt % tuple(row) for row in table]

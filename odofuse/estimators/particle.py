@@ -30,12 +30,7 @@ import numpy as np
 
 from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
-
-TWO_PI = 2.0 * math.pi
-
-
-def _wrap(a):
-    return (a + math.pi) % TWO_PI - math.pi
+from odofuse.se2 import wrap
 
 
 def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -95,7 +90,7 @@ class ParticleBackend:
         vals, vecs = np.linalg.eigh(0.5 * (P0 + P0.T))
         root = vecs * np.sqrt(np.clip(vals, 0.0, None))
         self.X = x0 + self.rng.standard_normal((self.N, self.n)) @ root.T
-        self.X[:, 2] = _wrap(self.X[:, 2])
+        self.X[:, 2] = wrap(self.X[:, 2])
         self.w = np.full(self.N, 1.0 / self.N)
         self.angles = [2]
         for m in models.values():
@@ -128,7 +123,7 @@ class ParticleBackend:
         c, s = np.cos(X[:, 2]), np.sin(X[:, 2])
         X[:, 0] += c * delta[:, 0] - s * delta[:, 1]
         X[:, 1] += s * delta[:, 0] + c * delta[:, 1]
-        X[:, 2] = _wrap(X[:, 2] + delta[:, 2])
+        X[:, 2] = wrap(X[:, 2] + delta[:, 2])
         if dt > 0 and self.n > 3:
             sd = np.sqrt(self.walk[3:] * dt)
             if np.any(sd > 0):
@@ -148,7 +143,7 @@ class ParticleBackend:
         rows = list(getattr(model, "angle_rows", ()))
         E = z - Z
         if rows:
-            E[:, rows] = _wrap(E[:, rows])
+            E[:, rows] = wrap(E[:, rows])
         w = self.w
         y = w @ E  # mean innovation (angles: residuals are already small and unwrapped)
         D = E - y
@@ -215,7 +210,7 @@ class ParticleBackend:
     def cov(self) -> np.ndarray:
         """Weighted covariance about :meth:`mean` (angle residuals wrapped)."""
         D = self.X - self.mean()
-        D[:, self.angles] = _wrap(D[:, self.angles])
+        D[:, self.angles] = wrap(D[:, self.angles])
         C = (D * self.w[:, None]).T @ D
         return 0.5 * (C + C.T)
 

@@ -23,12 +23,7 @@ import numpy as np
 from odofuse.estimators.ekf import FastIncrement
 from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
-
-TWO_PI = 2.0 * math.pi
-
-
-def _wrap(a):
-    return (a + math.pi) % TWO_PI - math.pi
+from odofuse.se2 import wrap
 
 
 def _psd_sqrt(A: np.ndarray) -> np.ndarray:
@@ -107,12 +102,12 @@ class UkfBackend:
     # -- angle-aware state arithmetic ---------------------------------------------------
     def residual_x(self, a, b) -> np.ndarray:
         d = np.subtract(a, b)
-        d[self.angles] = _wrap(d[self.angles])
+        d[self.angles] = wrap(d[self.angles])
         return d
 
     def state_add(self, x, dx) -> np.ndarray:
         s = np.add(x, dx)
-        s[self.angles] = _wrap(s[self.angles])
+        s[self.angles] = wrap(s[self.angles])
         return s
 
     def x_mean(self, sigmas, Wm) -> np.ndarray:
@@ -135,7 +130,7 @@ class UkfBackend:
         out = s.copy()
         out[0] = s[0] + c * delta[0] - sn * delta[1]
         out[1] = s[1] + sn * delta[0] + c * delta[1]
-        out[2] = _wrap(s[2] + delta[2])
+        out[2] = wrap(s[2] + delta[2])
         return out
 
     def predict(self, u, dt: float, dtheta: float | None = None, var_dtheta: float = 0.0) -> None:

@@ -31,6 +31,7 @@ import numpy as np
 
 from odofuse.errors import InputError
 from odofuse.io.log import SensorLog, Stream
+from odofuse.se2 import wrap
 
 MSG_STREAMS = {
     "sensor_msgs/msg/JointState": "wheels",
@@ -65,10 +66,6 @@ def _yaw(q) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
-def _wrap(a):
-    return (np.asarray(a, dtype=float) + math.pi) % (2 * math.pi) - math.pi
-
-
 def odometry_increments(t, poses) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame increments ``(ds, dtheta)`` between consecutive poses.
 
@@ -93,7 +90,7 @@ def odometry_increments(t, poses) -> tuple[np.ndarray, np.ndarray]:
     dx = c * ddx + s * ddy
     dy = -s * ddx + c * ddy
     ds = np.where(dx < 0, -1.0, 1.0) * np.hypot(dx, dy)
-    return np.asarray(t, dtype=float)[1:], np.column_stack([ds, _wrap(np.diff(p[:, 2]))])
+    return np.asarray(t, dtype=float)[1:], np.column_stack([ds, wrap(np.diff(p[:, 2]))])
 
 
 def _choose_topics(reader, topics: dict | None, source: str) -> dict[str, object]:

@@ -29,6 +29,7 @@ import numpy as np
 
 from odofuse.errors import InputError
 from odofuse.io.log import SensorLog, Stream, time_ordered
+from odofuse.se2 import wrap
 
 #: Required value columns (after ``t``) of the streams named by the spec; ``None``: any.
 STREAM_COLUMNS: dict[str, tuple[str, ...] | None] = {
@@ -53,10 +54,6 @@ KEYED_STREAMS = ("ranges", "landmarks")
 GAP_FACTOR = 10.0
 
 _TWO_PI = 2.0 * math.pi
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + math.pi) % _TWO_PI - math.pi
 
 
 def read_table(
@@ -273,7 +270,7 @@ def _check_values(stream, header, data, lines, name, landmark_ids):
     for col in angle_cols:
         need(col, lambda v: np.abs(v) <= _TWO_PI, "an angle must be within [-2pi, 2pi] rad")
         if stream != "odometry":  # absolute angles are wrapped; increments keep their sign
-            data[:, header.index(col)] = _wrap(cols[col])
+            data[:, header.index(col)] = wrap(cols[col])
     if landmark_ids is not None and "id" in cols:
         known = np.isin(cols["id"], np.fromiter(landmark_ids, dtype=float, count=len(landmark_ids)))
         if not known.all():

@@ -30,6 +30,7 @@ import numpy as np
 
 from odofuse.errors import InputError
 from odofuse.io.log import SensorLog, Stream
+from odofuse.se2 import wrap
 
 VERTEX_TAGS = ("VERTEX_SE2", "VERTEX2", "VERTEX")
 EDGE_TAGS = ("EDGE_SE2", "EDGE2", "ODOMETRY")
@@ -56,10 +57,6 @@ def looks_like_gtsam_text(path: str | Path) -> bool:
 def _invert(d):
     c, s = math.cos(d[2]), math.sin(d[2])
     return (-(c * d[0] + s * d[1]), -(-s * d[0] + c * d[1]), -d[2])
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def read_gtsam_text(path: str | Path) -> SensorLog:
@@ -123,7 +120,7 @@ def read_gtsam_text(path: str | Path) -> SensorLog:
                 lx, ly = nums[2], nums[3]
                 obs.append((nums[0], nums[1], math.hypot(lx, ly), math.atan2(ly, lx)))
             else:  # BR i l bearing range
-                obs.append((nums[0], nums[1], nums[3], _wrap(nums[2])))
+                obs.append((nums[0], nums[1], nums[3], float(wrap(nums[2]))))
     if not steps:
         raise InputError(
             "no odometry edges (EDGE_SE2/EDGE2/ODOMETRY between consecutive poses)", name
