@@ -173,16 +173,21 @@ def replace_line(path, lineno0, text):
     path.write_text("\n".join(lines) + "\n")
 
 
-@pytest.mark.parametrize(("name", "edit", "fragments"), BAD_LOGS, ids=[b[0] for b in BAD_LOGS])
-def test_bad_logs_fail_cleanly(tmp_path, capsys, name, edit, fragments):
-    cfg = make_run(tmp_path)
-    edit(tmp_path / "log")
-    assert main(["run", str(cfg)]) == 2
+def assert_failed_cleanly(tmp_path, capsys, fragments):
+    """One-line error naming every fragment, and no output file left behind."""
     err = capsys.readouterr().err.strip()
     assert err.startswith("odofuse: error: ") and "\n" not in err
     for frag in fragments:
         assert frag in err, (frag, err)
     assert outputs_left(tmp_path) == []
+
+
+@pytest.mark.parametrize(("name", "edit", "fragments"), BAD_LOGS, ids=[b[0] for b in BAD_LOGS])
+def test_bad_logs_fail_cleanly(tmp_path, capsys, name, edit, fragments):
+    cfg = make_run(tmp_path)
+    edit(tmp_path / "log")
+    assert main(["run", str(cfg)]) == 2
+    assert_failed_cleanly(tmp_path, capsys, fragments)
 
 
 BAD_CONFIGS = [
@@ -217,11 +222,7 @@ BAD_CONFIGS = [
 def test_bad_configs_fail_cleanly(tmp_path, capsys, name, text, fragments):
     cfg = make_run(tmp_path, text=text.format(log="log", out="out"))
     assert main(["run", str(cfg)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("odofuse: error: ") and "\n" not in err
-    for frag in fragments:
-        assert frag in err, (frag, err)
-    assert outputs_left(tmp_path) == []
+    assert_failed_cleanly(tmp_path, capsys, fragments)
 
 
 def test_missing_config_file(tmp_path, capsys):
