@@ -106,7 +106,8 @@ def _fmt(v) -> str:
 
 
 def print_table(rows: list[dict], file=None) -> None:
-    """Print the comparison table: estimator, position RMSE, final error, runtime, status."""
+    """Print the comparison table (estimator, position RMSE, final error, runtime, status),
+    then each run's warnings, one line each."""
     file = file or sys.stdout
     head = ("estimator", "position RMSE [m]", "final error [m]", "runtime [s]", "status")
     table = [head] + [
@@ -124,6 +125,9 @@ def print_table(rows: list[dict], file=None) -> None:
         pairs = enumerate(zip(row[:-1], widths, strict=True))
         cells = [c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in pairs]
         print("  ".join(cells + [row[-1]]), file=file)
+    for r in rows:
+        for line in r.get("warnings", ()):
+            print(f"warning: {r['estimator']}: {line}", file=file)
 
 
 @command("run", _run_args)

@@ -288,8 +288,12 @@ def metrics(
         Always ``estimator, poses, runtime_s, sensors {name: {used, rejected}}, repairs``; with
         ground truth also ``ate_rmse_m, ate_aligned_rmse_m, final_error_m, rpe_trans_m,
         rpe_rot_rad, rpe_delta_m, nees_mean, nees_position_mean`` (3-D pose NEES, expected 3,
-        and position-only NEES, expected 2; None without covariances).
+        and position-only NEES, expected 2; None without covariances). ``status`` (``ok`` or
+        ``degraded``), ``warnings`` (one line per finding) and ``findings`` (the records) come
+        from :func:`odofuse.health.assess`, never from ground truth.
     """
+    from odofuse.health import assess, status_of
+
     traj = result.trajectory
     names = sorted(set(result.used) | set(result.rejected))
     out: dict = {
@@ -319,4 +323,8 @@ def metrics(
             out[key] = None if math.isnan(n) else n
     if result.extra:
         out["extra"] = result.extra
+    findings = assess(result)
+    out["status"] = status_of(findings)
+    out["warnings"] = [f.line() for f in findings]
+    out["findings"] = [f.as_dict() for f in findings]
     return out

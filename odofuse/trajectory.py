@@ -54,7 +54,9 @@ class EstimateResult:
     """What an estimator returns: the trajectory plus bookkeeping for ``metrics.json``.
 
     ``used``/``rejected`` count measurements per sensor stream; ``extra`` holds estimator
-    specific results (calibration estimates, landmark positions, ...), JSON-serialisable.
+    specific results (calibration estimates, landmark positions, ...), JSON-serialisable;
+    ``findings`` are the estimator's own self-checks that failed (:mod:`odofuse.health`),
+    from which the run's ``status`` is derived.
     """
 
     estimator: str
@@ -62,3 +64,4 @@ class EstimateResult:
     used: dict[str, int] = field(default_factory=dict)
     rejected: dict[str, int] = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    findings: tuple = ()

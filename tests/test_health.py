@@ -1,0 +1,54 @@
+"""Health as data: findings, status derivation and the checks common to every estimator."""
+
+import numpy as np
+
+from odofuse.evaluation import metrics
+from odofuse.health import Finding, assess, covariance_findings, rejection_findings, status_of
+from odofuse.trajectory import EstimateResult, Trajectory
+
+
+def _result(covs=None, used=None, rejected=None, findings=()):
+    t = np.arange(5.0)
+    poses = np.zeros((5, 3))
+    traj = Trajectory(t, poses, covs)
+    return EstimateResult("ekf", traj, used or {}, rejected or {}, findings=findings)
+
+
+def test_status_is_derived_from_findings():
+    assert status_of([]) == "ok"
+    assert status_of([Finding("x", "note", degrades=False)]) == "ok"
+    assert status_of([Finding("x", "bad")]) == "degraded"
+
+
+def test_line_names_check_sensor_span_and_message():
+    f = Finding("nis", "NIS 41.2 outside [0.2, 5.0]", sensor="gps", t_start=30.0, t_end=40.5)
+    assert f.line() == "[nis] gps, 30.00-40.50 s: NIS 41.2 outside [0.2, 5.0]"
+
+
+def test_mostly_rejected_stream_is_reported_with_its_fraction():
+    out = rejection_findings({"gps": 40, "ranges": 90}, {"gps": 60, "ranges": 10})
+    assert [f.sensor for f in out] == ["gps"]
+    assert out[0].figure == 0.6 and "60 of 100" in out[0].message
+
+
+def test_non_positive_definite_covariance_is_reported():
+    covs = np.tile(np.eye(3) * 0.01, (5, 1, 1))
+    assert covariance_findings(np.arange(5.0), covs) == []
+    covs[2] = np.diag([1e-2, -1e-9, 1e-3])
+    covs[4, 0, 0] = np.nan
+    (f,) = covariance_findings(np.arange(5.0), covs)
+    assert f.figure == 2 and (f.t_start, f.t_end) == (2.0, 4.0)
+
+
+def test_metrics_carry_status_and_warnings():
+    ok = metrics(_result(np.tile(np.eye(3), (5, 1, 1)), {"gps": 5}, {"gps": 0}))
+    assert ok["status"] == "ok" and ok["warnings"] == []
+    bad = metrics(_result(None, {"gps": 1}, {"gps": 4}))
+    assert bad["status"] == "degraded"
+    assert bad["warnings"][0].startswith("[rejected] gps, 0.00-4.00 s: 4 of 5 readings")
+
+
+def test_estimator_findings_come_first_and_are_not_duplicated():
+    own = Finding("rejected", "custom", sensor="gps")
+    out = assess(_result(None, {"gps": 1}, {"gps": 4}, findings=(own,)))
+    assert out == [own]
