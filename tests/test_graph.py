@@ -14,7 +14,9 @@ from odofuse import se2  # noqa: E402
 from odofuse.config import RunConfig  # noqa: E402
 from odofuse.errors import ConfigError  # noqa: E402
 from odofuse.estimators import graph  # noqa: E402
-from odofuse.estimators.graph_factors import range_landmark_factor  # noqa: E402
+from odofuse.estimators.graph import factors, isam2, keyframes  # noqa: E402
+from odofuse.estimators.graph.custom_factors import range_landmark_factor  # noqa: E402
+from odofuse.estimators.graph.keys import X  # noqa: E402
 from odofuse.io.log import SensorLog, Stream  # noqa: E402
 from odofuse.motion import dead_reckon, motion_model_from_config  # noqa: E402
 from odofuse.testing import numerical_jacobian  # noqa: E402
@@ -123,7 +125,7 @@ def test_vectorised_preintegration_equals_motion_model_relative(robot):
     rng = np.random.default_rng(0)
     pieces = rng.normal(0.1, 0.05, (30, 2)) if len(robot) == 1 else rng.normal(2, 0.5, (30, 2))
     owner = np.repeat([0, 1, 2], [10, 1, 19])
-    deltas, covs = graph._preintegrate_pieces(model, pieces, owner, 3)
+    deltas, covs = keyframes._preintegrate_pieces(model, pieces, owner, 3)
     for i in range(3):
         d, c = model.relative(pieces[owner == i])
         np.testing.assert_allclose(deltas[i], d, atol=1e-14)
@@ -331,7 +333,7 @@ def test_range_bearing_slam_recovers_the_map():
 
 # --------------------------------------------------------------------------- odometry calibration
 def test_calibrated_between_factor_jacobians():
-    from odofuse.estimators.graph_factors import calibrated_between_factor
+    from odofuse.estimators.graph.custom_factors import calibrated_between_factor
 
     values = gtsam.Values()
     values.insert(1, gtsam.Pose2(1.0, -2.0, 0.7))
@@ -502,7 +504,7 @@ def _range_model(calibrate=True):
 
 
 def test_frozen_calibration_factor_equals_calibrated_factor_with_constants():
-    from odofuse.estimators.graph_factors import frozen_calibration_factor
+    from odofuse.estimators.graph.custom_factors import frozen_calibration_factor
 
     m = _range_model()
     row = {"id": 1.0, "range": 30.0, "t": 0.0}
@@ -532,7 +534,7 @@ def test_frozen_beacon_range_is_local_built_in_and_equivalent():
     sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
     problem = graph.build_problem(log, _config("isam2", sensors, {"robust": "huber"}), "isam2")
     calib_keys = {key for key, _, _ in problem.calib.values()}
-    fac = graph._Factors(problem)
+    fac = factors.Factors(problem)
     _, values = fac.static()
     i = next(m.keyframe for m in problem.measurements if m.stream == "ranges")
     calibrated, _ = fac.keyframe(i, gtsam.Pose2())
@@ -545,10 +547,10 @@ def test_frozen_beacon_range_is_local_built_in_and_equivalent():
         assert not keys & calib_keys  # structural: frozen factors never touch calibration
         if isinstance(frozen.at(j), gtsam.RangeFactor2D):
             n_ranges += 1
-            assert graph._X(i) in keys and len(keys) == 2  # the pose and a private beacon
+            assert X(i) in keys and len(keys) == 2  # the pose and a private beacon
     assert n_ranges == len(fac.by_kf[i])
     values.insert(new_values)
-    values.update(graph._X(i), gtsam.Pose2(3.0, 1.0, 0.2))
+    values.update(X(i), gtsam.Pose2(3.0, 1.0, 0.2))
     # same whitened (robust) error as the calibrated factor with scale 1.05, offset 0.3
     values.update(problem.calib["range_scale"][0], np.array([1.05]))
     values.update(problem.calib["range_offset"][0], np.array([0.3]))
@@ -634,14 +636,14 @@ def test_converged_needs_a_full_window_and_new_measurements():
     hist = [(0.0, 10, {"range_scale": 0.02, "range_offset": 0.4})]
     hist.append((20.0, 50, {"range_scale": 0.01, "range_offset": 0.2}))
     # no check a full window before t = 45 s yet apart from t = 0 (sigma halved since): no
-    assert graph._converged(hist, 45.0, 80, sig, spec) == (False, hist[0][2])
-    assert graph._converged(hist, 29.0, 80, sig, spec) == (False, {})
+    assert isam2._converged(hist, 45.0, 80, sig, spec) == (False, hist[0][2])
+    assert isam2._converged(hist, 29.0, 80, sig, spec) == (False, {})
     # at t = 50 s the reference is the t = 20 s check: 5 % shrink in both states -> yes
-    assert graph._converged(hist, 50.0, 80, sig, spec) == (True, hist[1][2])
+    assert isam2._converged(hist, 50.0, 80, sig, spec) == (True, hist[1][2])
     # ... but not without any new factor of the sensor since then (a gap in the data)
-    assert graph._converged(hist, 50.0, 50, sig, spec) == (False, hist[1][2])
+    assert isam2._converged(hist, 50.0, 50, sig, spec) == (False, hist[1][2])
     # one state still shrinking by >= 10 % is enough to wait
-    assert not graph._converged(hist, 50.0, 80, {**sig, "range_offset": 0.18}, spec)[0]
+    assert not isam2._converged(hist, 50.0, 80, {**sig, "range_offset": 0.18}, spec)[0]
 
 
 @pytest.mark.parametrize(

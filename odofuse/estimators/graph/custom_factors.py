@@ -1,7 +1,7 @@
-"""Factor-graph helpers that GTSAM has no built-in factor for, and a GIL-friendly optimiser.
+"""Factors GTSAM has no built-in factor for (``gtsam.CustomFactor``, analytic Jacobians).
 
-Everything here is used by :mod:`odofuse.estimators.graph`. The measurement models of
-:mod:`odofuse.measurements` give the factors of known landmarks; this module adds
+The measurement models of :mod:`odofuse.measurements` give the factors of known landmarks;
+this module adds
 
 * :func:`range_landmark_factor`: range ``z = s * ||p - l|| + o`` to a landmark *variable*
   ``l`` with range scale ``s`` and offset ``o`` variables (SLAM with range calibration;
@@ -10,16 +10,10 @@ Everything here is used by :mod:`odofuse.estimators.graph`. The measurement mode
   constants (iSAM2's ``calibration_freeze``: once converged, new factors stop touching the
   global calibration variables);
 * :func:`calibrated_between_factor`: odometry between factor corrected to first order in
-  odometry calibration parameters (wheel radius ratio, track scale, ds/dtheta scale, bias);
-* :func:`robust_noise`: Huber / Cauchy / Tukey wrappers of a Gaussian noise model;
-* :func:`levenberg_marquardt`: a Levenberg-Marquardt loop driven from Python.
+  odometry calibration parameters (wheel radius ratio, track scale, ds/dtheta scale, bias).
 
-Why a Python LM loop: GTSAM's C++ optimisers release the GIL and linearise on TBB worker
-threads, so every ``CustomFactor`` callback has to re-acquire the GIL from a foreign thread.
-Measured on Plaza1 (3529 calibrated range factors, 2 cores): one ``LevenbergMarquardtOptimizer``
-iteration took ~4 s, while ``graph.linearize`` called from Python took 0.035 s and the sparse
-solve 0.05 s. The loop below calls exactly those (linearise, damp, eliminate, retract) and is
-used whenever the graph holds Python factors; graphs of built-in factors use GTSAM's own LM.
+They are placed in the graph by :class:`odofuse.estimators.graph.factors.Factors`; a graph
+holding any of them is solved by :func:`odofuse.estimators.graph.solvers.levenberg_marquardt`.
 """
 
 from __future__ import annotations
@@ -27,43 +21,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-__all__ = [
-    "ROBUST_DEFAULT_K",
-    "robust_noise",
-    "range_landmark_factor",
-    "calibrated_between_factor",
-    "frozen_calibration_factor",
-    "levenberg_marquardt",
-]
-
-#: Default tuning constants (95 % asymptotic efficiency on Gaussian data; in units of sigma).
-ROBUST_DEFAULT_K = {"huber": 1.345, "cauchy": 2.3849, "tukey": 4.6851}
-
-
-def robust_noise(base, kind: str | None, k: float | None = None):
-    """Wrap a GTSAM noise model in an M-estimator.
-
-    Parameters
-    ----------
-    base : gtsam.noiseModel.Base
-        The Gaussian noise model (whitening by the sensor's ``R``).
-    kind : {"huber", "cauchy", "tukey"} or None
-        ``None`` or ``"none"`` returns ``base`` unchanged.
-    k : float, optional
-        Threshold on the *whitened* residual (units of sigma); default
-        :data:`ROBUST_DEFAULT_K`.
-    """
-    import gtsam
-
-    if kind is None or kind == "none":
-        return base
-    est = {
-        "huber": gtsam.noiseModel.mEstimator.Huber,
-        "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
-        "tukey": gtsam.noiseModel.mEstimator.Tukey,
-    }[kind]
-    return gtsam.noiseModel.Robust.Create(est.Create(float(k or ROBUST_DEFAULT_K[kind])), base)
 
 
 def range_landmark_factor(pose_key, landmark_key, z, noise, scale_key=None, offset_key=None):
@@ -108,70 +65,6 @@ def range_landmark_factor(pose_key, landmark_key, z, noise, scale_key=None, offs
         return np.array([s * d + o - z])
 
     return gtsam.CustomFactor(noise, gtsam.KeyVector(keys), error)
-
-
-def levenberg_marquardt(
-    graph, values, dims, max_iterations=100, relative_tolerance=1e-6, lambda_initial=1e-5
-):
-    """Minimise ``graph.error`` from ``values`` by Levenberg-Marquardt (Python driven).
-
-    Each iteration linearises once, then solves ``(J^T J + lambda I) dx = -J^T r`` (the
-    damping added as unit-weight prior rows on every variable) by sparse QR/Cholesky
-    elimination in a COLAMD ordering fixed at the start, retracts, and accepts the step if
-    the error decreases (lambda / 10), else retries with lambda * 10.
-
-    Parameters
-    ----------
-    graph : gtsam.NonlinearFactorGraph
-    values : gtsam.Values
-        Initial estimate (not modified).
-    dims : dict
-        Key -> tangent dimension of every variable.
-    max_iterations : int
-    relative_tolerance : float
-        Stop when an accepted step lowers the error by less than this fraction.
-    lambda_initial : float
-
-    Returns
-    -------
-    values : gtsam.Values
-        The optimum.
-    iterations : int
-    error : float
-        ``graph.error`` at the optimum.
-    """
-    import gtsam
-
-    err = graph.error(values)
-    lin = graph.linearize(values)
-    ordering = gtsam.Ordering.Colamd(gtsam.VariableIndex(lin))
-    units = {n: gtsam.noiseModel.Unit.Create(n) for n in set(dims.values())}
-    eyes = {n: np.eye(n) for n in units}
-    zeros = {n: np.zeros(n) for n in units}
-    lam = float(lambda_initial)
-    iterations = 0
-    for iterations in range(1, int(max_iterations) + 1):
-        if iterations > 1:
-            lin = graph.linearize(values)
-        improved = False
-        while lam <= 1e10:
-            damped = lin.clone()
-            sq = math.sqrt(lam)
-            for key, n in dims.items():
-                damped.add(gtsam.JacobianFactor(key, sq * eyes[n], zeros[n], units[n]))
-            delta = damped.optimize(ordering)
-            trial = values.retract(delta)
-            trial_err = graph.error(trial)
-            if trial_err <= err:
-                decrease = (err - trial_err) / max(err, 1e-300)
-                values, err = trial, trial_err
-                lam = max(lam / 10.0, 1e-12)
-                improved = True
-                break
-            lam *= 10.0
-        if not improved or decrease < relative_tolerance:
-            break
-    return values, iterations, float(err)
 
 
 def calibrated_between_factor(key_i, key_j, calib_key, delta0, G, p0, noise):

@@ -1,0 +1,270 @@
+"""GTSAM factors and initial values of a :class:`GraphProblem`, keyframe by keyframe.
+
+Owns :class:`Factors`: the priors on the first pose, the calibration states and the landmarks,
+the odometry between factors, each sensor row's factor with its stream's robust loss, and the
+frozen-calibration variants iSAM2 switches to; and the noise models (:func:`robust_noise`,
+Huber / Cauchy / Tukey, and the floored odometry covariance). The factors GTSAM has no
+built-in factor for are in :mod:`odofuse.estimators.graph.custom_factors`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from odofuse import se2
+from odofuse.estimators.graph.custom_factors import (
+    calibrated_between_factor,
+    frozen_calibration_factor,
+    range_landmark_factor,
+)
+from odofuse.estimators.graph.keys import B, L, X, model_kind
+from odofuse.estimators.graph.options import ROBUST_DEFAULT_K
+from odofuse.estimators.graph.problem import GraphProblem, Measurement
+
+# Variance (m^2, rad^2) added to every pre-integrated covariance so that a single step of a
+# drive with a rank-deficient input covariance (e.g. increments: no lateral noise) stays
+# invertible: a 0.1 mm / 0.1 mrad floor per keyframe interval, below any odometry noise.
+_COV_FLOOR = 1e-8
+
+
+def robust_noise(base, kind: str | None, k: float | None = None):
+    """Wrap a GTSAM noise model in an M-estimator.
+
+    Parameters
+    ----------
+    base : gtsam.noiseModel.Base
+        The Gaussian noise model (whitening by the sensor's ``R``).
+    kind : {"huber", "cauchy", "tukey"} or None
+        ``None`` or ``"none"`` returns ``base`` unchanged.
+    k : float, optional
+        Threshold on the *whitened* residual (units of sigma); default
+        :data:`ROBUST_DEFAULT_K`.
+    """
+    import gtsam
+
+    if kind is None or kind == "none":
+        return base
+    est = {
+        "huber": gtsam.noiseModel.mEstimator.Huber,
+        "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
+        "tukey": gtsam.noiseModel.mEstimator.Tukey,
+    }[kind]
+    return gtsam.noiseModel.Robust.Create(est.Create(float(k or ROBUST_DEFAULT_K[kind])), base)
+
+
+def _odometry_noise(cov, floor: float = _COV_FLOOR):
+    import gtsam
+
+    cov = 0.5 * (cov + cov.T)
+    cov[0, 0] += floor
+    cov[1, 1] += floor
+    cov[2, 2] += floor
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+
+class Factors:
+    """Turns a :class:`GraphProblem` into GTSAM factors and initial values, keyframe by keyframe."""
+
+    def __init__(self, problem: GraphProblem) -> None:
+        import gtsam
+
+        self.p = problem
+        self.gtsam = gtsam
+        self.dims: dict[int, int] = {}
+        self.python_factors = 0
+        self.used: dict[str, int] = {problem.odometry_stream: problem.odometry_rows}
+        for s in problem.models:
+            self.used.setdefault(s, 0)
+        self.created: list = []  # (measurement, factor) in the order added
+        self.by_kf: dict[int, list[Measurement]] = {}
+        for meas in problem.measurements:
+            self.by_kf.setdefault(meas.keyframe, []).append(meas)
+        self.landmark_keys: dict[int, int] = {}
+        needs_landmarks = {m.landmark for m in problem.measurements if m.landmark is not None}
+        for lid in sorted(needs_landmarks):
+            if self._landmark_variable_needed(lid):
+                self.landmark_keys[lid] = L(lid)
+        self.calib_keys = {name: key for name, (key, _, _) in problem.calib.items()}
+        # calibration state -> constant used by new factors once frozen (iSAM2 only)
+        self.frozen: dict[str, float] = {}
+        # frozen beacon ranges: (factor, private beacon key, beacon position) to add with
+        # the next keyframe, and the factor -> range scale its unwhitened error is divided by
+        self._pending: list = []
+        self.error_scale: dict[int, float] = {}
+
+    def _landmark_variable_needed(self, lid) -> bool:
+        if self.p.options.slam:
+            return True
+        # Known landmarks become pinned variables only for factors without calibration keys.
+        return any(
+            m.landmark == lid and not self.model_calib(self.p.models[m.stream])
+            for m in self.p.measurements
+        )
+
+    def model_calib(self, model) -> dict:
+        clones = set(getattr(model, "clones", lambda: {})())
+        return {
+            s: self.p.calib[s][0]
+            for s in getattr(model, "calib_states", ())
+            if s in self.p.calib and s not in clones
+        }
+
+    def static(self):
+        """Priors on the first pose, calibration states and landmarks, with their values."""
+        gtsam = self.gtsam
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        p = self.p
+        pose0 = gtsam.Pose2(*p.pose0)
+        g.add(
+            gtsam.PriorFactorPose2(
+                X(0),
+                pose0,
+                gtsam.noiseModel.Gaussian.Covariance(se2.cov_world_to_body(p.pose0, p.P0)),
+            )
+        )
+        v.insert(X(0), pose0)
+        self.dims[X(0)] = 3
+        for _name, (key, value, sigma) in p.calib.items():
+            v.insert(key, np.array([value]))
+            g.add(
+                gtsam.PriorFactorVector(
+                    key, np.array([value]), gtsam.noiseModel.Isotropic.Sigma(1, sigma)
+                )
+            )
+            self.dims[key] = 1
+        if p.odometry_calibration is not None:
+            oc = p.odometry_calibration
+            v.insert(p.odometry_key, np.array(oc.nominal))
+            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array(oc.sigma))
+            g.add(gtsam.PriorFactorVector(p.odometry_key, np.array(oc.nominal), prior))
+            self.dims[p.odometry_key] = len(oc.nominal)
+        for lid, key in self.landmark_keys.items():
+            pos = p.landmarks.get(lid)
+            v.insert(key, gtsam.Point2(*pos))
+            self.dims[key] = 2
+            if not p.options.slam:
+                g.add(
+                    gtsam.PriorFactorPoint2(
+                        key,
+                        gtsam.Point2(*pos),
+                        gtsam.noiseModel.Isotropic.Sigma(2, p.options.known_landmark_sigma),
+                    )
+                )
+        return g, v
+
+    def odometry(self, i: int):
+        """``BetweenFactorPose2`` from keyframe ``i-1`` to ``i``."""
+        d = self.p.deltas[i - 1]
+        loss, k = self.p.robust.get(self.p.odometry_stream, ("none", 0.0))
+        nm = robust_noise(
+            _odometry_noise(self.p.covs[i - 1], self.p.options.odometry_floor), loss, k
+        )
+        oc = self.p.odometry_calibration
+        if oc is not None:
+            self.python_factors += 1
+            return calibrated_between_factor(
+                X(i - 1), X(i), self.p.odometry_key, d, self.p.G[i - 1], oc.nominal, nm
+            )
+        return self.gtsam.BetweenFactorPose2(X(i - 1), X(i), self.gtsam.Pose2(*d), nm)
+
+    def measurement(self, meas: Measurement):
+        """The factor of one sensor row (robust loss of its stream applied)."""
+        gtsam = self.gtsam
+        m = self.p.models[meas.stream]
+        kind = model_kind(m)
+        calib = self.model_calib(m)
+        loss, k = self.p.robust.get(meas.stream, ("none", 0.0))
+        key = X(meas.keyframe)
+        if kind == "GyroYawRate":
+            dt = float(meas.row["dt"])
+            base = gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(m.R(meas.row)[0, 0]) * dt)
+            f = m.factor((X(meas.prev_keyframe), key), meas.row, calib, robust_noise(base, loss, k))
+            self.python_factors += 1
+            return f
+        if kind == "LandmarkRangeBearing" and meas.landmark in self.landmark_keys:
+            # GTSAM's BearingRange measurement is ordered (bearing, range).
+            R = m.R(meas.row)
+            base = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt([R[1, 1], R[0, 0]]))
+            return m.factor(
+                key,
+                meas.row,
+                None,
+                robust_noise(base, loss, k),
+                landmark_key=self.landmark_keys[meas.landmark],
+            )
+        base = m.noise(meas.row)
+        nm = robust_noise(base, loss, k)
+        if kind == "BeaconRange" and meas.landmark in self.landmark_keys:
+            lkey = self.landmark_keys[meas.landmark]
+            if calib:
+                self.python_factors += 1
+                return range_landmark_factor(
+                    key,
+                    lkey,
+                    meas.row["range"],
+                    nm,
+                    calib.get("range_scale"),
+                    calib.get("range_offset"),
+                )
+            return gtsam.RangeFactor2D(key, lkey, float(meas.row["range"]), nm)
+        if kind == "LandmarkBearing" and meas.landmark in self.landmark_keys:
+            return m.factor(key, meas.row, None, nm, landmark_key=self.landmark_keys[meas.landmark])
+        if calib and all(s in self.frozen for s in calib) and kind == "BeaconRange":
+            return self._frozen_beacon_range(m, meas, loss, k)
+        if calib and all(s in self.frozen for s in calib):
+            self.python_factors += 1
+            consts = {s: self.frozen[s] for s in calib}
+            return frozen_calibration_factor(m, key, meas.row, consts, nm)
+        f = m.factor(key, meas.row, calib, nm)
+        if isinstance(f, gtsam.CustomFactor):
+            self.python_factors += 1
+        return f
+
+    def _frozen_beacon_range(self, m, meas, loss, k):
+        """A frozen ``s ||p - b|| + o = z`` range as built-in GTSAM factors.
+
+        ``(s d + o - z) / sigma = (d - z') / sigma'`` with ``z' = (z - o) / s`` and
+        ``sigma' = sigma / s``: the same whitened error (and robust weight, whose threshold
+        is in sigma), so ``RangeFactor2D(x, b_n, z', sigma')`` to a *private* copy ``b_n``
+        of the beacon, pinned by a ``known_landmark_sigma`` prior, is the calibrated factor
+        with constant ``s, o``. A private copy per factor keeps the factor local (a shared
+        beacon variable would tie all range factors together again) and built-in (a Python
+        ``CustomFactor`` linearised inside iSAM2 costs a copy of all the values).
+        """
+        gtsam = self.gtsam
+        scale = self.frozen.get("range_scale", 1.0)
+        offset = self.frozen.get("range_offset", 0.0)
+        sigma = math.sqrt(float(m.R(meas.row)[0, 0])) / scale
+        nm = robust_noise(gtsam.noiseModel.Isotropic.Sigma(1, sigma), loss, k)
+        z = (float(meas.row["range"]) - offset) / scale
+        bkey = B(len(self.error_scale))
+        f = gtsam.RangeFactor2D(X(meas.keyframe), bkey, z, nm)
+        pos = np.asarray(self.p.landmarks[meas.landmark], dtype=float)
+        self._pending.append((bkey, gtsam.Point2(*pos)))
+        self.error_scale[id(f)] = 1.0 / scale
+        self.dims[bkey] = 2
+        return f
+
+    def keyframe(self, i: int, values_guess, g=None, v=None):
+        """Factors and new values of keyframe ``i`` (odometry from ``i-1`` and its sensors),
+        added to ``g``/``v`` (new containers when omitted)."""
+        gtsam = self.gtsam
+        if g is None:
+            g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if i > 0:
+            g.add(self.odometry(i))
+            v.insert(X(i), values_guess)
+            self.dims[X(i)] = 3
+        for meas in self.by_kf.get(i, ()):
+            f = self.measurement(meas)
+            g.add(f)
+            self.created.append((meas, f))
+            self.used[meas.stream] = self.used.get(meas.stream, 0) + 1
+        pin = gtsam.noiseModel.Isotropic.Sigma(2, self.p.options.known_landmark_sigma)
+        for bkey, pos in self._pending:
+            v.insert(bkey, pos)
+            g.add(gtsam.PriorFactorPoint2(bkey, pos, pin))
+        self._pending.clear()
+        return g, v

@@ -1,0 +1,308 @@
+"""Incremental graph solvers: iSAM2 with the calibration freeze, and the fixed-lag smoother.
+
+Owns :func:`run_isam2` (one ``ISAM2.update`` per keyframe, its latency figures and the
+``calibration_freeze`` of converged sensor calibration states) and :func:`run_fixed_lag`
+(GTSAM's ``IncrementalFixedLagSmoother``, each keyframe's pose taken just before it leaves
+the window), with the iSAM2 parameters both use.
+"""
+
+from __future__ import annotations
+
+import bisect
+import time
+
+import numpy as np
+
+from odofuse import se2
+from odofuse.errors import ConfigError
+from odofuse.estimators.graph.factors import Factors
+from odofuse.estimators.graph.keys import X, model_kind
+from odofuse.estimators.graph.options import GraphOptions
+from odofuse.estimators.graph.problem import GraphProblem, build_problem
+from odofuse.estimators.graph.solvers import finish, pose_array, world_covs
+from odofuse.trajectory import EstimateResult
+
+
+def _latency_summary(lat) -> dict:
+    lat = np.asarray(lat) * 1e3
+    if lat.size == 0:
+        return {}
+    quarters = np.array_split(lat, 4) if lat.size >= 4 else [lat]
+    return {
+        "median_ms": float(np.median(lat)),
+        "p99_ms": float(np.percentile(lat, 99)),
+        "max_ms": float(lat.max()),
+        "updates": int(lat.size),
+        # how latency grows with the log: median and p99 of each quarter of the updates
+        "quarters_median_ms": [float(np.median(q)) for q in quarters],
+        "quarters_p99_ms": [float(np.percentile(q, 99)) for q in quarters],
+    }
+
+
+def _isam2_params(options: GraphOptions):
+    """iSAM2 parameters. Relinearisation is kept coarse (0.1 m / rad every 10 updates by
+    default) because a calibration variable touches every range factor: relinearising it
+    re-runs all their Python callbacks."""
+    import gtsam
+
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(options.relinearize_threshold)
+    params.relinearizeSkip = options.relinearize_skip
+    # QR: pinned landmarks (sigma 1e-6 m) and 0.1 mm odometry floors make the normal
+    # equations too ill-conditioned for iSAM2's Cholesky.
+    params.setFactorization("QR")
+    return params
+
+
+def _freeze_groups(problem: GraphProblem, fac: Factors, source: str) -> dict[str, tuple[str, ...]]:
+    """Stream -> calibration states that ``calibration_freeze`` freezes together.
+
+    A sensor's later factors can use constants only when *all* its calibration states are
+    frozen, so each stream with calibration states forms one group. Only unary sensor
+    factors can be frozen (the gyro's heading-increment factor is not). With absolute
+    thresholds every group must have a threshold for each of its states and naming a gyro
+    state is an error; with the convergence form every freezable sensor forms a group and a
+    gyro's states simply stay estimated.
+    """
+    spec = problem.options.calibration_freeze
+    if not spec:
+        return {}
+    if "rel_change" in spec:
+        return {
+            stream: tuple(fac.model_calib(m))
+            for stream, m in problem.models.items()
+            if fac.model_calib(m) and model_kind(m) != "GyroYawRate"
+        }
+    key = "options.isam2.calibration_freeze.sigma"
+    known = set(problem.calib)
+    bad = sorted(set(spec["sigma"]) - known)
+    if bad:
+        raise ConfigError(
+            f"'{bad[0]}' is not an estimated calibration state "
+            f"(estimated: {', '.join(sorted(known)) or 'none'})",
+            source,
+            f"{key}.{bad[0]}",
+        )
+    groups: dict[str, tuple[str, ...]] = {}
+    for stream, m in problem.models.items():
+        states = tuple(fac.model_calib(m))
+        if not states or not set(states) & set(spec["sigma"]):
+            continue
+        if model_kind(m) == "GyroYawRate":
+            raise ConfigError(
+                "the gyro's heading-increment factor cannot be frozen (unary sensors only)",
+                source,
+                f"{key}.{next(s for s in states if s in spec['sigma'])}",
+            )
+        missing = [s for s in states if s not in spec["sigma"]]
+        if missing:
+            raise ConfigError(
+                f"sensor '{stream}' estimates {', '.join(states)}: give a threshold for each",
+                source,
+                f"{key}.{missing[0]}",
+            )
+        groups[stream] = states
+    return groups
+
+
+def _converged(history: list, t: float, n: int, sig: dict, spec: dict) -> tuple[bool, dict]:
+    """The convergence test of ``calibration_freeze: {rel_change, window}`` for one sensor.
+
+    Parameters
+    ----------
+    history : list of (t [s], n factors, {state: sigma})
+        Earlier checks of this sensor, in time order.
+    t : float
+        s, log time of this check; ``n`` the sensor's factor count so far; ``sig`` the
+        current marginal sigma of each of its calibration states.
+    spec : dict
+        The parsed option (``rel_change``, ``window`` [s]).
+
+    Returns
+    -------
+    (bool, dict)
+        Whether every sigma shrank by less than ``rel_change`` (relative) since the last check
+        at least ``window`` s ago, with at least one new factor of the sensor since then; and
+        the sigmas of that earlier check (empty if there is none yet).
+    """
+    times = [h[0] for h in history]
+    j = bisect.bisect_right(times, t - spec["window"]) - 1
+    if j < 0:
+        return False, {}
+    _, n_then, sig_then = history[j]
+    if n <= n_then:  # no new measurement: no evidence that the information stopped growing
+        return False, sig_then
+    ok = all(sig_then[s] - sig[s] < spec["rel_change"] * sig_then[s] for s in sig)
+    return ok, sig_then
+
+
+def run_isam2(log, config) -> EstimateResult:
+    """iSAM2, one update per keyframe in time order (``estimator: isam2``).
+
+    The trajectory is the final iSAM2 estimate (after ``final_relinearizations`` forced
+    relinearising updates); ``extra["latency"]`` summarises the wall time of each
+    ``ISAM2.update`` and ``extra["latency_step"]`` that of the whole per-keyframe step
+    (factor creation, update, freeze check, current-pose estimate), median / p99 / max and per
+    quarter of the log, ms.
+
+    Calibration freezing (``options.isam2.calibration_freeze``): a calibration variable
+    (e.g. range scale/offset) is connected to every factor of its sensor, so each update
+    touches it and iSAM2's cost grows with the number of those factors. Every
+    ``check_every`` updates the marginal sigma of each calibration state is read from the
+    Bayes tree; once all the states of a sensor are below their thresholds (``sigma`` form)
+    or have converged (``rel_change`` form: each sigma shrank by less than ``rel_change``
+    over the last ``window`` s of log time, the sensor got new factors in that window and
+    ``min_time`` s have elapsed), that sensor's later factors hold the current estimate as constants
+    (:func:`~odofuse.estimators.graph.custom_factors.frozen_calibration_factor`) and no longer
+    involve the variable. The
+    variable stays in the graph, still estimated from the factors added before the freeze;
+    what is given up is the information of the later measurements about the calibration
+    (and its correlation with the later poses). ``extra["calibration_freeze"]`` gives, per
+    frozen state, the constant, its sigma, the keyframe index and time of the freeze (and,
+    for the ``rel_change`` form, ``sigma_window_ago``: its sigma one window earlier).
+    """
+    import gtsam
+
+    problem = build_problem(log, config, "isam2")
+    fac = Factors(problem)
+    groups = _freeze_groups(problem, fac, getattr(config, "source", "<config>"))
+    spec = problem.options.calibration_freeze or {}
+    params = _isam2_params(problem.options)
+    isam = gtsam.ISAM2(params)
+    graph, values = fac.static()
+    # Calibration states touch every factor of their sensor: relinearising them online would
+    # re-run all those (Python) factors, so they are relinearised only in the final passes
+    # (range and gyro models are linear in them anyway).
+    frozen = gtsam.KeyList()
+    for key, _, _ in problem.calib.values():
+        frozen.push_back(key)
+    if problem.odometry_calibration is not None:
+        frozen.push_back(problem.odometry_key)
+    latency, step = [], []
+    freeze_info: dict[str, dict] = {}
+    frozen_streams: set[str] = set()
+    history: dict[str, list] = {stream: [] for stream in groups}
+    n_factors: dict[str, int] = {}
+    current = gtsam.Pose2(*problem.pose0)
+    for i in range(len(problem.kt)):
+        t_step = time.perf_counter()
+        if i > 0:
+            current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
+        g, v = fac.keyframe(i, current)
+        graph.push_back(g)
+        values.insert(v)
+        t0 = time.perf_counter()
+        isam.update(graph, values, noRelinKeys=frozen)
+        latency.append(time.perf_counter() - t0)
+        for meas in fac.by_kf.get(i, ()):
+            n_factors[meas.stream] = n_factors.get(meas.stream, 0) + 1
+        if groups and i % spec["check_every"] == 0:
+            t_i = float(problem.kt[i])
+            for stream in [s for s in groups if s not in frozen_streams]:
+                sig = {
+                    s: float(np.sqrt(isam.marginalCovariance(problem.calib[s][0])[0, 0]))
+                    for s in groups[stream]
+                }
+                before: dict = {}
+                if "sigma" in spec:
+                    ok = all(sig[s] < spec["sigma"][s] for s in groups[stream])
+                else:
+                    n = n_factors.get(stream, 0)
+                    ok, before = _converged(history[stream], t_i, n, sig, spec)
+                    ok = ok and t_i - float(problem.kt[0]) >= spec["min_time"]
+                    history[stream].append((t_i, n, sig))
+                if ok:
+                    for s in groups[stream]:
+                        value = float(isam.calculateEstimateVector(problem.calib[s][0])[0])
+                        fac.frozen[s] = value
+                        freeze_info[s] = {
+                            "value": value,
+                            "sigma": sig[s],
+                            "keyframe": i,
+                            "t": t_i,
+                        }
+                        if before:
+                            freeze_info[s]["sigma_window_ago"] = before[s]
+                    frozen_streams.add(stream)
+        if i > 0:
+            current = isam.calculateEstimatePose2(X(i))
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        step.append(time.perf_counter() - t_step)
+    for _ in range(problem.options.final_relinearizations):
+        isam.update(force_relinearize=True)
+    result = isam.calculateEstimate()
+    covs = None
+    if problem.options.covariances:
+        poses = pose_array(result, len(problem.kt))
+        covs = world_covs(problem, poses, isam.marginalCovariance)
+    extra = {"latency": _latency_summary(latency), "latency_step": _latency_summary(step)}
+    if groups:
+        extra["calibration_freeze"] = freeze_info
+    return finish(problem, fac, result, covs, "isam2", extra)
+
+
+def run_fixed_lag(log, config) -> EstimateResult:
+    """GTSAM ``IncrementalFixedLagSmoother`` with a ``lag``-second window (``fixed_lag``).
+
+    Each keyframe's pose (and world-frame covariance) is the one held just before it leaves
+    the window, i.e. smoothed with ``lag`` seconds of future data; memory is bounded by the
+    window. Calibration and landmark variables are kept in the window.
+    """
+    import gtsam
+
+    problem = build_problem(log, config, "fixed_lag")
+    fac = Factors(problem)
+    lag = problem.options.lag
+    params = _isam2_params(problem.options)
+    smoother = gtsam.IncrementalFixedLagSmoother(lag, params)
+    graph, values = fac.static()
+    persistent = [k for k in values.keys() if k != X(0)]
+    K = len(problem.kt)
+    poses = np.empty((K, 3))
+    covs = np.empty((K, 3, 3)) if problem.options.covariances else None
+    done = 0  # keyframes [0, done) are final
+    latency = []
+    final_values = gtsam.Values()
+    current = gtsam.Pose2(*problem.pose0)
+
+    def freeze(upto: int) -> None:
+        nonlocal done
+        while done < upto:
+            p = smoother.calculateEstimatePose2(X(done))
+            poses[done] = (p.x(), p.y(), p.theta())
+            if covs is not None:
+                covs[done] = se2.cov_body_to_world(
+                    poses[done], smoother.marginalCovariance(X(done))
+                )
+            done += 1
+
+    for i in range(K):
+        t = float(problem.kt[i])
+        if i > 0:
+            current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
+        # keyframes that this update will marginalise: take their final estimate first
+        freeze(int(np.searchsorted(problem.kt, t - lag, side="left")) if i > 0 else 0)
+        g, v = fac.keyframe(i, current)
+        graph.push_back(g)
+        values.insert(v)
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        stamps.insert((X(i), t))
+        for key in persistent:
+            stamps.insert((key, t))
+        t0 = time.perf_counter()
+        smoother.update(graph, values, stamps)
+        latency.append(time.perf_counter() - t0)
+        current = smoother.calculateEstimatePose2(X(i))
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    freeze(K)
+    poses[:, 2] = se2.wrap(poses[:, 2])
+    est = smoother.calculateEstimate()
+    for key in persistent:
+        if est.exists(key):
+            final_values.insert(
+                key, est.atVector(key) if gtsam.Symbol(key).chr() == ord("c") else est.atPoint2(key)
+            )
+    for i in range(K):
+        final_values.insert(X(i), gtsam.Pose2(*poses[i]))
+    extra = {"latency": _latency_summary(latency), "lag_s": lag}
+    return finish(problem, fac, final_values, covs, "fixed_lag", extra)

@@ -1,0 +1,41 @@
+"""GTSAM keys of the graph's variables and the sensor-kind names the graph dispatches on.
+
+Poses are ``x<i>`` (keyframe ``i``), landmarks ``l<id>``, the private beacon copies of frozen
+range factors ``b<n>`` and the sensor calibration states ``c<n>``; the odometry calibration
+vector is ``o0`` (:attr:`odofuse.estimators.graph.problem.GraphProblem.odometry_key`).
+"""
+
+from __future__ import annotations
+
+
+def X(i: int) -> int:
+    """GTSAM key of the pose of keyframe ``i``."""
+    import gtsam
+
+    return gtsam.symbol("x", int(i))
+
+
+def L(i: int) -> int:
+    """GTSAM key of landmark ``i`` (its map id)."""
+    import gtsam
+
+    return gtsam.symbol("l", int(i))
+
+
+def B(i: int) -> int:
+    """GTSAM key of the ``i``-th private beacon copy of a frozen range factor."""
+    import gtsam
+
+    return gtsam.symbol("b", int(i))
+
+
+def C(i: int) -> int:
+    """GTSAM key of the ``i``-th sensor calibration state."""
+    import gtsam
+
+    return gtsam.symbol("c", int(i))
+
+
+def model_kind(model) -> str:
+    """The measurement model's class name (``"BeaconRange"``, ``"GyroYawRate"``, ...)."""
+    return type(model).__name__

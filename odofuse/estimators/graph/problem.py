@@ -1,0 +1,216 @@
+"""Assembly of a :class:`GraphProblem` from a log and a run config (no GTSAM objects).
+
+Owns which sensor rows get a factor (inside the odometry span, finite, a known landmark, a
+positive gyro interval) and which are counted as rejected, the keyframe of each row, the
+calibration states with their priors, the robust loss per stream, the pre-integrated
+odometry and the dead-reckoned initial guess. The factors themselves are made by
+:mod:`odofuse.estimators.graph.factors`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from odofuse import se2
+from odofuse.errors import ConfigError
+from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
+from odofuse.estimators.graph.calibration import OdometryCalibration, odometry_calibration_for
+from odofuse.estimators.graph.keyframes import keyframe_times, preintegrate
+from odofuse.estimators.graph.keys import C, model_kind
+from odofuse.estimators.graph.options import GraphOptions, parse_options
+from odofuse.estimators.graph.slam import log_with_ids, slam_initial_landmarks
+
+LANDMARK_SENSORS = ("BeaconRange", "LandmarkBearing", "LandmarkRangeBearing")
+
+
+@dataclass
+class Measurement:
+    """A sensor row that gets a factor: its stream, row, keyframe(s) and landmark id."""
+
+    stream: str
+    index: int  # row in the stream
+    keyframe: int  # keyframe index (the previous one too for the gyro: prev_keyframe)
+    row: dict
+    prev_keyframe: int | None = None
+    landmark: int | None = None
+
+
+@dataclass
+class GraphProblem:
+    """Everything the three solvers share (built once per run by :func:`build_problem`).
+
+    Attributes
+    ----------
+    kt : ndarray (K,)
+        Keyframe times (s).
+    deltas, covs : ndarray (K-1, 3), (K-1, 3, 3)
+        Pre-integrated odometry (body frame, GTSAM tangent covariance).
+    pose0, P0 : ndarray (3,), (3, 3)
+        Initial pose and its world-frame covariance.
+    models : dict
+        Stream -> measurement model.
+    measurements : list
+        Sensor rows with their keyframe, in time order.
+    calib : dict
+        Calibration state name -> (key, initial value, sigma).
+    landmarks : dict
+        Landmark id -> (2,) position: the map, or the SLAM initial guess.
+    rejected : dict
+        Stream -> rows that got no factor (outside the odometry span, unknown landmark, ...).
+    """
+
+    kt: np.ndarray
+    deltas: np.ndarray
+    covs: np.ndarray
+    pose0: np.ndarray
+    P0: np.ndarray
+    models: dict
+    measurements: list
+    calib: dict
+    landmarks: dict
+    options: GraphOptions
+    odometry_stream: str
+    odometry_rows: int
+    rejected: dict
+    robust: dict
+    odometry_calibration: OdometryCalibration | None = None
+    G: np.ndarray | None = None
+
+    @property
+    def odometry_key(self) -> int:
+        """Key of the odometry calibration vector (``o0``)."""
+        import gtsam
+
+        return gtsam.symbol("o", 0)
+
+    def dead_reckoning(self) -> np.ndarray:
+        """Keyframe poses ``(K, 3)`` obtained by composing the odometry factors from ``pose0``."""
+        # pose_{i+1} = pose_i (+) d_i: theta by a running sum, positions by summing the
+        # increments rotated into the world (head-to-tail composition, 002 source)
+        theta = self.pose0[2] + np.concatenate([[0.0], np.cumsum(self.deltas[:, 2])])
+        c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
+        dx, dy = self.deltas[:, 0], self.deltas[:, 1]
+        step = np.column_stack([c * dx - s * dy, s * dx + c * dy])
+        xy = self.pose0[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])
+        return np.column_stack([xy, se2.wrap(theta)])
+
+
+def build_problem(log, config, estimator: str) -> GraphProblem:
+    """Keyframes, pre-integrated odometry and the sensor rows of a run (no GTSAM objects).
+
+    Raises
+    ------
+    ConfigError, InputError
+        Bad options (naming the key and file) or an unusable log.
+    """
+    from odofuse.measurements import measurement_models
+    from odofuse.motion import motion_model_from_config
+
+    options = parse_options(config, estimator)
+    if options.slam and estimator != "smoother":
+        raise ConfigError(
+            "slam (unknown landmarks) is implemented for the batch smoother only",
+            file=config.source,
+            key=f"options.{estimator}.slam",
+        )
+    model = motion_model_from_config(config)
+    t_odo, U = odometry_inputs(log, model)
+    pose0, P0 = initial_state(config, log)
+    models = measurement_models(config, log_with_ids(log) if options.slam else log)
+    t_lo, t_hi = float(t_odo[0]), float(t_odo[-1])
+
+    rejected: dict[str, int] = {}
+    pending: list[tuple[float, Measurement]] = []
+    for name, m in models.items():
+        if not log.has(name):
+            continue
+        stream = log.streams[name]
+        order = np.argsort(stream.t, kind="stable")  # a few logs (Plaza) are not sorted
+        kind = model_kind(m)
+        prev_t = None
+        n_rej = 0
+        for i in order:
+            t = float(stream.t[i])
+            if not (t_lo <= t <= t_hi):
+                n_rej += 1
+                continue
+            row = stream.row(int(i))
+            if not all(math.isfinite(v) for v in row.values()):
+                n_rej += 1
+                continue
+            meas = Measurement(name, int(i), -1, row)
+            if kind == "GyroYawRate":
+                if prev_t is None or t <= prev_t:
+                    prev_t = t if prev_t is None else prev_t
+                    n_rej += 1
+                    continue
+                row["dt"] = t - prev_t
+                meas.prev_keyframe = -1
+                meas.row["t_prev"] = prev_t
+                prev_t = t
+            if kind in LANDMARK_SENSORS:
+                lid = int(row["id"])
+                if not options.slam and lid not in log.landmarks:
+                    n_rej += 1
+                    continue
+                meas.landmark = lid
+            pending.append((t, meas))
+        rejected[name] = n_rej
+
+    sensor_times = np.array([t for t, _ in pending])
+    kt = keyframe_times(t_odo, U, model, sensor_times, options)
+    for t, meas in pending:
+        meas.keyframe = int(np.searchsorted(kt, t))
+        if meas.prev_keyframe is not None:
+            meas.prev_keyframe = int(np.searchsorted(kt, meas.row["t_prev"]))
+    pending.sort(key=lambda tm: (tm[1].keyframe, tm[1].stream))
+    odo_cal = odometry_calibration_for(
+        model,
+        options.odometry_calibration,
+        f"options.{estimator}.odometry_calibration",
+        config.source,
+    )
+    G = None
+    if odo_cal is None:
+        deltas, covs = preintegrate(t_odo, U, model, kt)
+    else:
+        deltas, covs, G = preintegrate(t_odo, U, model, kt, odo_cal)
+
+    calib: dict[str, tuple[int, float, float]] = {}
+    for m in models.values():
+        clones = set(getattr(m, "clones", lambda: {})())
+        prior = getattr(m, "calib_prior", lambda: {})()
+        for state in getattr(m, "calib_states", ()):
+            if state in clones or state in calib:
+                continue
+            value, sigma = prior.get(state, (0.0, 1.0))
+            calib[state] = (C(len(calib)), float(value), float(sigma))
+
+    robust = {s: options.robust.get(s, ("none", 0.0)) for s in models}
+    robust[odometry_stream_name(model)] = options.robust.get(
+        odometry_stream_name(model), ("none", 0.0)
+    )
+    problem = GraphProblem(
+        kt,
+        deltas,
+        covs,
+        pose0,
+        P0,
+        models,
+        [m for _, m in pending],
+        calib,
+        {int(i): np.asarray(p, dtype=float) for i, p in log.landmarks.items()},
+        options,
+        odometry_stream_name(model),
+        len(U),
+        rejected,
+        robust,
+        odo_cal,
+        G,
+    )
+    if options.slam:
+        problem.landmarks = slam_initial_landmarks(problem, problem.dead_reckoning())
+    return problem
