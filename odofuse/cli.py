@@ -1,7 +1,7 @@
 """The ``odofuse`` command (shared spec section 4).
 
 Subcommands live in :data:`COMMANDS` (name -> ``(add_arguments, handler)``); a module
-``odofuse.teaching_cli`` with a ``register(commands)`` function, if present, adds its own
+``odofuse.teaching.cli`` with a ``register(commands)`` function, if present, adds its own
 (simulate, demo, calibrate). Every handler gets the parsed ``argparse.Namespace`` and returns an
 exit status. Bad input (:class:`odofuse.errors.OdofuseError`, missing files) is printed as one
 line ``odofuse: error: <message>`` on stderr with exit status 2, never as a traceback.
@@ -284,9 +284,9 @@ def cmd_plot(args: argparse.Namespace) -> int:
 # -------------------------------------------------------------------------------------- main
 def _register_plugins() -> None:
     try:
-        mod = importlib.import_module("odofuse.teaching_cli")
+        mod = importlib.import_module("odofuse.teaching.cli")
     except ModuleNotFoundError as exc:
-        if exc.name != "odofuse.teaching_cli":
+        if exc.name != "odofuse.teaching.cli":
             raise
         return
     mod.register(COMMANDS)

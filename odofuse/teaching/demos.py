@@ -183,7 +183,7 @@ def demo_integration(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
 def _error_growth_case(k: float, n_runs: int, seed: int, length: float, integrator: str):
     from odofuse.drives import make_drive
     from odofuse.motion import MotionModel, OdometryErrorModel, dead_reckon
-    from odofuse.simulate import Scenario, WheelNoise, simulate
+    from odofuse.teaching.simulate import Scenario, WheelNoise, simulate
 
     geometry = {"wheel_radius": 0.04, "track_width": 0.235}
     n_steps = 100
@@ -351,8 +351,8 @@ def demo_systematic(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
     """Systematic vs non-systematic errors on UMBmark squares, and the UMBmark correction."""
     from dataclasses import replace
 
-    from odofuse.calibration import calibrate_umbmark, systematic_return_error, umbmark_runs
-    from odofuse.simulate import Scenario, SystematicErrors, WheelNoise
+    from odofuse.teaching.simulate import Scenario, SystematicErrors, WheelNoise
+    from odofuse.teaching.umbmark import calibrate_umbmark, systematic_return_error, umbmark_runs
 
     runs = 4 if quick else 10
     side = 4.0
@@ -467,7 +467,7 @@ def _integrate_ds_dtheta(pose0, ds, dth) -> np.ndarray:
 def demo_gyrodometry(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
     """Gyrodometry over a bump and a slip burst: odometry vs gyro vs gyrodometry."""
     from odofuse.drives import make_drive
-    from odofuse.simulate import GyroSpec, Scenario, WheelNoise, simulate
+    from odofuse.teaching.simulate import GyroSpec, Scenario, WheelNoise, simulate
 
     dt = 0.02
     geometry = {"wheel_radius": 0.04, "track_width": 0.235}
@@ -543,7 +543,7 @@ def demo_fusion(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
     from odofuse.estimators import get_estimator
     from odofuse.evaluation import interpolate_poses
     from odofuse.io.loader import load_log_for
-    from odofuse.simulate import (
+    from odofuse.teaching.simulate import (
         GpsSpec,
         GyroSpec,
         Scenario,
