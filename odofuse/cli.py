@@ -89,7 +89,7 @@ def run_one(config, log, out_dir: Path) -> dict:
     """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics."""
     from odofuse.estimators import run_estimator
     from odofuse.evaluation import metrics
-    from odofuse.outputs import write_outputs
+    from odofuse.rundir import write_outputs
 
     t0 = time.perf_counter()
     result = run_estimator(config.estimator, log, config)

@@ -804,8 +804,8 @@ def write_log(sim: Simulation, folder, estimator: str = "ekf") -> list[Path]:
     """
     import yaml
 
+    from odofuse.io.atomic import atomic_write_text
     from odofuse.io.csvlog import write_csv_log
-    from odofuse.outputs import atomic_write_text
 
     folder = Path(folder)
     written = write_csv_log(to_sensor_log(sim, str(folder)), folder)
