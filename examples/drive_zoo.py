@@ -12,7 +12,7 @@ set first).
 For each drive this script asks for the inputs that produce one twist (inverse kinematics),
 checks that forward kinematics gives the twist back, prints the ICR, and plans a
 turn-drive-turn manoeuvre (Politecnico slides) to a goal pose. The picture comes from
-:func:`odofuse.demos.demo_drive_zoo`.
+:func:`odofuse.teaching.demos.demo_drive_zoo`.
 
 Run ``python examples/drive_zoo.py --out zoo-out`` (``--quick``: coarser picture).
 """
@@ -23,8 +23,8 @@ import argparse
 
 import numpy as np
 
-from odofuse.demos import demo_drive_zoo
 from odofuse.drives import make_drive, turn_drive_turn
+from odofuse.teaching.demos import demo_drive_zoo
 
 ROBOTS = {
     "differential": {"wheel_radius": 0.05, "track_width": 0.4},

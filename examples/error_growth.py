@@ -13,7 +13,7 @@ This script drives the same 5 m straight line N times in the simulator with rand
 (:func:`odofuse.motion.dead_reckon`) and compares the two with the normalised estimation error
 squared, ``NEES = e^T P^-1 e``. For a consistent model the mean NEES of N runs lies within
 the chi-square bounds around 3; for moderate wheel noise it does, for large heading noise it
-does not, and the picture (written by :func:`odofuse.demos.demo_error_growth`) shows why.
+does not, and the picture (written by :func:`odofuse.teaching.demos.demo_error_growth`) shows why.
 
 Run ``python examples/error_growth.py --out growth-out`` (``--quick``: 200 runs).
 """
@@ -25,10 +25,10 @@ import argparse
 import numpy as np
 
 from odofuse import se2
-from odofuse.demos import demo_error_growth, nees_bounds
 from odofuse.drives import make_drive
 from odofuse.motion import MotionModel, OdometryErrorModel, dead_reckon
-from odofuse.simulate import Scenario, WheelNoise, simulate
+from odofuse.teaching.demos import demo_error_growth, nees_bounds
+from odofuse.teaching.simulate import Scenario, WheelNoise, simulate
 
 
 def mean_nees(k: float, runs: int, seed: int) -> tuple[float, float]:

@@ -10,7 +10,7 @@ use the gyro only on the few steps where they disagree by more than a threshold.
 The simulated robot drives a 4 m square; at 5 s its right wheel rolls over a 2 cm bump (the
 encoder counts rotation that did not move the robot), at 22 s its left wheel slips for a
 second. Odometry keeps the heading error of both events forever, the gyro alone drifts, and
-gyrodometry (:func:`odofuse.demos.gyrodometry`) ends within a fraction of a degree.
+gyrodometry (:func:`odofuse.teaching.demos.gyrodometry`) ends within a fraction of a degree.
 
 Run ``python examples/gyrodometry_bump.py --out gyro-out`` (``--quick``: one lap).
 """
@@ -22,9 +22,9 @@ import math
 
 import numpy as np
 
-from odofuse.demos import demo_gyrodometry, gyrodometry
 from odofuse.drives import make_drive
-from odofuse.simulate import GyroSpec, Scenario, WheelNoise, simulate
+from odofuse.teaching.demos import demo_gyrodometry, gyrodometry
+from odofuse.teaching.simulate import GyroSpec, Scenario, WheelNoise, simulate
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ error shrinks with the square of the step and Euler's only linearly.
 
 This script integrates a half circle (radius 1 m) with :func:`odofuse.motion.integrate` for
 a range of step sizes, prints the final position errors and the fitted convergence orders, and
-writes the slide picture with :func:`odofuse.demos.demo_integration`.
+writes the slide picture with :func:`odofuse.teaching.demos.demo_integration`.
 
 Run ``python examples/integration_methods.py --out integration-out`` (``--quick``: fewer steps).
 """
@@ -22,8 +22,8 @@ import math
 
 import numpy as np
 
-from odofuse.demos import demo_integration
 from odofuse.motion import integrate
+from odofuse.teaching.demos import demo_integration
 
 
 def final_error(method: str, n_steps: int, v: float = 0.5, w: float = 0.5) -> float:

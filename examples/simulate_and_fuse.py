@@ -7,8 +7,9 @@ is 0.2 % larger than its left one and its true wheelbase 0.5 % longer than the n
 (systematic errors); its wheels also slip randomly (non-systematic errors, Siegwart's
 ``k |ds|`` model). It carries a gyro and a GPS receiver that drops out for 40 s.
 
-1. :func:`odofuse.simulate.simulate` produces the truth and every sensor stream from one seed.
-2. :func:`odofuse.simulate.write_log` writes the log folder of the public spec, including
+1. :func:`odofuse.teaching.simulate.simulate` produces the truth and every sensor stream from one
+   seed.
+2. :func:`odofuse.teaching.simulate.write_log` writes the log folder of the public spec, including
    ``groundtruth.csv`` and a ``config.yaml`` for ``odofuse run``.
 3. The folder is read back like any recorded log, and two estimators run on it: dead
    reckoning (wheels only) and the EKF (wheels + gyro + GPS).
@@ -28,7 +29,7 @@ from odofuse.config import load_config
 from odofuse.estimators import run_estimator
 from odofuse.evaluation import ate, trajectory_from_stream
 from odofuse.io.loader import load_log_for
-from odofuse.simulate import (
+from odofuse.teaching.simulate import (
     EncoderSpec,
     GpsSpec,
     GyroSpec,

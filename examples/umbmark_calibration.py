@@ -12,12 +12,13 @@ direction and cancel in the other, so the two clusters of return errors separate
 
 This script
 1. builds a robot with hidden ``E_d`` and ``E_b`` (``--E-d``, ``--E-b``),
-2. drives the UMBmark squares in the simulator (:func:`odofuse.calibration.umbmark_runs`),
-3. estimates alpha, beta, ``E_b``, ``E_d`` (:func:`odofuse.calibration.umbmark_estimate`,
+2. drives the UMBmark squares in the simulator (:func:`odofuse.teaching.umbmark.umbmark_runs`),
+3. estimates alpha, beta, ``E_b``, ``E_d`` (:func:`odofuse.teaching.umbmark.umbmark_estimate`,
    Borenstein's closed form and its exact-geometry refinement),
-4. corrects the nominal wheel radii and wheelbase (:func:`odofuse.calibration.corrected_geometry`)
-   and drives the squares again: the systematic return error ``E_max,syst`` drops by one to
-   two orders of magnitude, down to what the random wheel slip leaves.
+4. corrects the nominal wheel radii and wheelbase
+   (:func:`odofuse.teaching.umbmark.corrected_geometry`) and drives the squares again: the
+   systematic return error ``E_max,syst`` drops by one to two orders of magnitude, down to
+   what the random wheel slip leaves.
 
 Run ``python examples/umbmark_calibration.py --out umbmark-out`` (``--quick``: 2 runs each).
 """
@@ -28,15 +29,15 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from odofuse.calibration import (
+from odofuse.teaching.demos import plot_umbmark
+from odofuse.teaching.simulate import Scenario, SystematicErrors, WheelNoise
+from odofuse.teaching.umbmark import (
     UMBmarkReport,
     corrected_geometry,
     systematic_return_error,
     umbmark_estimate,
     umbmark_runs,
 )
-from odofuse.demos import plot_umbmark
-from odofuse.simulate import Scenario, SystematicErrors, WheelNoise
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,7 +1,7 @@
 """The ``odofuse`` command (shared spec section 4).
 
 Subcommands live in :data:`COMMANDS` (name -> ``(add_arguments, handler)``); a module
-``odofuse.teaching_cli`` with a ``register(commands)`` function, if present, adds its own
+``odofuse.teaching.cli`` with a ``register(commands)`` function, if present, adds its own
 (simulate, demo, calibrate). Every handler gets the parsed ``argparse.Namespace`` and returns an
 exit status. Bad input (:class:`odofuse.errors.OdofuseError`, missing files) is printed as one
 line ``odofuse: error: <message>`` on stderr with exit status 2, never as a traceback.
@@ -89,7 +89,7 @@ def run_one(config, log, out_dir: Path) -> dict:
     """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics."""
     from odofuse.estimators import run_estimator
     from odofuse.evaluation import metrics
-    from odofuse.outputs import write_outputs
+    from odofuse.rundir import write_outputs
 
     t0 = time.perf_counter()
     result = run_estimator(config.estimator, log, config)
@@ -288,9 +288,9 @@ def cmd_plot(args: argparse.Namespace) -> int:
 # -------------------------------------------------------------------------------------- main
 def _register_plugins() -> None:
     try:
-        mod = importlib.import_module("odofuse.teaching_cli")
+        mod = importlib.import_module("odofuse.teaching.cli")
     except ModuleNotFoundError as exc:
-        if exc.name != "odofuse.teaching_cli":
+        if exc.name != "odofuse.teaching.cli":
             raise
         return
     mod.register(COMMANDS)

@@ -753,7 +753,7 @@ def _build_one(stream: str, block: Mapping, landmarks, source: str):
     gate = _gate(block.pop("gate", 0.999), f"{prefix}.gate", source)
     if "class" in block:
         spec = block.pop("class")
-        from odofuse.estimators import load_object
+        from odofuse.plugins import load_object
 
         try:
             cls = load_object(str(spec), f"measurement model of {prefix}")

@@ -1,25 +1,22 @@
-"""Output writers and readers: trajectory.csv, trajectory.tum, metrics.json, trajectory.png.
+"""Output file writers and readers: trajectory.csv, trajectory.tum, metrics.json.
 
-Every file is written atomically: the content goes to a temporary file in the destination
-folder, which is then renamed over the target with :func:`os.replace` (atomic on POSIX and
-Windows within one file system). A run that fails part-way leaves no half-written file, and
-:func:`write_outputs` removes the files it already wrote in this call when a later one fails.
+Every file is written atomically through :mod:`odofuse.io.atomic`, so a failure leaves no
+half-written file. The picture is :mod:`odofuse.plotting`'s; the whole output folder of a run
+(all four files, all or nothing) is :func:`odofuse.rundir.write_outputs`.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from odofuse.errors import InputError
+from odofuse.io.atomic import atomic_write_text
 from odofuse.se2 import wrap
-from odofuse.trajectory import EstimateResult, Trajectory
+from odofuse.trajectory import Trajectory
 
 CSV_HEADER = (
     "t",
@@ -33,44 +30,8 @@ CSV_HEADER = (
     "cov_ytheta",
     "var_theta",
 )
-OUTPUT_NAMES = ("trajectory.csv", "trajectory.tum", "trajectory.png", "metrics.json")
 #: (row, col) of the covariance entries in CSV_HEADER order after the pose.
 _COV_IDX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-
-
-def atomic_write(path: str | Path, write: Callable[[str], None]) -> Path:
-    """Call ``write(tmp_path)`` on a temporary file next to ``path``, then rename it to ``path``.
-
-    The temporary file is deleted if ``write`` raises, and the exception propagates.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        # mkstemp creates the file 0600; give the output the permissions open() would.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
-def atomic_write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8) to ``path`` atomically."""
-
-    def write(tmp: str) -> None:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-
-    return atomic_write(path, write)
 
 
 def trajectory_csv_text(traj: Trajectory) -> str:
@@ -144,54 +105,6 @@ def write_metrics(path: str | Path, metrics: dict) -> Path:
     """Write ``metrics.json`` atomically (sorted keys, non-finite numbers as ``null``)."""
     text = json.dumps(_clean(metrics), indent=2, sort_keys=True, default=_json_default)
     return atomic_write_text(path, text + "\n")
-
-
-def write_outputs(
-    out_dir: str | Path, result: EstimateResult, metrics: dict, log=None, plot: bool = True
-) -> dict[str, Path]:
-    """Write the four outputs of a run (spec section 3) into ``out_dir``.
-
-    Parameters
-    ----------
-    out_dir : str or Path
-        Output folder (created if needed).
-    result : EstimateResult
-        The estimate.
-    metrics : dict
-        The metrics, see :func:`odofuse.evaluation.metrics`.
-    log : SensorLog, optional
-        For ground truth and landmarks in the picture.
-    plot : bool
-        Also write ``trajectory.png``.
-
-    Returns
-    -------
-    dict
-        ``{"csv": path, "tum": path, "metrics": path, "png": path}``.
-
-    If any writer fails, files written by this call are removed again and the error propagates.
-    """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    # Outputs of an earlier run in this folder go first, so that a run failing half-way
-    # cannot leave a mix of old and new files.
-    for name in OUTPUT_NAMES:
-        (out / name).unlink(missing_ok=True)
-    written: dict[str, Path] = {}
-    try:
-        written["csv"] = write_trajectory_csv(out / "trajectory.csv", result.trajectory)
-        written["tum"] = write_tum(out / "trajectory.tum", result.trajectory)
-        if plot:
-            from odofuse.plotting import plot_run
-
-            written["png"] = plot_run(out / "trajectory.png", result, log)
-        # metrics.json last: its presence marks a complete run.
-        written["metrics"] = write_metrics(out / "metrics.json", metrics)
-    except BaseException:
-        for p in written.values():
-            Path(p).unlink(missing_ok=True)
-        raise
-    return written
 
 
 def read_trajectory_csv(path: str | Path) -> Trajectory:

@@ -76,7 +76,7 @@ def plot_run(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from odofuse.outputs import atomic_write
+    from odofuse.io.atomic import atomic_write
 
     traj = result.trajectory if isinstance(result, EstimateResult) else result
     name = result.estimator if isinstance(result, EstimateResult) else "estimate"

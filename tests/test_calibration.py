@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from odofuse import calibration as cal
-from odofuse import simulate as S
+from odofuse.teaching import simulate as S
+from odofuse.teaching import umbmark as cal
 
 
 def test_linearised_square_errors_match_borenstein():

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from odofuse import demos
 from odofuse.cli import main as cli_main
+from odofuse.teaching import demos
 
 
 @pytest.fixture(scope="module")

@@ -13,17 +13,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from odofuse.io.atomic import atomic_write_text
 from odofuse.outputs import (
     CSV_HEADER,
-    atomic_write_text,
     read_trajectory_csv,
     read_tum,
     write_metrics,
-    write_outputs,
     write_trajectory_csv,
     write_tum,
     yaw_to_quaternion,
 )
+from odofuse.rundir import write_outputs
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -108,7 +108,7 @@ def test_atomic_write_keeps_old_file_on_failure(tmp_path):
             fh.write("half")
         raise RuntimeError("disk full")
 
-    from odofuse.outputs import atomic_write
+    from odofuse.io.atomic import atomic_write
 
     with pytest.raises(RuntimeError):
         atomic_write(p, failing)
@@ -173,7 +173,7 @@ def test_outputs_get_the_permissions_open_would_give(tmp_path):
     import os
     import stat
 
-    from odofuse.outputs import atomic_write_text
+    from odofuse.io.atomic import atomic_write_text
 
     umask = os.umask(0o022)
     try:

@@ -1,4 +1,4 @@
-"""Tests of odofuse.simulate: paths, systematic/non-systematic errors, sensors, log folders."""
+"""Tests of odofuse.teaching.simulate: paths, (non-)systematic errors, sensors, log folders."""
 
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from odofuse import se2
-from odofuse import simulate as S
 from odofuse.drives import make_drive
 from odofuse.errors import ConfigError
 from odofuse.io.csvlog import read_csv_log
 from odofuse.motion import MotionModel, OdometryErrorModel, dead_reckon
+from odofuse.teaching import simulate as S
 
 REPO = Path(__file__).resolve().parents[1]
 DIFF = {"wheel_radius": 0.04, "track_width": 0.235}

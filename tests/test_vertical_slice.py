@@ -124,7 +124,7 @@ def test_odometry_increments_log_dead_reckons_to_the_true_pose(tmp_path):
 def test_noise_free_simulated_steered_drives_dead_reckon_exactly(tmp_path, robot):
     # Steering columns: the row at t_{k+1} holds the angle held during step k, as written by the
     # simulator and read by the estimators; a noise-free log then dead-reckons to the truth.
-    from odofuse.simulate import scenario_from_dict, simulate, write_log
+    from odofuse.teaching.simulate import scenario_from_dict, simulate, write_log
 
     scenario = scenario_from_dict(
         {

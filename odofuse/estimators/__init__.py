@@ -7,9 +7,8 @@ as ``"package.module:function"``.
 
 from __future__ import annotations
 
-import importlib
-
 from odofuse.errors import ConfigError
+from odofuse.plugins import load_object
 
 ESTIMATORS: dict[str, str] = {
     "dead_reckoning": "odofuse.estimators.dead_reckoning:run",
@@ -20,17 +19,6 @@ ESTIMATORS: dict[str, str] = {
     "isam2": "odofuse.estimators.graph:run_isam2",
     "fixed_lag": "odofuse.estimators.graph:run_fixed_lag",
 }
-
-
-def load_object(spec: str, what: str = "object"):
-    """Import ``"package.module:Name"`` and return the named object."""
-    module_name, sep, attr = spec.partition(":")
-    if not sep or not module_name or not attr:
-        raise ConfigError(f"{what} '{spec}' is not of the form 'package.module:Name'")
-    try:
-        return getattr(importlib.import_module(module_name), attr)
-    except (ImportError, AttributeError) as exc:
-        raise ConfigError(f"cannot load {what} '{spec}': {exc}") from None
 
 
 def get_estimator(name: str):

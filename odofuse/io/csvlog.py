@@ -443,7 +443,7 @@ def write_csv_log(log: SensorLog, folder: str | Path) -> tuple[list[Path], dict[
         ``{"<stream>.reordered": rows moved, "<stream>.duplicates_dropped": rows dropped}``,
         only for streams that needed it.
     """
-    from odofuse.outputs import atomic_write_text
+    from odofuse.io.atomic import atomic_write_text
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

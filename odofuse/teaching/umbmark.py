@@ -239,7 +239,7 @@ def umbmark_runs(scenario, runs: int = 5, side: float = 4.0, seed: int = 0) -> d
 
     Parameters
     ----------
-    scenario : odofuse.simulate.Scenario
+    scenario : odofuse.teaching.simulate.Scenario
         A differential or skid-steer robot; its ``path`` is replaced by the squares, its
         sensors are dropped.
     runs : int
@@ -256,7 +256,7 @@ def umbmark_runs(scenario, runs: int = 5, side: float = 4.0, seed: int = 0) -> d
     """
     from odofuse.drives import make_drive
     from odofuse.motion import MotionModel, OdometryErrorModel, dead_reckon
-    from odofuse.simulate import simulate
+    from odofuse.teaching.simulate import simulate
 
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
@@ -287,7 +287,7 @@ def calibrate_umbmark(
 
     Parameters
     ----------
-    scenario : odofuse.simulate.Scenario
+    scenario : odofuse.teaching.simulate.Scenario
         Nominal geometry plus the robot's (hidden) systematic errors.
     runs, side, seed
         See :func:`umbmark_runs`; the runs after the correction use ``seed + 1``.

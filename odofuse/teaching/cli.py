@@ -41,7 +41,7 @@ def _simulate_args(p: argparse.ArgumentParser) -> None:
 def _scenario_from_args(args):
     from dataclasses import replace
 
-    from odofuse.simulate import Scenario, load_scenario
+    from odofuse.teaching.simulate import Scenario, load_scenario
 
     sc = load_scenario(args.scenario) if args.scenario else Scenario()
     path = dict(sc.path)
@@ -64,7 +64,7 @@ def _scenario_from_args(args):
 
 def cmd_simulate(args) -> int:
     """Simulate a robot from a scenario and write a log folder (ground truth included)."""
-    from odofuse.simulate import simulate, write_log
+    from odofuse.teaching.simulate import simulate, write_log
 
     try:
         sim = simulate(_scenario_from_args(args))
@@ -105,7 +105,7 @@ def _demo_args(p: argparse.ArgumentParser) -> None:
 
 def cmd_demo(args) -> int:
     """Run a teaching demo: writes a PNG and prints its numbers."""
-    from odofuse.demos import DEMOS, run_demo
+    from odofuse.teaching.demos import DEMOS, run_demo
 
     if args.list or not args.name:
         for name, fn in sorted(DEMOS.items()):
@@ -155,8 +155,8 @@ def cmd_calibrate(args) -> int:
     """Calibrate systematic odometry errors (UMBmark, Borenstein & Feng 1996)."""
     from dataclasses import replace
 
-    from odofuse import calibration as cal
-    from odofuse.simulate import Scenario, SystematicErrors, load_scenario
+    from odofuse.teaching import umbmark as cal
+    from odofuse.teaching.simulate import Scenario, SystematicErrors, load_scenario
 
     try:
         if args.cw or args.ccw:
@@ -181,7 +181,7 @@ def cmd_calibrate(args) -> int:
             )
             summary = {"true_E_d": se.E_d, "true_E_b": se.E_b, **report.summary()}
             if args.out:
-                from odofuse.demos import plot_umbmark
+                from odofuse.teaching.demos import plot_umbmark
 
                 Path(args.out).mkdir(parents=True, exist_ok=True)
                 png = plot_umbmark(report, args.side, Path(args.out) / "umbmark.png")
