@@ -37,6 +37,7 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
             "odofuse.testing",
             "odofuse.trajectory",
             "odofuse.plugins",
+            "odofuse.health",
         ),
     ),
     # What the robot's readings mean (drive kinematics, encoder units): needed by io to turn
@@ -78,6 +79,14 @@ def _target(name: str) -> str | None:
 def imports_of(name: str, path: Path) -> set[str]:
     """The odofuse modules that module ``name`` imports anywhere in its file."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    # ``if TYPE_CHECKING:`` imports never run: they name a type for annotations only.
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.If)
+            and isinstance(node.test, ast.Name)
+            and node.test.id == "TYPE_CHECKING"
+        ):
+            node.body = []
     is_pkg = path.name == "__init__.py"
     found: set[str | None] = set()
     for node in ast.walk(tree):
