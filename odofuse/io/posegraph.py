@@ -9,7 +9,8 @@ The format modules (:mod:`odofuse.io.g2o`, :mod:`odofuse.io.toro`, :mod:`odofuse
     ``p_k^-1 p_{k+1}`` (an edge stored ``k+1 -> k`` is inverted, its covariance carried over
     by the adjoint), ``ds = sign(dx) hypot(dx, dy)`` for the ``increments`` drive.
 ``loop_closures`` (``t, t_from, t_to, dx, dy, dtheta, cov_xx .. cov_tt``)
-    every other relative-pose edge, as stored (``p_from^-1 p_to``), ``t = max(t_from, t_to)``.
+    every other relative-pose edge, as stored (``p_from^-1 p_to``, ``dtheta`` wrapped to
+    [-pi, pi)), ``t = max(t_from, t_to)``, rows in file order within one ``t``.
 ``landmarks`` (``t, id, range, bearing, sigma_range, sigma_bearing``), ``bearings``
 (``t, id, bearing, sigma``), ``ranges`` (``t, id, range, sigma``)
     observations from a pose, stamped at that pose.
@@ -246,6 +247,7 @@ class GraphBuilder:
             lt = np.array(
                 [[self._time(i), self._time(j), dx, dy, dz] for i, j, dx, dy, dz, _ in loops]
             )
+            lt[:, 4] = (lt[:, 4] + math.pi) % (2 * math.pi) - math.pi
             lc = np.stack([x[5] for x in loops])
             values = np.column_stack([lt, np.column_stack([lc[:, r, q] for r, q in _TRIU])])
             tt = np.maximum(lt[:, 0], lt[:, 1])
