@@ -32,7 +32,7 @@ def test_small_graph_reference(tmp_path):
     # The loop closure is kept as a stream (issue 12), no longer skipped and counted.
     assert log.repairs == {}
     lc = log.streams["loop_closures"]
-    np.testing.assert_allclose(lc.values[:, :5], [[0.0, 2.0, 9.0, 9.0, 9.0]])
+    np.testing.assert_allclose(lc.values[:, :5], [[0.0, 2.0, 9.0, 9.0, 9.0 - 2 * math.pi]])
     lm = log.streams["landmarks"]
     np.testing.assert_allclose(lm.values[:, :3], [[7.0, 5.0, math.atan2(4.0, 3.0)]])
     assert load_log(p).streams.keys() == log.streams.keys()  # sniffed by content

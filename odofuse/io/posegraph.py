@@ -142,7 +142,7 @@ class GraphBuilder:
         self._edges: list[tuple[int, int, float, float, float, int]] = []
         self._noise: list = []
         self._noise_is_info: list[bool] = []
-        self._obs: dict[str, list[tuple]] = {"landmarks": [], "bearings": [], "ranges": []}
+        self.observations: dict[str, list[tuple]] = {"landmarks": [], "bearings": [], "ranges": []}
 
     # -- what the format modules call ------------------------------------------------------
     def vertex(self, i: int, pose) -> None:
@@ -163,13 +163,13 @@ class GraphBuilder:
         self.pose_ids.update((i, j))
 
     def sighting(self, pose: int, landmark: int, rng, bearing, sigma_r, sigma_b, row: int):
-        self._obs["landmarks"].append((pose, landmark, rng, bearing, sigma_r, sigma_b, row))
+        self.observations["landmarks"].append((pose, landmark, rng, bearing, sigma_r, sigma_b, row))
 
     def bearing(self, pose: int, landmark: int, bearing: float, sigma: float, row: int):
-        self._obs["bearings"].append((pose, landmark, bearing, sigma, row))
+        self.observations["bearings"].append((pose, landmark, bearing, sigma, row))
 
     def range(self, pose: int, landmark: int, rng: float, sigma: float, row: int):
-        self._obs["ranges"].append((pose, landmark, rng, sigma, row))
+        self.observations["ranges"].append((pose, landmark, rng, sigma, row))
 
     def count(self, key: str, n: int = 1) -> None:
         self.repairs[key] = self.repairs.get(key, 0) + n
@@ -258,7 +258,7 @@ class GraphBuilder:
             "bearings": ("id", "bearing", "sigma"),
             "ranges": ("id", "range", "sigma"),
         }
-        for stream, rows in self._obs.items():
+        for stream, rows in self.observations.items():
             if not rows:
                 continue
             for r in rows:

@@ -158,7 +158,7 @@ def read_pyfg(path: str | Path) -> SensorLog:
     if all(s is not None for s in stamps) and np.all(np.diff(stamps) > 0):
         b.times = dict(zip(ids, stamps, strict=True))
     for stream in ("ranges", "landmarks"):
-        for r in b._obs[stream]:
+        for r in b.observations[stream]:
             if b.landmark_map and r[1] not in b.landmark_map:
                 raise InputError(f"landmark L{r[1]} has no VERTEX_XY line", b.file, r[-1])
     return b.build()
