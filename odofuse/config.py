@@ -59,7 +59,7 @@ TOP_KEYS = (
 )
 ENCODER_KEYS = ("ticks_per_rev", "gear_ratio", "rollover", "columns")
 INITIAL_KEYS = ("pose", "sigma")
-LOG_KEYS = ("path", "topics")
+LOG_KEYS = ("path", "topics", "repair")
 INTEGRATORS = ("euler", "rk2", "exact")
 #: Sensor-block keys that must be numbers (or, for sigma*, lists of numbers).
 _SENSOR_NUMBER_KEY = re.compile(
@@ -145,6 +145,18 @@ def _resolve_log(v, src: str, base_dir: Path | None) -> tuple[str, dict]:
         if "topics" in block:
             topics = _mapping(block["topics"], "log.topics", src)
             opts["topics"] = {k: _string(t, f"log.topics.{k}", src) for k, t in topics.items()}
+        if "repair" in block:  # CSV repair policy: odofuse.io.csvlog.REPAIR
+            from odofuse.io.csvlog import REPAIR, REPAIR_DUPLICATES
+
+            rep = _mapping(block["repair"], "log.repair", src)
+            _unknown(rep, tuple(REPAIR), "log.repair", src)
+            if not isinstance(rep.get("sort", False), bool):
+                raise ConfigError("must be true or false", src, "log.repair.sort")
+            if rep.get("duplicates", "drop_exact") not in REPAIR_DUPLICATES:
+                raise ConfigError(
+                    f"must be one of {', '.join(REPAIR_DUPLICATES)}", src, "log.repair.duplicates"
+                )
+            opts["repair"] = dict(rep)
     else:
         path = _string(v, "log", src)
     if path.startswith("builtin:"):

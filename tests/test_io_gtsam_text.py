@@ -27,11 +27,14 @@ def test_small_graph_reference(tmp_path):
     log = read_gtsam_text(p)
     o = log.streams["odometry"]
     np.testing.assert_allclose(o.t, [1.0, 2.0])
-    np.testing.assert_allclose(o.values, [[1.0, 0.2], [-0.5, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(o.values[:, :2], [[1.0, 0.2], [-0.5, 0.0]], atol=1e-12)
     np.testing.assert_allclose(log.initial_pose, [1.0, 2.0, 0.5])
-    assert log.repairs == {"odometry.loop_closures_skipped": 1}
+    # The loop closure is kept as a stream (issue 12), no longer skipped and counted.
+    assert log.repairs == {}
+    lc = log.streams["loop_closures"]
+    np.testing.assert_allclose(lc.values[:, :5], [[0.0, 2.0, 9.0, 9.0, 9.0 - 2 * math.pi]])
     lm = log.streams["landmarks"]
-    np.testing.assert_allclose(lm.values, [[7.0, 5.0, math.atan2(4.0, 3.0)]])
+    np.testing.assert_allclose(lm.values[:, :3], [[7.0, 5.0, math.atan2(4.0, 3.0)]])
     assert load_log(p).streams.keys() == log.streams.keys()  # sniffed by content
 
 
@@ -55,7 +58,7 @@ def test_matches_gtsam_between_factors(name, reader):
             m, a, b = m.inverse(), b, a
         k = int(np.flatnonzero(o.t == b)[0])
         ds = math.copysign(math.hypot(m.x(), m.y()), m.x())
-        np.testing.assert_allclose(o.values[k], [ds, m.theta()], atol=1e-9)
+        np.testing.assert_allclose(o.values[k, :2], [ds, m.theta()], atol=1e-9)
         compared += 1
     assert compared == len(o) > 5
 

@@ -1,4 +1,5 @@
-"""Reading logs (CSV folders, built-in datasets, ROS 2 bags, GTSAM text) into a SensorLog."""
+"""Reading logs (CSV folders, built-in datasets, ROS 2 bags, g2o/TORO/iSAM/pyfg pose graphs, raw
+Plaza text) into a SensorLog; :mod:`odofuse.io.loader` picks the reader."""
 
 from odofuse.io.loader import load_log, load_log_for
 from odofuse.io.log import SensorLog, Stream

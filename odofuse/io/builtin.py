@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from odofuse.errors import InputError
-from odofuse.io.log import SensorLog, Stream, time_ordered
+from odofuse.io.log import SensorLog
+from odofuse.io.plaza import plaza_log
 
 BUILTINS = ("plaza1", "plaza2")
 
@@ -27,20 +28,6 @@ def load_builtin(name: str) -> SensorLog:
     mat = scipy.io.loadmat(path)
     dr, td, tl, gt = (np.asarray(mat[k], dtype=float) for k in ("DR", "TD", "TL", "GT"))
     source = f"builtin:{key} ({path})"
-    # The raw TD ranges jump back in time twice (425 rows out of order) and repeat two
-    # (t, beacon) pairs with different ranges: sorted and deduplicated here, and counted.
-    ranges, moved, dropped = time_ordered(
-        Stream("ranges", source, td[:, 0], ("id", "range"), td[:, 2:4]), ("id",)
-    )
-    repairs = {
-        k: v for k, v in (("ranges.reordered", moved), ("ranges.duplicates_dropped", dropped)) if v
-    }
-    streams = {
-        "odometry": Stream("odometry", source, dr[:, 0], ("ds", "dtheta"), dr[:, 1:3]),
-        "ranges": ranges,
-    }
-    landmarks = {int(row[0]): row[1:3].copy() for row in tl}
-    groundtruth = Stream("groundtruth", source, gt[:, 0], ("x", "y", "theta"), gt[:, 1:4])
     # The dataset's dead-reckoned path (DRp) starts at the published initial pose.
     initial = np.asarray(mat["DRp"][0, 1:4], dtype=float)
-    return SensorLog(source, streams, landmarks, groundtruth, repairs, initial)
+    return plaza_log(dr, td, tl, gt, source, initial)

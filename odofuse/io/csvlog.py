@@ -11,6 +11,9 @@ Bad input (spec section 5) either raises :class:`odofuse.errors.InputError` nami
 
 ``<stream>.duplicate_rows``
     exact duplicate rows (same time stamp and same values) dropped.
+``<stream>.reordered``, ``<stream>.conflicting_dropped``
+    only under an opt-in repair policy (:data:`REPAIR`): rows moved by sorting, rows dropped
+    because they repeat a time stamp (and id) with different values.
 ``wheels.rollover_unwraps``
     encoder counter wrap-arounds unwrapped (only with an ``encoder`` block).
 ``<stream>.gaps``
@@ -44,12 +47,26 @@ STREAM_COLUMNS: dict[str, tuple[str, ...] | None] = {
 }
 #: Optional extra value columns accepted for a stream.
 OPTIONAL_COLUMNS: dict[str, tuple[str, ...]] = {
+    # the relative pose and covariance that pose-graph logs carry (odofuse.io.posegraph)
+    "odometry": ("dx", "dy", "cov_xx", "cov_xy", "cov_xt", "cov_yy", "cov_yt", "cov_tt"),
     "gps": ("sigma",),
     "ranges": ("sigma",),
     "landmarks": ("sigma_range", "sigma_bearing"),
 }
 #: Streams where several rows may share a time stamp when they differ in ``id``.
 KEYED_STREAMS = ("ranges", "landmarks")
+#: Default repair policy of a CSV log (config ``log: {path, repair: {sort, duplicates}}``):
+#: ``sort`` (bool): rows whose ``t`` goes backwards are sorted (stable) and counted as
+#: ``<stream>.reordered`` instead of being an error. ``duplicates``: rows repeating the time
+#: stamp (and ``id`` in ranges/landmarks) of an earlier row are
+#: ``"error"``: an error, even when every value is equal;
+#: ``"drop_exact"`` (default): dropped when every value is equal (``<stream>.duplicate_rows``),
+#: an error when a value differs;
+#: ``"keep_first"``: dropped, the first row kept (``duplicate_rows`` / ``conflicting_dropped``);
+#: ``"drop_conflicting"``: exact copies dropped; when the rows disagree, all of them are dropped
+#: (``<stream>.conflicting_dropped``), since the log does not say which one is right.
+REPAIR: dict = {"sort": False, "duplicates": "drop_exact"}
+REPAIR_DUPLICATES = ("error", "drop_exact", "keep_first", "drop_conflicting")
 #: A time gap counts when it exceeds this many median sample intervals.
 GAP_FACTOR = 10.0
 
@@ -177,12 +194,14 @@ def _check_columns(stream: str, header: tuple[str, ...], name: str) -> None:
             )
 
 
-def _dedupe_and_order(stream: str, header, data, lines, name: str, repairs: dict):
-    """Check time order, drop exact duplicate rows, reject conflicting duplicates."""
+def _dedupe_and_order(
+    stream: str, header, data, lines, name: str, repairs: dict, repair: dict | None = None
+):
+    """Check time order and repeated rows under the log's repair policy (:data:`REPAIR`)."""
+    policy = {**REPAIR, **(repair or {})}
     t = data[:, 0]
-    dt = np.diff(t)
-    back = np.flatnonzero(dt < 0)
-    if back.size:
+    back = np.flatnonzero(np.diff(t) < 0)
+    if back.size and not policy["sort"]:
         i = int(back[0]) + 1
         raise InputError(
             f"time goes backwards: {float(t[i])!r} after {float(t[i - 1])!r}",
@@ -190,8 +209,12 @@ def _dedupe_and_order(stream: str, header, data, lines, name: str, repairs: dict
             int(lines[i]),
             "t",
         )
-    same_t = np.flatnonzero(dt == 0) + 1
-    if same_t.size == 0:
+    if back.size:
+        order = np.argsort(t, kind="stable")
+        _add(repairs, f"{stream}.reordered", int(np.count_nonzero(order != np.arange(t.size))))
+        data, lines, t = data[order], lines[order], t[order]
+    dt = np.diff(t)
+    if not np.any(dt == 0):
         return data, lines
     if stream in KEYED_STREAMS:
         key_cols = [0, header.index("id")]
@@ -199,33 +222,44 @@ def _dedupe_and_order(stream: str, header, data, lines, name: str, repairs: dict
         key_cols = [0]
     else:
         key_cols = list(range(len(header)))  # unknown streams: only exact duplicates matter
-    # Within each block of equal t, compare each row with all earlier rows of the block.
+    keyname = "time stamp" if len(key_cols) == 1 else "time stamp and id"
+    mode = policy["duplicates"]
     drop = np.zeros(len(t), dtype=bool)
-    block_start = np.ones(len(t), dtype=bool)
-    block_start[same_t] = False
-    starts = np.flatnonzero(block_start)
-    first_of = np.repeat(starts, np.diff(np.append(starts, len(t))))
-    for i in same_t:
-        for k in range(first_of[i], i):
-            if drop[k]:
+    bounds = np.flatnonzero(np.concatenate([[True], dt != 0, [True]]))
+    for start, end in zip(bounds[:-1], bounds[1:], strict=True):
+        if end - start < 2:
+            continue
+        groups: dict[tuple, list[int]] = {}
+        for i in range(start, end):
+            groups.setdefault(tuple(data[i, key_cols]), []).append(i)
+        for g in groups.values():
+            if len(g) < 2:
                 continue
-            if np.array_equal(data[k, key_cols], data[i, key_cols]):
-                if np.array_equal(data[k], data[i]):
-                    drop[i] = True
-                    break
-                j = int(np.flatnonzero(data[k] != data[i])[0])
-                keyname = "time stamp" if len(key_cols) == 1 else "time stamp and id"
+            first, rest = g[0], g[1:]
+            differ = [k for k in rest if not np.array_equal(data[k], data[first])]
+            if mode == "error" or (differ and mode == "drop_exact"):
+                k = differ[0] if differ else rest[0]
+                what = "a different value than" if differ else "the same values as"
+                j = int(np.flatnonzero(data[k] != data[first])[0]) if differ else key_cols[0]
                 raise InputError(
-                    f"duplicate {keyname} with a different value than line {int(lines[k])}",
+                    f"duplicate {keyname} with {what} line {int(lines[first])}",
                     name,
-                    int(lines[i]),
+                    int(lines[k]),
                     header[j],
                 )
-    if drop.any():
-        repairs[f"{stream}.duplicate_rows"] = repairs.get(f"{stream}.duplicate_rows", 0) + int(
-            drop.sum()
-        )
+            if differ and mode == "drop_conflicting":
+                drop[g] = True
+                _add(repairs, f"{stream}.conflicting_dropped", len(g))
+                continue
+            drop[rest] = True
+            _add(repairs, f"{stream}.duplicate_rows", len(rest) - len(differ))
+            _add(repairs, f"{stream}.conflicting_dropped", len(differ))
     return data[~drop], lines[~drop]
+
+
+def _add(repairs: dict, key: str, n: int) -> None:
+    if n:
+        repairs[key] = repairs.get(key, 0) + n
 
 
 def _count_gaps(stream: str, t: np.ndarray, repairs: dict, gap_factor: float) -> None:
@@ -314,6 +348,7 @@ def read_stream(
     encoder: dict | None = None,
     landmark_ids=None,
     gap_factor: float = GAP_FACTOR,
+    repair: dict | None = None,
 ) -> Stream:
     """Read and validate one stream file.
 
@@ -331,6 +366,9 @@ def read_stream(
         Known ids from ``map.csv``; ``id`` cells of ranges/landmarks must be among them.
     gap_factor : float
         Gap threshold in median sample intervals.
+    repair : dict, optional
+        Repair policy ``{sort, duplicates}`` (:data:`REPAIR`; default: no sorting, exact
+        duplicates dropped).
 
     Returns
     -------
@@ -345,7 +383,7 @@ def read_stream(
     _check_columns(stream, header, name)
     if data.shape[0] == 0:
         raise InputError("no data rows after the header (empty stream)", name, 2)
-    data, lines = _dedupe_and_order(stream, header, data, lines, name, repairs)
+    data, lines = _dedupe_and_order(stream, header, data, lines, name, repairs, repair)
     data = _check_values(stream, header, data, lines, name, landmark_ids)
     if stream == "wheels" and encoder:
         data = _wheel_ticks_to_rad(header, data, lines, name, encoder, repairs)
@@ -376,7 +414,11 @@ def read_map(path: str | Path) -> dict[int, np.ndarray]:
 
 
 def read_csv_log(
-    folder: str | Path, *, encoder: dict | None = None, gap_factor: float = GAP_FACTOR
+    folder: str | Path,
+    *,
+    encoder: dict | None = None,
+    gap_factor: float = GAP_FACTOR,
+    repair: dict | None = None,
 ) -> SensorLog:
     """Read a log folder (shared spec section 1).
 
@@ -393,6 +435,8 @@ def read_csv_log(
         given, ``wheels.csv`` is in ticks and is converted to radians here.
     gap_factor : float
         Time gaps above this many median sample intervals are counted as ``<stream>.gaps``.
+    repair : dict, optional
+        Repair policy ``{sort, duplicates}`` for every stream file (:data:`REPAIR`).
 
     Returns
     -------
@@ -417,6 +461,7 @@ def read_csv_log(
             encoder=encoder if stream == "wheels" else None,
             landmark_ids=ids if stream in KEYED_STREAMS else None,
             gap_factor=gap_factor,
+            repair=repair,
         )
         if stream == "groundtruth":
             groundtruth = s

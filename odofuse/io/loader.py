@@ -8,9 +8,16 @@ folder with ``metadata.yaml``/``*.db3``/    :func:`odofuse.io.bags.read_bag` (RO
 ``*.mcap``
 any other folder                            :func:`odofuse.io.csvlog.read_csv_log`
 ``*.db3``, ``*.mcap``, ``*.bag`` file       :func:`odofuse.io.bags.read_bag`
-``*.g2o``, ``*.graph``, or a text file      :func:`odofuse.io.gtsam_text.read_gtsam_text`
-whose first line is a pose-graph tag
+``*.pyfg``, or a text file whose first      :func:`odofuse.io.pyfg.read_pyfg`
+line names pyfg variables (``A0``, ``L0``)
+``<prefix>_DR/TD/GT/TL.txt``                :func:`odofuse.io.plaza.read_plaza_text`
+``*.g2o``, ``*.graph``, ``*.toro``, or a    :func:`odofuse.io.gtsam_text.read_gtsam_text`
+text file whose first line is a pose-graph  (g2o, TORO and iSAM line types; 3-D types are
+tag                                         refused by name)
 ==========================================  ================================================
+
+``log.repair`` (CSV folders only, :func:`odofuse.io.csvlog.read_csv_log`) is refused for other
+kinds of log rather than ignored.
 """
 
 from __future__ import annotations
@@ -21,11 +28,14 @@ from odofuse.errors import InputError
 from odofuse.io.log import SensorLog
 
 BAG_SUFFIXES = (".db3", ".mcap", ".bag")
-GRAPH_SUFFIXES = (".g2o", ".graph")
+GRAPH_SUFFIXES = (".g2o", ".graph", ".toro")
 
 
 def log_kind(path: Path) -> str:
-    """``"csv"``, ``"bag"`` or ``"gtsam"`` for an existing path (raises InputError otherwise)."""
+    """``"csv"``, ``"bag"``, ``"pyfg"``, ``"plaza"`` or ``"gtsam"`` for an existing path.
+
+    Raises InputError for a path that does not exist or whose format is not recognised.
+    """
     if path.is_dir():
         if (path / "metadata.yaml").exists() or any(path.glob("*.db3")) or any(path.glob("*.mcap")):
             return "bag"
@@ -39,12 +49,18 @@ def log_kind(path: Path) -> str:
     if suffix in BAG_SUFFIXES:
         return "bag"
     from odofuse.io.gtsam_text import looks_like_gtsam_text
+    from odofuse.io.plaza import is_plaza_text
+    from odofuse.io.pyfg import looks_like_pyfg
 
+    if looks_like_pyfg(path):
+        return "pyfg"
+    if is_plaza_text(path):
+        return "plaza"
     if suffix in GRAPH_SUFFIXES or looks_like_gtsam_text(path):
         return "gtsam"
     raise InputError(
-        "unknown log format (expected a CSV log folder, .db3/.mcap/.bag, or a "
-        "2-D pose-graph text file)",
+        "unknown log format (expected a CSV log folder, .db3/.mcap/.bag, a 2-D pose-graph "
+        "text file (g2o, TORO, iSAM, pyfg) or Plaza <name>_DR/TD.txt)",
         str(path),
     )
 
@@ -55,6 +71,7 @@ def load_log(
     *,
     encoder: dict | None = None,
     topics: dict | None = None,
+    repair: dict | None = None,
 ) -> SensorLog:
     """Load a log from ``builtin:NAME``, a CSV folder, a ROS bag/MCAP or a GTSAM text file.
 
@@ -68,6 +85,8 @@ def load_log(
         The robot's encoder block (CSV ``wheels.csv`` in ticks).
     topics : dict, optional
         ``{stream: topic}`` for bags.
+    repair : dict, optional
+        CSV repair policy ``{sort: bool, duplicates: str}`` (:data:`odofuse.io.csvlog.REPAIR`).
 
     Returns
     -------
@@ -77,6 +96,8 @@ def load_log(
     if s.startswith("builtin:"):
         from odofuse.io.builtin import load_builtin
 
+        if repair:
+            raise InputError("log.repair applies to CSV log folders only", s)
         return load_builtin(s)
     path = Path(s).expanduser()
     if not path.is_absolute() and base_dir is not None:
@@ -85,11 +106,21 @@ def load_log(
     if kind == "csv":
         from odofuse.io.csvlog import read_csv_log
 
-        return read_csv_log(path, encoder=encoder)
+        return read_csv_log(path, encoder=encoder, repair=repair)
+    if repair:
+        raise InputError("log.repair applies to CSV log folders only", str(path))
     if kind == "bag":
         from odofuse.io.bags import read_bag
 
         return read_bag(path, topics=topics)
+    if kind == "pyfg":
+        from odofuse.io.pyfg import read_pyfg
+
+        return read_pyfg(path)
+    if kind == "plaza":
+        from odofuse.io.plaza import read_plaza_text
+
+        return read_plaza_text(path)
     from odofuse.io.gtsam_text import read_gtsam_text
 
     return read_gtsam_text(path)
@@ -111,4 +142,7 @@ def load_log_for(config) -> SensorLog:
         kinds = getattr(drive, "input_kinds", ("wheel",) * len(drive.input_names))
         cols = [n for n, k in zip(drive.input_names, kinds, strict=True) if k == "wheel"]
         encoder = {**encoder, "columns": cols}
-    return load_log(config.log, encoder=encoder, topics=(config.log_options or {}).get("topics"))
+    opts = config.log_options or {}
+    return load_log(
+        config.log, encoder=encoder, topics=opts.get("topics"), repair=opts.get("repair")
+    )
