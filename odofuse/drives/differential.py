@@ -2,6 +2,13 @@
 
 Both are linear, ``twist = F u`` (Modern Robotics eq. 13.34; Politecnico slides ``003_...``
 for the skid-steer ICR kinematics).
+
+``wheels_per_side = n > 1`` (a six-wheeled rover, a four-wheeled skid steer with an encoder on
+every wheel): the inputs are ``left1 .. leftn, right1 .. rightn`` and each side's travel is
+the mean of its wheels, the maximum-likelihood estimate for equal, independent wheel noise
+(each column of the two-wheel ``F`` divided by ``n`` and repeated ``n`` times). The error model
+then sees every wheel, so a side's variance falls as ``1/n``; ``input_groups`` names the side
+mates for the disagreement check of :func:`odofuse.motion.side_outliers`.
 """
 
 from __future__ import annotations
@@ -16,8 +23,63 @@ from odofuse.drives.base import _check_positive, _check_real, _LinearDrive
 from odofuse.errors import ConfigError
 
 
+class _TwoSided(_LinearDrive):
+    """Left and right wheel sets, ``wheels_per_side`` wheels each (see the module docstring)."""
+
+    wheels_per_side: int
+    degree_of_mobility: ClassVar[int] = 2
+
+    def _check_sides(self) -> None:
+        n = self.wheels_per_side
+        if isinstance(n, bool) or not isinstance(n, (int, float, np.integer, np.floating)):
+            raise ConfigError(
+                f"{type(self).__name__}: wheels_per_side must be a whole number, got {n!r}",
+                key="wheels_per_side",
+            )
+        if not (math.isfinite(n) and n >= 1 and float(n) == int(n)):
+            raise ConfigError(
+                f"{type(self).__name__}: wheels_per_side must be a whole number >= 1, got {n!r}",
+                key="wheels_per_side",
+            )
+        object.__setattr__(self, "wheels_per_side", int(n))
+
+    def side_matrix(self) -> np.ndarray:
+        """``F`` of one wheel per side, ``(3, 2)`` over ``(left, right)``."""
+        raise NotImplementedError
+
+    @property
+    def sides(self) -> tuple[str, ...]:
+        """``"left"`` or ``"right"`` for each input."""
+        n = self.wheels_per_side
+        return ("left",) * n + ("right",) * n
+
+    @property
+    def input_names(self) -> tuple[str, ...]:  # type: ignore[override]
+        n = self.wheels_per_side
+        if n == 1:
+            return ("left", "right")
+        return tuple(f"{side}{i + 1}" for side in ("left", "right") for i in range(n))
+
+    @property
+    def input_kinds(self) -> tuple[str, ...]:  # type: ignore[override]
+        return ("wheel",) * (2 * self.wheels_per_side)
+
+    @property
+    def input_groups(self) -> tuple[tuple[int, ...], ...]:
+        """Indices of the left wheels and of the right wheels."""
+        n = self.wheels_per_side
+        return (tuple(range(n)), tuple(range(n, 2 * n)))
+
+    def matrix(self) -> np.ndarray:
+        n = self.wheels_per_side
+        return np.repeat(self.side_matrix() / n, n, axis=1)
+
+    def travel_scale(self) -> np.ndarray:
+        return np.repeat([self.wheel_radius_left, self.wheel_radius_right], self.wheels_per_side)
+
+
 @dataclass(frozen=True)
-class Differential(_LinearDrive):
+class Differential(_TwoSided):
     r"""Differential drive (or the two rear wheels of a car), Modern Robotics eq. 13.34.
 
     .. math::
@@ -36,19 +98,20 @@ class Differential(_LinearDrive):
         Distance between the left and right wheel contact points, m (2d).
     wheel_radius_left, wheel_radius_right : float, optional
         Per-wheel radii in m (default ``wheel_radius``), e.g. from a UMBmark calibration.
+    wheels_per_side : int, optional
+        Encoded wheels on each side (default 1); see the module docstring.
     """
 
     wheel_radius: float
     track_width: float
     wheel_radius_left: float | None = None
     wheel_radius_right: float | None = None
+    wheels_per_side: int = 1
 
     name: ClassVar[str] = "differential"
-    input_names: ClassVar[tuple[str, ...]] = ("left", "right")
-    input_kinds: ClassVar[tuple[str, ...]] = ("wheel", "wheel")
-    degree_of_mobility: ClassVar[int] = 2
 
     def __post_init__(self) -> None:
+        self._check_sides()
         for side in ("wheel_radius_left", "wheel_radius_right"):
             if getattr(self, side) is None:
                 object.__setattr__(self, side, self.wheel_radius)
@@ -56,16 +119,13 @@ class Differential(_LinearDrive):
             self, "wheel_radius", "track_width", "wheel_radius_left", "wheel_radius_right"
         )
 
-    def matrix(self) -> np.ndarray:
+    def side_matrix(self) -> np.ndarray:
         rl, rr, d = self.wheel_radius_left, self.wheel_radius_right, 0.5 * self.track_width
         return np.array([[-rl / (2 * d), rr / (2 * d)], [rl / 2, rr / 2], [0.0, 0.0]])
 
-    def travel_scale(self) -> np.ndarray:
-        return np.array([self.wheel_radius_left, self.wheel_radius_right])
-
 
 @dataclass(frozen=True)
-class SkidSteer(_LinearDrive):
+class SkidSteer(_TwoSided):
     r"""Skid-steer (tracked) drive with ICR kinematics, Politecnico slides (``003_...``).
 
     The slides give, on the track speeds ``(omega_l r, omega_r r)``,
@@ -95,6 +155,8 @@ class SkidSteer(_LinearDrive):
         Longitudinal ICR coordinate, m (default 0, ICR level with the body origin).
     wheel_radius_left, wheel_radius_right : float, optional
         Per-side radii, m (default ``wheel_radius``).
+    wheels_per_side : int, optional
+        Encoded wheels on each side (default 1); see the module docstring.
     """
 
     wheel_radius: float
@@ -104,13 +166,12 @@ class SkidSteer(_LinearDrive):
     x_G: float = 0.0
     wheel_radius_left: float | None = None
     wheel_radius_right: float | None = None
+    wheels_per_side: int = 1
 
     name: ClassVar[str] = "skid_steer"
-    input_names: ClassVar[tuple[str, ...]] = ("left", "right")
-    input_kinds: ClassVar[tuple[str, ...]] = ("wheel", "wheel")
-    degree_of_mobility: ClassVar[int] = 2
 
     def __post_init__(self) -> None:
+        self._check_sides()
         _check_positive(self, "wheel_radius", "track_width")
         for side in ("wheel_radius_left", "wheel_radius_right"):
             if getattr(self, side) is None:
@@ -151,13 +212,10 @@ class SkidSteer(_LinearDrive):
         """Expansion factor ``(y_l - y_r) / B`` (Politecnico slides ``003_...``), >= 1."""
         return (self.y_l - self.y_r) / self.track_width
 
-    def matrix(self) -> np.ndarray:
+    def side_matrix(self) -> np.ndarray:
         rl, rr = self.wheel_radius_left, self.wheel_radius_right
         yl, yr, xg = self.y_l, self.y_r, self.x_G
         J_omega = np.array([[-yr, yl], [xg, -xg], [-1.0, 1.0]]) / (
             yl - yr
         )  # slides' rows vx, vy, wz
         return J_omega[[2, 0, 1]] * np.array([rl, rr])
-
-    def travel_scale(self) -> np.ndarray:
-        return np.array([self.wheel_radius_left, self.wheel_radius_right])

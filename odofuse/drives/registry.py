@@ -8,10 +8,13 @@ from __future__ import annotations
 import dataclasses
 import importlib
 
+from odofuse.drives.car import Car, CarAckermann
 from odofuse.drives.differential import Differential, SkidSteer
+from odofuse.drives.offset import Offset
 from odofuse.drives.omni import Generic, Mecanum4, Omni3
 from odofuse.drives.steered import Ackermann, Bicycle, Synchro, Tricycle
-from odofuse.drives.twist import Increments
+from odofuse.drives.swerve import Swerve
+from odofuse.drives.twist import Increments, Twist
 from odofuse.errors import ConfigError
 
 DRIVES: dict[str, type] = {
@@ -27,6 +30,10 @@ DRIVES: dict[str, type] = {
         Mecanum4,
         Generic,
         Increments,
+        Swerve,
+        Car,
+        CarAckermann,
+        Twist,
     )
 }
 
@@ -58,6 +65,8 @@ def make_drive(name: str, **geometry):
         A key of :data:`DRIVES` or ``"package.module:Class"`` for a user plug-in.
     **geometry
         The class's constructor arguments (e.g. ``wheel_radius=0.04, track_width=0.235``).
+        ``base_frame_offset=[x, y, theta]`` (any drive) reports the twist at a base frame with
+        that pose in the drive's kinematic-centre frame (:class:`odofuse.drives.offset.Offset`).
 
     Returns
     -------
@@ -71,6 +80,10 @@ def make_drive(name: str, **geometry):
     """
     if not isinstance(name, str):
         raise ConfigError(f"drive name must be a string, got {name!r}", key="drive")
+    if "base_frame_offset" in geometry:
+        geometry = dict(geometry)
+        offset = geometry.pop("base_frame_offset")
+        return Offset(make_drive(name, **geometry), offset)
     if ":" in name:
         cls = _load_class(name)
     elif name in DRIVES:
