@@ -462,7 +462,7 @@ def true_geometry(drive: str, geometry: Mapping, errors: SystematicErrors) -> di
     """
     g = dict(geometry)
     for key in [k for k in g if k.startswith("wheel_radius")]:
-        g[key] = float(g[key]) * errors.E_s
+        g[key] = _plain(np.asarray(g[key], dtype=float) * errors.E_s)  # one or per wheel
     if errors.E_d != 1.0:
         if drive not in ("differential", "skid_steer"):
             raise ValueError(
@@ -619,6 +619,10 @@ def simulate(scenario: Scenario, seed: int | None = None) -> Simulation:
     if sc.drive == "increments":
         # odometry.csv: the increments since the previous row (the form of Plaza's DR stream)
         streams["odometry"] = Stream("odometry", "simulation", t[1:], names, u_meas)
+    elif set(kinds) == {"velocity"}:
+        # cmd_vel.csv: row k's velocity holds until row k+1 (the last row repeats it)
+        vel = np.vstack([u_meas, u_meas[-1:]]) / dt
+        streams["cmd_vel"] = Stream("cmd_vel", "simulation", t, names, vel)
     else:
         streams["wheels"] = Stream("wheels", "simulation", t, names, values)
 
@@ -721,7 +725,7 @@ def to_sensor_log(sim: Simulation, source: str = "simulation") -> SensorLog:
 def run_config(sim: Simulation, estimator: str = "ekf") -> dict:
     """A run config (shared spec section 2) for the written log, with the *nominal* geometry."""
     sc = sim.scenario
-    robot = {"drive": sc.drive, **{k: float(v) for k, v in sc.geometry.items()}}
+    robot = {"drive": sc.drive, **{k: _plain(v) for k, v in sc.geometry.items()}}
     if sc.encoder is not None:
         robot["encoder"] = {"ticks_per_rev": float(sc.encoder.ticks_per_rev)}
         if sc.encoder.rollover:
@@ -763,8 +767,8 @@ def _scenario_record(sim: Simulation) -> dict:
         "seed": int(sc.seed),
         "dt": float(sc.dt),
         "drive": sc.drive,
-        "nominal_geometry": {k: float(v) for k, v in sim.nominal_geometry.items()},
-        "true_geometry": {k: float(v) for k, v in sim.true_geometry.items()},
+        "nominal_geometry": {k: _plain(v) for k, v in sim.nominal_geometry.items()},
+        "true_geometry": {k: _plain(v) for k, v in sim.true_geometry.items()},
         "systematic": {
             "E_d": float(sc.systematic.E_d),
             "E_b": float(sc.systematic.E_b),
@@ -911,6 +915,8 @@ def scenario_from_dict(d: Mapping, source: str = "<scenario>") -> Scenario:
             float(enc["ticks_per_rev"]), None if rollover is None else int(rollover)
         )
     for k, v in robot.items():
+        if isinstance(v, list | tuple) or (k == "holonomic" and isinstance(v, bool)):
+            continue  # modules, base_frame_offset...: checked by the drive class
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
             raise ConfigError(
                 f"geometry must be a positive number, got {v!r}", source, f"robot.{k}"
