@@ -59,7 +59,7 @@ TOP_KEYS = (
 )
 ENCODER_KEYS = ("ticks_per_rev", "gear_ratio", "rollover", "columns")
 INITIAL_KEYS = ("pose", "sigma")
-LOG_KEYS = ("path", "topics", "repair")
+LOG_KEYS = ("path", "topics", "repair", "wheel_inputs")
 INTEGRATORS = ("euler", "rk2", "exact")
 #: Sensor-block keys that must be numbers (or, for sigma*, lists of numbers).
 _SENSOR_NUMBER_KEY = re.compile(
@@ -157,6 +157,13 @@ def _resolve_log(v, src: str, base_dir: Path | None) -> tuple[str, dict]:
                     f"must be one of {', '.join(REPAIR_DUPLICATES)}", src, "log.repair.duplicates"
                 )
             opts["repair"] = dict(rep)
+        if "wheel_inputs" in block:
+            kind = _string(block["wheel_inputs"], "log.wheel_inputs", src)
+            if kind not in ("position", "velocity"):
+                raise ConfigError(
+                    f"must be 'position' or 'velocity', got '{kind}'", src, "log.wheel_inputs"
+                )
+            opts["wheel_inputs"] = kind
     else:
         path = _string(v, "log", src)
     if path.startswith("builtin:"):
@@ -265,9 +272,10 @@ def _check_motion_against_drive(robot: dict, motion: dict, src: str) -> None:
     from odofuse.drives import make_drive
 
     geometry = {k: v for k, v in robot.items() if k not in ("drive", "encoder")}
-    names = tuple(make_drive(robot["drive"], **geometry).input_names)
+    drive = make_drive(robot["drive"], **geometry)
+    names = tuple(drive.input_names)
     for key in ("k_r", "k_l"):
-        if key in motion and names[:2] != ("left", "right"):
+        if key in motion and len(getattr(drive, "sides", ())) != len(names):
             raise ConfigError(
                 f"applies to left/right wheels; drive '{robot['drive']}' has "
                 f"inputs {', '.join(names)} (use k: [one per input])",
@@ -281,6 +289,17 @@ def _check_motion_against_drive(robot: dict, motion: dict, src: str) -> None:
                 src,
                 f"motion.{key}",
             )
+    if "alphas" in motion:
+        if not hasattr(drive, "quadratic_noise"):
+            raise ConfigError(
+                f"Thrun's velocity-model alphas need the twist drive, not '{robot['drive']}'",
+                src,
+                "motion.alphas",
+            )
+        try:
+            drive.quadratic_noise(motion["alphas"])
+        except ConfigError as exc:
+            raise ConfigError(str(exc).split(": ", 1)[-1], src, "motion.alphas") from None
 
 
 def _validate_initial(v, src: str) -> dict:

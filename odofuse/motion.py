@@ -9,11 +9,17 @@ Integrators (Politecnico slides ``003_73fced8ec7c15fe5.txt``, Modern Robotics 13
 * ``euler``: the body moves by ``[v_x, v_y]`` along the heading at the step start;
 * ``rk2``: the same along the mid-step heading ``theta + omega/2`` (Siegwart's model in
   ``004_f4547100a083f338.txt`` is this one with ``v_y = 0``);
-* ``exact``: the twist exponential (arc of a circle about the ICR).
+* ``exact``: the twist exponential (arc of a circle about the ICR);
+* ``euler_end``: the body moves by ``[v_x, v_y]`` along the heading at the step *end*
+  (``theta + omega``): heading first, then position, as ros2_controllers' mecanum drive
+  controller integrates (``mecanum_drive_controller/src/odometry.cpp``, ``Odometry::update``).
 
 Error model (Siegwart & Nourbakhsh ch. 5): each wheel's travel ``ds_i`` has variance
 ``k_i |ds_i|`` (m^2 per m), uncorrelated between wheels; steering inputs have a constant
-variance. ``Sigma_p' = F_p Sigma_p F_p^T + F_u Sigma_u F_u^T``.
+variance. ``Sigma_p' = F_p Sigma_p F_p^T + F_u Sigma_u F_u^T``. Velocity inputs (the
+``twist`` drive) may add Thrun's quadratic velocity-model terms (``OdometryErrorModel.quadratic``).
+Redundant wheels (``wheels_per_side``) are checked against their side mates by
+:func:`side_outliers`.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ import numpy as np
 
 from odofuse import se2
 
-INTEGRATORS = ("euler", "rk2", "exact")
+INTEGRATORS = ("euler", "rk2", "exact", "euler_end")
 
 
 def body_increment(twist, integrator: str = "exact", jacobian: bool = True):
@@ -34,7 +40,7 @@ def body_increment(twist, integrator: str = "exact", jacobian: bool = True):
     ----------
     twist : array_like, shape (..., 3)
         ``[omega, v_x, v_y]`` over the step (rad, m, m).
-    integrator : {"euler", "rk2", "exact"}
+    integrator : {"euler", "rk2", "exact", "euler_end"}
     jacobian : bool
         Also compute the Jacobian (skip it on pose-only paths).
 
@@ -50,22 +56,25 @@ def body_increment(twist, integrator: str = "exact", jacobian: bool = True):
     w, vx, vy = tw[..., 0], tw[..., 1], tw[..., 2]
     if integrator == "euler" and not jacobian:
         return np.stack([vx, vy, w], -1), None
-    if integrator == "rk2" and not jacobian:
-        c, s = np.cos(0.5 * w), np.sin(0.5 * w)
-        return np.stack([c * vx - s * vy, s * vx + c * vy, w], -1), None
+    if integrator in ("rk2", "euler_end"):
+        # Rotated by the mid-step (rk2) or the end-of-step (euler_end) heading change.
+        f = 0.5 if integrator == "rk2" else 1.0
+        c, s = np.cos(f * w), np.sin(f * w)
+        delta = np.stack([c * vx - s * vy, s * vx + c * vy, w], -1)
+        if not jacobian:
+            return delta, None
     J = np.zeros(tw.shape[:-1] + (3, 3))
     J[..., 2, 0] = 1.0
     if integrator == "euler":
         J[..., 0, 1] = 1.0
         J[..., 1, 2] = 1.0
         return np.stack([vx, vy, w], -1), J
-    if integrator == "rk2":
-        c, s = np.cos(0.5 * w), np.sin(0.5 * w)
-        J[..., 0, 0] = 0.5 * (-s * vx - c * vy)
-        J[..., 1, 0] = 0.5 * (c * vx - s * vy)
+    if integrator in ("rk2", "euler_end"):
+        J[..., 0, 0] = f * (-s * vx - c * vy)
+        J[..., 1, 0] = f * (c * vx - s * vy)
         J[..., 0, 1], J[..., 0, 2] = c, -s
         J[..., 1, 1], J[..., 1, 2] = s, c
-        return np.stack([c * vx - s * vy, s * vx + c * vy, w], -1), J
+        return delta, J
     raise ValueError(f"unknown integrator '{integrator}'; use one of {', '.join(INTEGRATORS)}")
 
 
@@ -91,7 +100,10 @@ class OdometryErrorModel:
 
     ``var(u_i) = (k_i |travel_i| ) / scale_i^2 + floor_i`` for wheel inputs (``travel`` in
     metres, ``scale`` = metres per input unit, the wheel radius for wheel angles), and
-    ``floor_i`` alone for inputs with zero scale (steering angles).
+    ``floor_i`` alone for inputs with zero scale (steering angles). With ``quadratic`` (an
+    ``(n, n)`` matrix ``Q``) each variance also gets ``sum_j Q_ij u_j^2``: Thrun, Burgard &
+    Fox's velocity motion model (Probabilistic Robotics, Table 5.3, alphas on variances) for
+    the ``twist`` drive, whose inputs are ``v dt`` and ``w dt``.
 
     Parameters
     ----------
@@ -99,10 +111,13 @@ class OdometryErrorModel:
         ``k_i`` in m^2 per metre travelled, one per drive input (0 for steering inputs).
     floor : tuple of float
         Constant variance per input and step, in the input's units squared.
+    quadratic : tuple of tuple of float, optional
+        ``Q`` (n x n), dimensionless; default none.
     """
 
     k: tuple[float, ...]
     floor: tuple[float, ...]
+    quadratic: tuple[tuple[float, ...], ...] | None = None
 
     def variances(self, drive, u) -> np.ndarray:
         """Input variances, shape ``(..., n)``."""
@@ -110,7 +125,10 @@ class OdometryErrorModel:
         travel = np.abs(drive.travel(u))
         safe = np.where(scale > 0, scale, 1.0)
         wheel = np.where(scale > 0, np.asarray(self.k) * travel / safe**2, 0.0)
-        return wheel + np.asarray(self.floor)
+        var = wheel + np.asarray(self.floor)
+        if self.quadratic is not None:
+            var = var + np.square(np.asarray(u, dtype=float)) @ np.asarray(self.quadratic).T
+        return var
 
 
 @dataclass(frozen=True)
@@ -199,7 +217,12 @@ def _chord(theta_start, twist, integrator: str):
     """
     w, vx, vy = twist[:, 0], twist[:, 1], twist[:, 2]
     half = 0.5 * w
-    phi = theta_start if integrator == "euler" else theta_start + half
+    if integrator == "euler":
+        phi = theta_start
+    elif integrator == "euler_end":
+        phi = theta_start + w
+    else:
+        phi = theta_start + half
     c, s = np.cos(phi), np.sin(phi)
     g = None
     if integrator == "exact":
@@ -248,6 +271,8 @@ def _process_noise(model: MotionModel, theta_start, twist, U) -> tuple[np.ndarra
         c, s = g * c, g * s
     elif model.integrator == "rk2":
         jw0, jw1 = -0.5 * zi, 0.5 * zr
+    elif model.integrator == "euler_end":
+        jw0, jw1 = -zi, zr
     else:
         jw0 = jw1 = np.zeros_like(zr)
     J_tu = model.drive.J_twist_u(U)
@@ -365,7 +390,9 @@ def error_model_from_config(drive, motion: dict) -> OdometryErrorModel:
 
     Keys: ``k_r``/``k_l`` (differential and skid-steer: right/left wheel), or ``k`` (a number
     for every wheel input, or a list per input), ``var_floor`` (a number or a list per input;
-    default 0), ``steer_sigma`` (rad, steering inputs; default 0.01).
+    default 0), ``steer_sigma`` (rad, steering inputs; default 0.01), ``alphas`` (Thrun's
+    ``[a1, a2, a3, a4]`` on variances, for drives with ``quadratic_noise``: ``twist``).
+    ``k_l``/``k_r`` apply to every wheel of that side (``wheels_per_side``).
     """
     names = tuple(drive.input_names)
     n = len(names)
@@ -375,15 +402,65 @@ def error_model_from_config(drive, motion: dict) -> OdometryErrorModel:
     else:
         k = np.full(n, 1.0e-4)
     if "k_r" in motion or "k_l" in motion:
-        if names[:2] != ("left", "right"):
+        sides = np.asarray(getattr(drive, "sides", ()))
+        if sides.shape != (n,):
             raise ValueError(f"k_r/k_l apply to left/right wheels; this drive's inputs are {names}")
-        k[0] = float(motion.get("k_l", k[0]))
-        k[1] = float(motion.get("k_r", k[1]))
+        for side, key in (("left", "k_l"), ("right", "k_r")):
+            if key in motion:
+                k[sides == side] = float(motion[key])
     floor = np.broadcast_to(np.asarray(motion.get("var_floor", 0.0), dtype=float), (n,)).copy()
     steer_var = float(motion.get("steer_sigma", 0.01)) ** 2
     floor = np.where(scale > 0, floor, floor + steer_var)
     k = np.where(scale > 0, k, 0.0)
-    return OdometryErrorModel(tuple(map(float, k)), tuple(map(float, floor)))
+    quadratic = None
+    if "alphas" in motion:
+        if not hasattr(drive, "quadratic_noise"):
+            raise ValueError(
+                f"motion.alphas (Thrun's velocity model) needs the twist drive, not '{drive.name}'"
+            )
+        quadratic = tuple(map(tuple, np.asarray(drive.quadratic_noise(motion["alphas"])).tolist()))
+    return OdometryErrorModel(tuple(map(float, k)), tuple(map(float, floor)), quadratic)
+
+
+def side_outliers(model: MotionModel, U, n_sigma: float = 3.0) -> np.ndarray:
+    """Wheels that disagree with their side mates by more than their noise, per step.
+
+    For a drive with ``input_groups`` (``wheels_per_side > 1``), every wheel of a group measures
+    the same side travel. Wheel ``i``'s travel ``s_i = scale_i u_i`` (m) is compared with the
+    median ``m`` of its group; it is flagged when ``|s_i - m| > n_sigma sigma_i`` with
+    ``sigma_i^2 = scale_i^2 var_i + min_j scale_j^2 var_j`` (its own error-model variance plus
+    the smallest of the group's, a lower bound of the median's; conservative by design, so a
+    noisy but healthy wheel is rarely flagged). With two wheels per side the median is the
+    mean and both wheels of a disagreeing pair are flagged: two readings cannot say which
+    one slipped.
+
+    Parameters
+    ----------
+    model : MotionModel
+    U : array_like, shape (N, n)
+        Drive inputs per step.
+    n_sigma : float
+        Threshold in standard deviations.
+
+    Returns
+    -------
+    ndarray of bool, shape (N, n)
+        False everywhere for drives without ``input_groups``.
+    """
+    U = np.atleast_2d(np.asarray(U, dtype=float))
+    flagged = np.zeros(U.shape, dtype=bool)
+    groups = [g for g in getattr(model.drive, "input_groups", ()) if len(g) > 1]
+    if not groups:
+        return flagged
+    scale = np.asarray(model.drive.travel_scale(), dtype=float)
+    travel = U * scale
+    var = model.errors.variances(model.drive, U) * scale**2
+    for group in groups:
+        g = list(group)
+        med = np.median(travel[:, g], axis=1, keepdims=True)
+        bound = var[:, g] + np.min(var[:, g], axis=1, keepdims=True)
+        flagged[:, g] = np.abs(travel[:, g] - med) > n_sigma * np.sqrt(bound)
+    return flagged
 
 
 GEOMETRY_EXCLUDE = ("drive", "encoder")

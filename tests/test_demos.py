@@ -89,6 +89,9 @@ def test_drive_zoo(out):
         "ackermann",
         "omni3",
         "mecanum4",
+        "swerve",
+        "car",
+        "car_ackermann",
     }
     for name, d in n.items():
         assert d["roundtrip_error"] < 1e-9, name

@@ -10,8 +10,13 @@ DEFAULT_INITIAL_SIGMA = (0.1, 0.1, 0.05)
 
 
 def odometry_stream_name(model) -> str:
-    """``"odometry"`` for the ``increments`` drive (odometry.csv), else ``"wheels"``."""
-    return "odometry" if model.drive.name == "increments" else "wheels"
+    """``"odometry"`` for the ``increments`` drive (odometry.csv), ``"cmd_vel"`` for drives
+    whose inputs are all velocities (the ``twist`` drive, cmd_vel.csv), else ``"wheels"``."""
+    if model.drive.name == "increments":
+        return "odometry"
+    if set(getattr(model.drive, "input_kinds", ())) == {"velocity"}:
+        return "cmd_vel"
+    return "wheels"
 
 
 def odometry_inputs(log, model) -> tuple[np.ndarray, np.ndarray]:
@@ -23,6 +28,18 @@ def odometry_inputs(log, model) -> tuple[np.ndarray, np.ndarray]:
     that samples the angle at the row's time gives the same up to one step's change).
     For ``odometry.csv`` (increments since the previous row) row ``k``'s increment
     ends at ``t_k``; the initial pose is placed one nominal period before the first row.
+    For ``cmd_vel.csv`` (velocities) row ``k``'s command holds until row ``k+1``:
+    ``u_k = v_k (t_{k+1} - t_k)`` (the last row's command has no interval and is unused).
+
+    Drives with redundant wheels (``input_groups``, ``wheels_per_side > 1``) are checked by
+    :func:`odofuse.motion.side_outliers`; a flagged wheel's increment is replaced by the mean
+    of its unflagged side mates for that step (weight 0 in the side's mean, so every filter
+    and the smoother, which all read their inputs here, down-weight it alike). When no mate
+    is unflagged (two wheels per side) nothing can say which wheel is wrong and the step is
+    kept as measured. Counts go to ``log.repairs`` (``wheels.side_outliers``: flagged wheel
+    steps, ``wheels.side_outliers_replaced``: replaced ones) and so to ``metrics.json``. The
+    replaced value still enters the error model as an independent reading, so that step's
+    side variance is optimistic by a factor ``(n - 1) / n`` per replaced wheel.
 
     Returns
     -------
@@ -53,9 +70,41 @@ def odometry_inputs(log, model) -> tuple[np.ndarray, np.ndarray]:
         return np.concatenate([[stream.t[0] - period], stream.t]), values
     if len(stream) < 2:
         raise InputError("wheels.csv needs at least two rows to form a step", file=stream.source)
-    steering = np.array([kind == "steer" for kind in model.drive.input_kinds])
+    kinds = tuple(model.drive.input_kinds)
+    if name == "cmd_vel":
+        return stream.t.copy(), values[:-1] * np.diff(stream.t)[:, None]
+    steering = np.array([kind == "steer" for kind in kinds])
     U = np.where(steering, values[1:], np.diff(values, axis=0))
+    if getattr(model.drive, "input_groups", None):
+        U = _down_weight_side_outliers(log, model, U)
     return stream.t.copy(), U
+
+
+def _down_weight_side_outliers(log, model, U: np.ndarray) -> np.ndarray:
+    """Replace flagged wheels by their unflagged side mates' mean (see :func:`odometry_inputs`)."""
+    from odofuse.motion import side_outliers
+
+    flagged = side_outliers(model, U)
+    if not flagged.any():
+        return U
+    U = U.copy()
+    replaced = 0
+    for group in model.drive.input_groups:
+        g = list(group)
+        bad = flagged[:, g]
+        good = ~bad
+        n_good = good.sum(axis=1)
+        fix = bad & (n_good > 0)[:, None]
+        if fix.any():
+            mean_good = np.sum(np.where(good, U[:, g], 0.0), axis=1) / np.maximum(n_good, 1)
+            block = U[:, g]
+            block[fix] = np.broadcast_to(mean_good[:, None], block.shape)[fix]
+            U[:, g] = block
+            replaced += int(fix.sum())
+    # The log's own record of repairs (set, not added: repeated calls give the same counts).
+    log.repairs["wheels.side_outliers"] = int(flagged.sum())
+    log.repairs["wheels.side_outliers_replaced"] = replaced
+    return U
 
 
 def initial_state(config, log) -> tuple[np.ndarray, np.ndarray]:

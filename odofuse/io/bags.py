@@ -5,7 +5,8 @@ Message types map to the streams of a log folder (shared spec section 1):
 ==============================  ===========  ==================================================
 message type                    stream       columns
 ==============================  ===========  ==================================================
-``sensor_msgs/msg/JointState``  ``wheels``   one column per joint name: ``position`` (rad)
+``sensor_msgs/msg/JointState``  ``wheels``   one column per joint name: ``position`` (rad), or
+                                             ``velocity`` (rad/s) with ``joint_field``
 ``nav_msgs/msg/Odometry``       ``odometry`` ``ds, dtheta``: increment between consecutive poses
 ``sensor_msgs/msg/Imu``         ``gyro``     ``wz`` = ``angular_velocity.z`` (rad/s)
 ``sensor_msgs/msg/NavSatFix``   ``gps``      ``lat, lon`` (deg), ``sigma`` (m) from the covariance
@@ -135,7 +136,9 @@ def _choose_topics(reader, topics: dict | None, source: str) -> dict[str, object
     return chosen
 
 
-def read_bag(path: str | Path, topics: dict | None = None) -> SensorLog:
+def read_bag(
+    path: str | Path, topics: dict | None = None, joint_field: str = "position"
+) -> SensorLog:
     """Read a ROS 2 bag folder (``.db3`` or MCAP storage), a ``.mcap``/``.db3`` file inside one,
     or a ROS 1 ``.bag`` into a ``SensorLog``.
 
@@ -145,6 +148,8 @@ def read_bag(path: str | Path, topics: dict | None = None) -> SensorLog:
         The bag.
     topics : dict, optional
         ``{stream: topic}`` overriding the defaults by message type.
+    joint_field : {"position", "velocity"}
+        The JointState array read into ``wheels`` (``log.wheel_inputs``).
 
     Returns
     -------
@@ -185,7 +190,7 @@ def read_bag(path: str | Path, topics: dict | None = None) -> SensorLog:
         if np.any(order != np.arange(t.size)):
             repairs[f"{stream}.reordered"] = int(np.count_nonzero(order != np.arange(t.size)))
         items = [items[i] for i in order]
-        s = _convert(stream, items, source, repairs)
+        s = _convert(stream, items, source, repairs, joint_field)
         if s is not None and len(s):
             streams[stream] = s
     if not streams:
@@ -195,7 +200,9 @@ def read_bag(path: str | Path, topics: dict | None = None) -> SensorLog:
     return SensorLog(source, streams, {}, None, repairs)
 
 
-def _convert(stream: str, items, source: str, repairs: dict) -> Stream | None:
+def _convert(
+    stream: str, items, source: str, repairs: dict, joint_field: str = "position"
+) -> Stream | None:
     t = np.array([s for s, _ in items])
     msgs = [m for _, m in items]
     if stream == "wheels":
@@ -204,7 +211,8 @@ def _convert(stream: str, items, source: str, repairs: dict) -> Stream | None:
             raise InputError("JointState without joint names", source, column="wheels")
         vals = np.empty((len(msgs), len(names)))
         for k, m in enumerate(msgs):
-            pos = dict(zip(m.name, np.asarray(m.position, dtype=float), strict=False))
+            array = np.asarray(getattr(m, joint_field), dtype=float)
+            pos = dict(zip(m.name, array, strict=False))
             try:
                 vals[k] = [pos[n] for n in names]
             except KeyError as exc:

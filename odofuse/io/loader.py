@@ -22,10 +22,13 @@ kinds of log rather than ignored.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
-from odofuse.errors import InputError
-from odofuse.io.log import SensorLog
+import numpy as np
+
+from odofuse.errors import ConfigError, InputError
+from odofuse.io.log import SensorLog, Stream
 
 BAG_SUFFIXES = (".db3", ".mcap", ".bag")
 GRAPH_SUFFIXES = (".g2o", ".graph", ".toro")
@@ -72,6 +75,7 @@ def load_log(
     encoder: dict | None = None,
     topics: dict | None = None,
     repair: dict | None = None,
+    joint_field: str = "position",
 ) -> SensorLog:
     """Load a log from ``builtin:NAME``, a CSV folder, a ROS bag/MCAP or a GTSAM text file.
 
@@ -87,6 +91,8 @@ def load_log(
         ``{stream: topic}`` for bags.
     repair : dict, optional
         CSV repair policy ``{sort: bool, duplicates: str}`` (:data:`odofuse.io.csvlog.REPAIR`).
+    joint_field : {"position", "velocity"}
+        Which JointState array of a bag becomes the ``wheels`` stream.
 
     Returns
     -------
@@ -112,7 +118,7 @@ def load_log(
     if kind == "bag":
         from odofuse.io.bags import read_bag
 
-        return read_bag(path, topics=topics)
+        return read_bag(path, topics=topics, joint_field=joint_field)
     if kind == "pyfg":
         from odofuse.io.pyfg import read_pyfg
 
@@ -131,18 +137,70 @@ def load_log_for(config) -> SensorLog:
 
     When the robot has an ``encoder`` block without ``columns``, the encoder columns of
     ``wheels.csv`` are the drive's inputs of kind ``"wheel"`` (steering angles stay radians).
+    With ``log.wheel_inputs: velocity`` those columns hold wheel speeds (rad/s; ticks/s with
+    an encoder block; JointState ``velocity`` in a bag) and are integrated once here into
+    cumulative angles, see :func:`integrate_wheel_velocities`.
     """
     robot = dict(config.robot or {})
+    options = config.log_options or {}
     encoder = robot.get("encoder")
-    if encoder and not encoder.get("columns"):
+    velocity = options.get("wheel_inputs") == "velocity"
+    cols = None
+    if (encoder and not encoder.get("columns")) or velocity:
         from odofuse.drives import make_drive
 
         geometry = {k: v for k, v in robot.items() if k not in ("drive", "encoder")}
         drive = make_drive(robot["drive"], **geometry)
         kinds = getattr(drive, "input_kinds", ("wheel",) * len(drive.input_names))
         cols = [n for n, k in zip(drive.input_names, kinds, strict=True) if k == "wheel"]
+    if encoder and not encoder.get("columns"):
         encoder = {**encoder, "columns": cols}
-    opts = config.log_options or {}
-    return load_log(
-        config.log, encoder=encoder, topics=opts.get("topics"), repair=opts.get("repair")
+    if velocity and encoder and encoder.get("rollover"):
+        raise ConfigError(
+            "encoder.rollover unwraps counter positions; wheel speeds cannot roll over",
+            config.source,
+            "log.wheel_inputs",
+        )
+    log = load_log(
+        config.log,
+        encoder=encoder,
+        topics=options.get("topics"),
+        repair=options.get("repair"),
+        joint_field="velocity" if velocity else "position",
     )
+    if velocity and "wheels" in log.streams:
+        wheels = integrate_wheel_velocities(log.streams["wheels"], cols)
+        log = dataclasses.replace(log, streams={**log.streams, "wheels": wheels})
+    return log
+
+
+def integrate_wheel_velocities(stream: Stream, columns) -> Stream:
+    """Wheel speeds -> cumulative wheel angles, one backward rectangle per row interval.
+
+    Row ``k+1``'s speed is taken as the speed during the step from ``t_k`` to ``t_{k+1}``
+    (the convention of the steering columns, and ros2_controllers' ``update_from_velocity``,
+    which multiplies the latest measured speed by the period):
+    ``theta_{k+1} = theta_k + omega_{k+1} (t_{k+1} - t_k)``, ``theta_0 = 0``. The first row's
+    speed is therefore unused. Other columns (steering angles) are unchanged.
+
+    Parameters
+    ----------
+    stream : Stream
+        ``wheels`` with speeds in rad/s in ``columns``.
+    columns : sequence of str
+        The wheel columns (the drive's inputs of kind ``"wheel"``); missing ones are left to
+        the estimators' column check.
+
+    Returns
+    -------
+    Stream
+        A new stream; the same times and columns.
+    """
+    values = stream.values.copy()
+    dt = np.diff(stream.t)
+    for name in columns:
+        if name in stream.columns:
+            j = stream.columns.index(name)
+            values[0, j] = 0.0
+            values[1:, j] = np.cumsum(stream.values[1:, j] * dt)
+    return Stream(stream.name, stream.source, stream.t, stream.columns, values)

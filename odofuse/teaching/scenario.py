@@ -309,6 +309,8 @@ def scenario_from_dict(d: Mapping, source: str = "<scenario>") -> Scenario:
             float(enc["ticks_per_rev"]), None if rollover is None else int(rollover)
         )
     for k, v in robot.items():
+        if isinstance(v, list | tuple) or (k == "holonomic" and isinstance(v, bool)):
+            continue  # modules, base_frame_offset...: checked by the drive class
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
             raise ConfigError(
                 f"geometry must be a positive number, got {v!r}", source, f"robot.{k}"

@@ -39,7 +39,7 @@ def to_sensor_log(sim: Simulation, source: str = "simulation") -> SensorLog:
 def run_config(sim: Simulation, estimator: str = "ekf") -> dict:
     """A run config (shared spec section 2) for the written log, with the *nominal* geometry."""
     sc = sim.scenario
-    robot = {"drive": sc.drive, **{k: float(v) for k, v in sc.geometry.items()}}
+    robot = {"drive": sc.drive, **{k: plain(v) for k, v in sc.geometry.items()}}
     if sc.encoder is not None:
         robot["encoder"] = {"ticks_per_rev": float(sc.encoder.ticks_per_rev)}
         if sc.encoder.rollover:
@@ -81,8 +81,8 @@ def _scenario_record(sim: Simulation) -> dict:
         "seed": int(sc.seed),
         "dt": float(sc.dt),
         "drive": sc.drive,
-        "nominal_geometry": {k: float(v) for k, v in sim.nominal_geometry.items()},
-        "true_geometry": {k: float(v) for k, v in sim.true_geometry.items()},
+        "nominal_geometry": {k: plain(v) for k, v in sim.nominal_geometry.items()},
+        "true_geometry": {k: plain(v) for k, v in sim.true_geometry.items()},
         "systematic": {
             "E_d": float(sc.systematic.E_d),
             "E_b": float(sc.systematic.E_b),
@@ -91,21 +91,22 @@ def _scenario_record(sim: Simulation) -> dict:
         "wheel_noise": {
             "k": float(sc.wheel_noise.k),
             "steer_sigma": float(sc.wheel_noise.steer_sigma),
-            "slip_bursts": [list(map(_plain, b)) for b in sc.wheel_noise.slip_bursts],
-            "bumps": [list(map(_plain, b)) for b in sc.wheel_noise.bumps],
+            "slip_bursts": [list(map(plain, b)) for b in sc.wheel_noise.slip_bursts],
+            "bumps": [list(map(plain, b)) for b in sc.wheel_noise.bumps],
         },
-        "path": {k: _plain(v) for k, v in dict(sc.path).items()},
+        "path": {k: plain(v) for k, v in dict(sc.path).items()},
         "steps": int(len(sim.twists_cmd)),
     }
 
 
-def _plain(v):
+def plain(v):
+    """``v`` as plain Python (floats, ints, nested lists) for YAML/JSON."""
     if isinstance(v, np.ndarray):
         return v.tolist()
     if isinstance(v, (np.floating, np.integer)):
         return v.item()
     if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
+        return [plain(x) for x in v]
     return v
 
 

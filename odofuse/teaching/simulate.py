@@ -60,7 +60,7 @@ from odofuse.teaching.scenario import (
     load_scenario,
     scenario_from_dict,
 )
-from odofuse.teaching.simlog import to_sensor_log, write_log
+from odofuse.teaching.simlog import plain, to_sensor_log, write_log
 
 __all__ = [
     "SystematicErrors",
@@ -118,7 +118,7 @@ def true_geometry(drive: str, geometry: Mapping, errors: SystematicErrors) -> di
     """
     g = dict(geometry)
     for key in [k for k in g if k.startswith("wheel_radius")]:
-        g[key] = float(g[key]) * errors.E_s
+        g[key] = plain(np.asarray(g[key], dtype=float) * errors.E_s)  # one or per wheel
     if errors.E_d != 1.0:
         if drive not in ("differential", "skid_steer"):
             raise ValueError(
@@ -275,6 +275,10 @@ def simulate(scenario: Scenario, seed: int | None = None) -> Simulation:
     if sc.drive == "increments":
         # odometry.csv: the increments since the previous row (the form of Plaza's DR stream)
         streams["odometry"] = Stream("odometry", "simulation", t[1:], names, u_meas)
+    elif set(kinds) == {"velocity"}:
+        # cmd_vel.csv: row k's velocity holds until row k+1 (the last row repeats it)
+        vel = np.vstack([u_meas, u_meas[-1:]]) / dt
+        streams["cmd_vel"] = Stream("cmd_vel", "simulation", t, names, vel)
     else:
         streams["wheels"] = Stream("wheels", "simulation", t, names, values)
 

@@ -22,6 +22,13 @@ _ZOO = [
     ("ackermann", {"wheel_radius": 0.3, "wheelbase": 1.0, "track_width": 0.6}, [0.2, 0.5, 0.0]),
     ("omni3", {"wheel_radius": 0.05, "wheel_distance": 0.2}, [0.5, 0.3, 0.3]),
     ("mecanum4", {"wheel_radius": 0.05, "half_length": 0.2, "half_width": 0.15}, [0.5, 0.0, 0.5]),
+    (
+        "swerve",
+        {"wheel_radius": 0.05, "modules": [[0.3, 0.25], [0.3, -0.25], [-0.3, 0.25], [-0.3, -0.25]]},
+        [0.5, 0.3, 0.2],
+    ),
+    ("car", {"wheel_radius": 0.3, "wheelbase": 1.0, "track_width": 0.6}, [0.25, 0.5, 0.0]),
+    ("car_ackermann", {"wheel_radius": 0.3, "wheelbase": 1.0, "track_width": 0.6}, [0.2, 0.5, 0.0]),
 ]
 
 
@@ -58,11 +65,30 @@ def _wheel_layout(name: str, geometry: dict, u: np.ndarray) -> list[tuple[float,
     if name == "mecanum4":
         ll, w = g["half_length"], g["half_width"]
         return [(ll, w, 0.0), (ll, -w, 0.0), (-ll, -w, 0.0), (-ll, w, 0.0)]
+    if name == "swerve":
+        n = len(g["modules"])
+        return [(x, y, float(u[n + i])) for i, (x, y) in enumerate(g["modules"])]
+    if name in ("car", "car_ackermann"):
+        b, d = g["track_width"] / 2, g["wheelbase"]
+        front = (
+            [(d, 0.0, float(u[2]))]
+            if name == "car"
+            else [(d, b, float(u[2])), (d, -b, float(u[3]))]
+        )
+        return [(0.0, b, 0.0), (0.0, -b, 0.0), *front]
     return []
 
 
 #: Drives whose wheels roll without side slip: their wheel axes all pass through the ICR.
-_AXES_MEET_AT_ICR = ("differential", "tricycle", "bicycle", "ackermann")
+_AXES_MEET_AT_ICR = (
+    "differential",
+    "tricycle",
+    "bicycle",
+    "ackermann",
+    "swerve",
+    "car",
+    "car_ackermann",
+)
 
 
 def _draw_wheels(ax, name, geometry, u, icr, size: float) -> None:
@@ -82,7 +108,9 @@ def demo_drive_zoo(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
     """The drive zoo: each drive's ICR, degree of mobility and inverse kinematics."""
     from odofuse.drives import make_drive
 
-    fig, axes = _figure(4, 2, size=(4.2, 4.2))
+    fig, axes = _figure(4, 3, size=(4.2, 4.2))
+    for ax in axes.ravel()[len(_ZOO) :]:
+        ax.set_visible(False)
     numbers: dict = {}
     n = 24 if quick else 60
     for ax, (name, geometry, twist) in zip(axes.ravel(), _ZOO, strict=False):
