@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse import se2
+from odofuse.declarations import MotionOptions
+from odofuse.options import coerce
 
 INTEGRATORS = ("euler", "rk2", "exact")
 
@@ -360,27 +362,25 @@ def dead_reckon(model: MotionModel, pose0, P0, U, with_cov: bool = True):
     return poses, covs
 
 
-def error_model_from_config(drive, motion: dict) -> OdometryErrorModel:
-    """Build the error model from a config ``motion`` block.
+def error_model_from_config(drive, motion) -> OdometryErrorModel:
+    """Build the error model from the ``motion`` block (:class:`MotionOptions` or a mapping).
 
     Keys: ``k_r``/``k_l`` (differential and skid-steer: right/left wheel), or ``k`` (a number
-    for every wheel input, or a list per input), ``var_floor`` (a number or a list per input;
-    default 0), ``steer_sigma`` (rad, steering inputs; default 0.01).
+    for every wheel input, or a list per input), ``var_floor`` (a number or a list per input),
+    ``steer_sigma`` (rad, steering inputs); defaults in :class:`MotionOptions`.
     """
+    motion = coerce(MotionOptions, motion, "motion")
     names = tuple(drive.input_names)
     n = len(names)
     scale = np.asarray(drive.travel_scale(), dtype=float)
-    if "k" in motion:
-        k = np.broadcast_to(np.asarray(motion["k"], dtype=float), (n,)).copy()
-    else:
-        k = np.full(n, 1.0e-4)
-    if "k_r" in motion or "k_l" in motion:
+    k = np.broadcast_to(np.asarray(motion.k, dtype=float), (n,)).copy()
+    if motion.k_r is not None or motion.k_l is not None:
         if names[:2] != ("left", "right"):
             raise ValueError(f"k_r/k_l apply to left/right wheels; this drive's inputs are {names}")
-        k[0] = float(motion.get("k_l", k[0]))
-        k[1] = float(motion.get("k_r", k[1]))
-    floor = np.broadcast_to(np.asarray(motion.get("var_floor", 0.0), dtype=float), (n,)).copy()
-    steer_var = float(motion.get("steer_sigma", 0.01)) ** 2
+        k[0] = k[0] if motion.k_l is None else motion.k_l
+        k[1] = k[1] if motion.k_r is None else motion.k_r
+    floor = np.broadcast_to(np.asarray(motion.var_floor, dtype=float), (n,)).copy()
+    steer_var = float(motion.steer_sigma) ** 2
     floor = np.where(scale > 0, floor, floor + steer_var)
     k = np.where(scale > 0, k, 0.0)
     return OdometryErrorModel(tuple(map(float, k)), tuple(map(float, floor)))
@@ -396,10 +396,8 @@ def motion_model_from_config(config) -> MotionModel:
     robot = dict(config.robot)
     geometry = {k: v for k, v in robot.items() if k not in GEOMETRY_EXCLUDE}
     drive = make_drive(robot["drive"], **geometry)
-    motion = dict(config.motion or {})
-    return MotionModel(
-        drive, error_model_from_config(drive, motion), motion.get("integrator", "exact")
-    )
+    motion = config.motion
+    return MotionModel(drive, error_model_from_config(drive, motion), motion.integrator)
 
 
 @dataclass(frozen=True)

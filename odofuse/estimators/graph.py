@@ -36,10 +36,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from odofuse import se2
+from odofuse.declarations import ROBUST_KINDS  # noqa: F401 - re-exported
+from odofuse.declarations import robust_loss as _robust_entry
 from odofuse.errors import ConfigError
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.graph_factors import (
-    ROBUST_DEFAULT_K,
     calibrated_between_factor,
     frozen_calibration_factor,
     levenberg_marquardt,
@@ -83,7 +84,6 @@ OPTION_KEYS = (
     "odometry_calibration",
     "calibration_freeze",
 )
-ROBUST_KINDS = ("none", "huber", "cauchy", "tukey")
 LANDMARK_SENSORS = ("BeaconRange", "LandmarkBearing", "LandmarkRangeBearing")
 # Variance (m^2, rad^2) added to every pre-integrated covariance so that a single step of a
 # drive with a rank-deficient input covariance (e.g. increments: no lateral noise) stays
@@ -190,38 +190,6 @@ def _bool_option(value, key, source) -> bool:
     return value
 
 
-def _robust_entry(value, key, source) -> tuple[str, float]:
-    if isinstance(value, str) or value is None:
-        kind, k = ("none" if value is None else value), None
-    elif isinstance(value, dict):
-        unknown = set(value) - {"type", "k"}
-        if unknown:
-            raise ConfigError(
-                f"unknown key(s) {', '.join(sorted(unknown))}; use type and k",
-                file=source,
-                key=f"{key}.{sorted(unknown)[0]}",
-            )
-        kind, k = value.get("type", "huber"), value.get("k")
-    else:
-        raise ConfigError(
-            f"expected a loss name or {{type, k}}, got {value!r}", file=source, key=key
-        )
-    if kind not in ROBUST_KINDS:
-        raise ConfigError(
-            f"unknown robust loss {kind!r}; use one of {', '.join(ROBUST_KINDS)}",
-            file=source,
-            key=key,
-        )
-    if kind == "none":
-        return ("none", 0.0)
-    if k is None:
-        return (kind, ROBUST_DEFAULT_K[kind])
-    kv = _nonneg_option(k, f"{key}.k", source)
-    if kv == 0.0:
-        raise ConfigError("robust threshold k must be positive", file=source, key=f"{key}.k")
-    return (kind, kv)
-
-
 def _freeze_option(value, key, source, estimator) -> dict:
     """Validate ``calibration_freeze`` (isam2 only) into one of two forms.
 
@@ -298,13 +266,11 @@ def parse_options(config, estimator: str) -> GraphOptions:
         For an unknown key or a bad value, naming ``options.<estimator>.<key>`` and the file.
     """
     source = getattr(config, "source", "<config>")
-    block = config.option_block(estimator)
+    block = dict(config.estimator_options(estimator).values)
     prefix = f"options.{estimator}"
     kw: dict = {}
     per_sensor = {
-        s: _robust_entry(b["robust"], f"sensors.{s}.robust", source)
-        for s, b in (getattr(config, "sensors", {}) or {}).items()
-        if isinstance(b, dict) and "robust" in b
+        s: b.robust for s, b in config.sensors.items() if getattr(b, "robust", None) is not None
     }
     for key, value in block.items():
         k = f"{prefix}.{key}"

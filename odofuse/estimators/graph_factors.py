@@ -28,6 +28,8 @@ import math
 
 import numpy as np
 
+from odofuse.declarations import ROBUST_DEFAULT_K
+
 __all__ = [
     "ROBUST_DEFAULT_K",
     "robust_noise",
@@ -38,7 +40,6 @@ __all__ = [
 ]
 
 #: Default tuning constants (95 % asymptotic efficiency on Gaussian data; in units of sigma).
-ROBUST_DEFAULT_K = {"huber": 1.345, "cauchy": 2.3849, "tukey": 4.6851}
 
 
 def robust_noise(base, kind: str | None, k: float | None = None):

@@ -15,6 +15,7 @@ whose first line is a pose-graph tag
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from odofuse.errors import InputError
@@ -103,6 +104,8 @@ def load_log_for(config) -> SensorLog:
     """
     robot = dict(config.robot or {})
     encoder = robot.get("encoder")
+    if encoder is not None:  # the typed robot.encoder block as the mapping the readers take
+        encoder = {**dataclasses.asdict(encoder), "columns": list(encoder.columns or [])}
     if encoder and not encoder.get("columns"):
         from odofuse.drives import make_drive
 
