@@ -208,9 +208,8 @@ def _value(tp, v, meta: Mapping, key: str, src: str):
         if not variadic and len(v) != len(args):
             raise ConfigError(f"must have {len(args)} elements, got {len(v)}", src, key)
         elems = [args[0]] * len(v) if variadic else list(args)
-        return tuple(
-            _value(t, x, meta, f"{key}[{i}]", src) for i, (t, x) in enumerate(zip(elems, v, strict=True))
-        )
+        pairs = enumerate(zip(elems, v, strict=True))
+        return tuple(_value(t, x, meta, f"{key}[{i}]", src) for i, (t, x) in pairs)
     if origin in (dict, Mapping):
         block = _mapping(v, key, src)
         inner = args[1] if args else object

@@ -266,7 +266,8 @@ def test_export_then_run_matches_builtin(tmp_path, capsys):
     cfg = tmp_path / "p.yaml"
     pose = [0.0, 0.0, 4.222432]  # the dataset's published start (DRp row 0)
     cfg.write_text(
-        f"log: plaza1\nrobot: {{drive: increments}}\nmotion: {json.dumps(to_mapping(base.motion))}\n"
+        f"log: plaza1\nrobot: {{drive: increments}}\n"
+        f"motion: {json.dumps(to_mapping(base.motion))}\n"
         f"estimator: dead_reckoning\ninitial: {{pose: {pose}, sigma: "
         f"{list(base.initial.sigma)}}}\noutput: out\n"
     )
