@@ -285,6 +285,30 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------------- options
+def _options_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("name", nargs="?", help="a block (motion, sensors.gps, ekf, ...); omitted: all")
+
+
+@command("options", _options_args)
+def cmd_options(args: argparse.Namespace) -> int:
+    """List the config keys: type, unit, default and meaning (from the option declarations)."""
+    from odofuse.declarations import catalogue
+    from odofuse.options import text_table
+
+    blocks = catalogue()
+    if args.name is None:
+        for name, (cls, prefix) in blocks.items():
+            doc = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
+            print(f"{name:22s} {prefix:18s} {doc}")
+        return 0
+    if args.name not in blocks:
+        raise OdofuseError(f"no options block '{args.name}'; known: {', '.join(blocks)}")
+    cls, prefix = blocks[args.name]
+    print(text_table(cls, prefix))
+    return 0
+
+
 # -------------------------------------------------------------------------------------- main
 def _register_plugins() -> None:
     try:

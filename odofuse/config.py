@@ -3,47 +3,83 @@
 :func:`load_config` reads a YAML file, :func:`config_from_dict` validates a mapping. Every
 problem raises :class:`odofuse.errors.ConfigError` naming the dotted key (``sensors.gps.sigma``)
 and the file; malformed YAML names the line. Top-level keys, ``robot.encoder`` and ``initial``
-are closed sets; the inner keys of ``motion``, ``sensors.<name>`` and ``options.<estimator>``
-are open (back ends add their own), but typed: a key that is known to be a number must be a
-number, and any value there must be a number, a string, a boolean or a list of those.
+and every other block are validated into the frozen option dataclasses declared once in
+:mod:`odofuse.declarations` (``motion``, ``initial``, ``robot.encoder``, ``log``, each
+``sensors.<stream>`` by its model kind and each ``options.<estimator>``); only the drive
+geometry in ``robot`` is checked by the drive itself.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from odofuse.declarations import (
+    EncoderOptions,
+    InitialOptions,
+    LogOptions,
+    MotionOptions,
+    estimator_options,
+    sensor_options,
+)
 from odofuse.errors import ConfigError
+from odofuse.options import coerce, from_mapping
 
 
 @dataclass(frozen=True)
 class RunConfig:
     """A validated run configuration.
 
-    ``robot``/``motion``/``initial`` are the validated YAML blocks (plain dicts, SI units);
-    ``sensors`` maps a stream name to its sensor block; ``options`` maps an estimator name to its
-    own option block (e.g. ``options: {ekf: {late_window: 0.5}}``); ``source`` is the config
-    file path, for error messages. ``log`` is ``builtin:NAME`` or a path already resolved
-    against the config file's folder; ``log_options`` holds the rest of a ``log:`` mapping
-    (``topics`` for bags).
+    ``robot`` is the drive name and geometry (SI units; ``robot["encoder"]`` an
+    :class:`EncoderOptions`); ``motion`` a :class:`MotionOptions`; ``initial`` an
+    :class:`InitialOptions`; ``sensors`` maps a stream name to its typed sensor options
+    (:data:`odofuse.declarations.SENSOR_OPTIONS`); ``options`` maps an estimator name to its
+    typed options (:meth:`estimator_options` gives any estimator's, default-filled);
+    ``source`` is the config file path, for error messages. ``log`` is ``builtin:NAME`` or a
+    path already resolved against the config file's folder; ``log_options`` holds the rest of
+    a ``log:`` mapping (``topics`` for bags). Plain mappings given to the constructor are
+    validated into the typed blocks.
     """
 
     log: str
     robot: dict
-    motion: dict = field(default_factory=dict)
+    motion: MotionOptions = field(default_factory=MotionOptions)
     estimator: str = "dead_reckoning"
-    initial: dict = field(default_factory=dict)
+    initial: InitialOptions = field(default_factory=InitialOptions)
     sensors: dict = field(default_factory=dict)
     output: str | None = None
     options: dict = field(default_factory=dict)
     source: str = "<config>"
     log_options: dict = field(default_factory=dict)
 
-    def option_block(self, estimator: str | None = None) -> dict:
-        """The option block of ``estimator`` (default: this run's estimator), ``{}`` if absent."""
-        return dict(self.options.get(estimator or self.estimator, {}) or {})
+    def __post_init__(self) -> None:
+        src, put = self.source, functools.partial(object.__setattr__, self)
+        put("motion", coerce(MotionOptions, self.motion, "motion", src))
+        put("initial", coerce(InitialOptions, self.initial, "initial", src))
+        sensors = _mapping(self.sensors, "sensors", src)
+        put("sensors", {s: _sensor(s, b, src) for s, b in sensors.items()})
+        options = _mapping(self.options, "options", src)
+        put("options", {k: estimator_options(k, b, src) for k, b in options.items()})
+        enc = (self.robot or {}).get("encoder")
+        if enc is not None and not isinstance(enc, EncoderOptions):
+            put(
+                "robot",
+                {**self.robot, "encoder": from_mapping(EncoderOptions, enc, "robot.encoder", src)},
+            )
+
+    def estimator_options(self, estimator: str | None = None):
+        """The typed options of ``estimator`` (default: this run's), default-filled if absent."""
+        name = estimator or self.estimator
+        return self.options.get(name) or estimator_options(name, None, self.source)
+
+
+def _sensor(stream, block, src: str):
+    typed = dataclasses.is_dataclass(block) and not isinstance(block, type)
+    return block if typed else sensor_options(str(stream), block, src)
 
 
 TOP_KEYS = (
@@ -57,43 +93,6 @@ TOP_KEYS = (
     "options",
     "description",
 )
-ENCODER_KEYS = ("ticks_per_rev", "gear_ratio", "rollover", "columns")
-INITIAL_KEYS = ("pose", "sigma")
-LOG_KEYS = ("path", "topics", "repair", "wheel_inputs")
-INTEGRATORS = ("euler", "rk2", "exact")
-#: Sensor-block keys that must be numbers (or, for sigma*, lists of numbers).
-_SENSOR_NUMBER_KEY = re.compile(
-    r"^(sigma.*|gate|var.*|min_.*|max_.*|.*_threshold|huber.*|"
-    r"k|k_.*|offset.*|scale.*|bias.*|rate.*|delay|lever_arm)$"
-)
-_MOTION_NUMBER_KEY = re.compile(r"^(k|k_.*|var_floor.*|sigma.*|alpha.*|floor.*)$")
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool)
-
-
-def _number(v, key: str, src: str, *, positive=False, nonneg=False, finite=True) -> float:
-    if not _is_number(v):
-        raise ConfigError(f"must be a number, got {type(v).__name__} {v!r}", src, key)
-    v = float(v)
-    if finite and not math.isfinite(v):
-        raise ConfigError(f"must be finite, got {v!r}", src, key)
-    if positive and not v > 0:
-        raise ConfigError(f"must be positive, got {v!r}", src, key)
-    if nonneg and not v >= 0:
-        raise ConfigError(f"must not be negative, got {v!r}", src, key)
-    return v
-
-
-def _numbers(v, key: str, src: str, n: int | None = None, **kw) -> list[float]:
-    if not isinstance(v, list | tuple):
-        raise ConfigError(
-            f"must be a list of {n or ''} numbers, got {v!r}".replace("  ", " "), src, key
-        )
-    if n is not None and len(v) != n:
-        raise ConfigError(f"must have {n} elements, got {len(v)}", src, key)
-    return [_number(x, f"{key}[{i}]", src, **kw) for i, x in enumerate(v)]
 
 
 def _mapping(v, key: str, src: str) -> dict:
@@ -121,49 +120,30 @@ def _unknown(block: dict, allowed, key: str, src: str) -> None:
             )
 
 
-def _scalarish(v, key: str, src: str):
-    """Open-block values: number, string, bool, None, or (nested) lists/mappings of those."""
-    if v is None or isinstance(v, bool | str) or _is_number(v):
-        if _is_number(v) and not math.isfinite(float(v)):
-            raise ConfigError(f"must be finite, got {v!r}", src, key)
-        return v
+def _geometry_value(v, key: str, src: str):
+    """Drive geometry: a finite number, a string, a bool, or a list of those."""
     if isinstance(v, list | tuple):
-        return [_scalarish(x, f"{key}[{i}]", src) for i, x in enumerate(v)]
+        return [_geometry_value(x, f"{key}[{i}]", src) for i, x in enumerate(v)]
     if isinstance(v, dict):
-        return {k: _scalarish(x, f"{key}.{k}", src) for k, x in _mapping(v, key, src).items()}
-    raise ConfigError(f"unsupported value {v!r}", src, key)
+        raise ConfigError("a geometry value must be a number or a list", src, key)
+    if isinstance(v, int | float) and not isinstance(v, bool) and not math.isfinite(float(v)):
+        raise ConfigError(f"must be finite, got {v!r}", src, key)
+    if v is not None and not isinstance(v, bool | str | int | float):
+        raise ConfigError(f"unsupported value {v!r}", src, key)
+    return v
 
 
 def _resolve_log(v, src: str, base_dir: Path | None) -> tuple[str, dict]:
     opts: dict = {}
     if isinstance(v, dict):
-        block = _mapping(v, "log", src)
-        _unknown(block, LOG_KEYS, "log", src)
-        if "path" not in block:
-            raise ConfigError("missing required value", src, "log.path")
-        path = _string(block["path"], "log.path", src)
-        if "topics" in block:
-            topics = _mapping(block["topics"], "log.topics", src)
-            opts["topics"] = {k: _string(t, f"log.topics.{k}", src) for k, t in topics.items()}
-        if "repair" in block:  # CSV repair policy: odofuse.io.csvlog.REPAIR
-            from odofuse.io.csvlog import REPAIR, REPAIR_DUPLICATES
-
-            rep = _mapping(block["repair"], "log.repair", src)
-            _unknown(rep, tuple(REPAIR), "log.repair", src)
-            if not isinstance(rep.get("sort", False), bool):
-                raise ConfigError("must be true or false", src, "log.repair.sort")
-            if rep.get("duplicates", "drop_exact") not in REPAIR_DUPLICATES:
-                raise ConfigError(
-                    f"must be one of {', '.join(REPAIR_DUPLICATES)}", src, "log.repair.duplicates"
-                )
-            opts["repair"] = dict(rep)
-        if "wheel_inputs" in block:
-            kind = _string(block["wheel_inputs"], "log.wheel_inputs", src)
-            if kind not in ("position", "velocity"):
-                raise ConfigError(
-                    f"must be 'position' or 'velocity', got '{kind}'", src, "log.wheel_inputs"
-                )
-            opts["wheel_inputs"] = kind
+        block = from_mapping(LogOptions, v, "log", src)
+        path = block.path
+        if block.topics is not None:
+            opts["topics"] = dict(block.topics)
+        if block.repair is not None:  # CSV repair policy: odofuse.io.csvlog.REPAIR
+            opts["repair"] = {"sort": block.repair.sort, "duplicates": block.repair.duplicates}
+        if block.wheel_inputs != "position":
+            opts["wheel_inputs"] = block.wheel_inputs
     else:
         path = _string(v, "log", src)
     if path.startswith("builtin:"):
@@ -182,42 +162,15 @@ def _validate_robot(v, src: str) -> dict:
         )
     drive = _string(robot["drive"], "robot.drive", src)
     out = {"drive": drive}
-    # Geometry values are numbers (or lists of numbers/names for plug-in drives); the drive
-    # class itself checks keys, presence and ranges in _check_drive.
+    # The drive class itself checks the geometry's keys, presence and ranges in _check_drive.
     geometry = {
-        k: _scalarish(val, f"robot.{k}", src)
+        k: _geometry_value(val, f"robot.{k}", src)
         for k, val in robot.items()
         if k not in ("drive", "encoder")
     }
-    for k, val in geometry.items():
-        if isinstance(val, dict):
-            raise ConfigError("a geometry value must be a number or a list", src, f"robot.{k}")
     out.update(geometry)
     if robot.get("encoder") is not None:
-        enc = _mapping(robot["encoder"], "robot.encoder", src)
-        _unknown(enc, ENCODER_KEYS, "robot.encoder", src)
-        if "ticks_per_rev" not in enc:
-            raise ConfigError("missing required value", src, "robot.encoder.ticks_per_rev")
-        e = {
-            "ticks_per_rev": _number(
-                enc["ticks_per_rev"], "robot.encoder.ticks_per_rev", src, positive=True
-            )
-        }
-        if "gear_ratio" in enc:
-            e["gear_ratio"] = _number(
-                enc["gear_ratio"], "robot.encoder.gear_ratio", src, positive=True
-            )
-        if enc.get("rollover") is not None:
-            r = _number(enc["rollover"], "robot.encoder.rollover", src, positive=True)
-            if r != int(r):
-                raise ConfigError(f"must be an integer, got {r!r}", src, "robot.encoder.rollover")
-            e["rollover"] = int(r)
-        if "columns" in enc:
-            cols = enc["columns"]
-            if not isinstance(cols, list) or not all(isinstance(c, str) for c in cols):
-                raise ConfigError("must be a list of column names", src, "robot.encoder.columns")
-            e["columns"] = list(cols)
-        out["encoder"] = e
+        out["encoder"] = from_mapping(EncoderOptions, robot["encoder"], "robot.encoder", src)
     _check_drive(drive, geometry, src)
     return out
 
@@ -246,28 +199,7 @@ def _check_drive(drive: str, geometry: dict, src: str) -> None:
         raise ConfigError(msg, src, f"robot.{hit[0]}" if hit else "robot.drive") from None
 
 
-def _validate_motion(v, src: str) -> dict:
-    motion = _mapping(v, "motion", src)
-    out = {}
-    for k, val in motion.items():
-        key = f"motion.{k}"
-        if k == "integrator":
-            val = _string(val, key, src)
-            if val not in INTEGRATORS:
-                raise ConfigError(f"must be one of {', '.join(INTEGRATORS)}, got '{val}'", src, key)
-        elif _MOTION_NUMBER_KEY.match(k):
-            val = (
-                _numbers(val, key, src, nonneg=True)
-                if isinstance(val, list | tuple)
-                else _number(val, key, src, nonneg=True)
-            )
-        else:
-            val = _scalarish(val, key, src)
-        out[k] = val
-    return out
-
-
-def _check_motion_against_drive(robot: dict, motion: dict, src: str) -> None:
+def _check_motion_against_drive(robot: dict, motion: MotionOptions, src: str) -> None:
     """``k_r``/``k_l`` need a left/right drive; a ``k`` list needs one entry per drive input."""
     from odofuse.drives import make_drive
 
@@ -275,7 +207,7 @@ def _check_motion_against_drive(robot: dict, motion: dict, src: str) -> None:
     drive = make_drive(robot["drive"], **geometry)
     names = tuple(drive.input_names)
     for key in ("k_r", "k_l"):
-        if key in motion and len(getattr(drive, "sides", ())) != len(names):
+        if getattr(motion, key) is not None and len(getattr(drive, "sides", ())) != len(names):
             raise ConfigError(
                 f"applies to left/right wheels; drive '{robot['drive']}' has "
                 f"inputs {', '.join(names)} (use k: [one per input])",
@@ -283,13 +215,14 @@ def _check_motion_against_drive(robot: dict, motion: dict, src: str) -> None:
                 f"motion.{key}",
             )
     for key in ("k", "var_floor"):
-        if isinstance(motion.get(key), list) and len(motion[key]) != len(names):
+        value = getattr(motion, key)
+        if isinstance(value, tuple) and len(value) != len(names):
             raise ConfigError(
-                f"needs one number per drive input ({', '.join(names)}), got {len(motion[key])}",
+                f"needs one number per drive input ({', '.join(names)}), got {len(value)}",
                 src,
                 f"motion.{key}",
             )
-    if "alphas" in motion:
+    if motion.alphas is not None:
         if not hasattr(drive, "quadratic_noise"):
             raise ConfigError(
                 f"Thrun's velocity-model alphas need the twist drive, not '{robot['drive']}'",
@@ -297,61 +230,9 @@ def _check_motion_against_drive(robot: dict, motion: dict, src: str) -> None:
                 "motion.alphas",
             )
         try:
-            drive.quadratic_noise(motion["alphas"])
+            drive.quadratic_noise(motion.alphas)
         except ConfigError as exc:
             raise ConfigError(str(exc).split(": ", 1)[-1], src, "motion.alphas") from None
-
-
-def _validate_initial(v, src: str) -> dict:
-    initial = _mapping(v, "initial", src)
-    _unknown(initial, INITIAL_KEYS, "initial", src)
-    out = {}
-    # pose omitted: the estimators start from the log's own initial pose (builtin datasets,
-    # pose graphs) or the origin.
-    if "pose" in initial and initial["pose"] is not None:
-        out["pose"] = _numbers(initial["pose"], "initial.pose", src, 3)
-    if "sigma" in initial and initial["sigma"] is not None:
-        out["sigma"] = _numbers(initial["sigma"], "initial.sigma", src, 3, nonneg=True)
-    return out
-
-
-def _validate_sensors(v, src: str) -> dict:
-    sensors = _mapping(v, "sensors", src)
-    out = {}
-    for name, block in sensors.items():
-        base = f"sensors.{name}"
-        if block is True:
-            block = {}
-        b = _mapping(block, base, src)
-        res = {}
-        for k, val in b.items():
-            key = f"{base}.{k}"
-            if _SENSOR_NUMBER_KEY.match(k):
-                if isinstance(val, list | tuple):
-                    val = _numbers(val, key, src)
-                else:
-                    val = _number(val, key, src, positive=k.startswith("sigma"))
-                if k == "gate" and not 0 < val < 1:
-                    raise ConfigError(
-                        f"a chi-square acceptance probability must be in (0, 1), got {val!r}",
-                        src,
-                        key,
-                    )
-                if k.startswith("sigma") and isinstance(val, list) and min(val) <= 0:
-                    raise ConfigError("must be positive", src, key)
-            else:
-                val = _scalarish(val, key, src)
-            res[k] = val
-        out[name] = res
-    return out
-
-
-def _validate_options(v, src: str) -> dict:
-    options = _mapping(v, "options", src)
-    return {
-        k: _scalarish(_mapping(b, f"options.{k}", src), f"options.{k}", src)
-        for k, b in options.items()
-    }
 
 
 def config_from_dict(
@@ -396,17 +277,17 @@ def config_from_dict(
     if "description" in top and top["description"] is not None:
         _string(top["description"], "description", src)
     robot = _validate_robot(top["robot"], src)
-    motion = _validate_motion(top.get("motion"), src)
+    motion = from_mapping(MotionOptions, top.get("motion"), "motion", src)
     _check_motion_against_drive(robot, motion, src)
     return RunConfig(
         log=log,
         robot=robot,
         motion=motion,
         estimator=estimator,
-        initial=_validate_initial(top.get("initial"), src),
-        sensors=_validate_sensors(top.get("sensors"), src),
+        initial=from_mapping(InitialOptions, top.get("initial"), "initial", src),
+        sensors=_mapping(top.get("sensors"), "sensors", src),
         output=output,
-        options=_validate_options(top.get("options"), src),
+        options=_mapping(top.get("options"), "options", src),
         source=src,
         log_options=log_options,
     )

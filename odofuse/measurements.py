@@ -27,9 +27,11 @@ is the head-to-tail composition of ``002_88fc37db58155723.txt`` and the rotation
 ``R(theta)`` of Siegwart & Nourbakhsh ch. 3 (``004_f4547100a083f338.txt``).
 
 User models are named in the sensor block as ``class: "package.module:Class"``; the class is
-called as ``Class(name=stream, **block)`` (plus ``landmarks=`` the map when it takes that
-keyword; ``class`` and ``gate`` are not passed) and must
-provide the attributes and methods of :class:`MeasurementModel`.
+called as ``Class(name=stream, **keys)`` (plus ``landmarks=`` the map when it takes that
+keyword; ``class``, ``gate`` and ``robust`` are not passed) and must provide the attributes
+and methods of :class:`MeasurementModel`. A class that declares its keys as a frozen dataclass
+``Options`` (fields made with :func:`odofuse.options.option`) gets them validated and
+default-filled; otherwise its keys are passed unchecked.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from odofuse.declarations import STREAM_DEFAULTS, PluginSensorOptions
 from odofuse.errors import ConfigError
 from odofuse.se2 import wrap
 
@@ -651,85 +654,9 @@ MODELS: dict[str, type] = {
     "range_bearing": LandmarkRangeBearing,
 }
 
-#: The model a stream gets when its block names neither ``model`` nor ``class``.
-STREAM_DEFAULTS: dict[str, str] = {
-    "gps": "gps",
-    "gyro": "gyro",
-    "compass": "compass",
-    "ranges": "range",
-    "bearings": "bearing",
-    "landmarks": "range_bearing",
-}
-
-# Sensor-block keys read by the estimators themselves (not model parameters).
-_ESTIMATOR_KEYS = ("gyrodometry", "threshold", "robust")  # read by estimators, not models
-
-# Config key -> model field, per model.
-_KEYS: dict[str, dict[str, str]] = {
-    "gps": {"sigma": "sigma", "lever_arm": "lever_arm", "datum": "datum"},
-    "gyro": {
-        "sigma": "sigma",
-        "calibrate": "calibrate",
-        "bias_sigma": "bias_sigma",
-        "bias_walk": "bias_walk",
-    },
-    "compass": {"sigma": "sigma", "calibrate": "calibrate", "offset_sigma": "offset_sigma"},
-    "range": {
-        "sigma": "sigma",
-        "calibrate": "calibrate",
-        "scale_sigma": "scale_sigma",
-        "offset_sigma": "offset_sigma",
-        "scale_walk": "scale_walk",
-        "offset_walk": "offset_walk",
-    },
-    "bearing": {"sigma": "sigma"},
-    "range_bearing": {"sigma": "sigma", "sigma_range": "sigma", "sigma_bearing": "sigma_bearing"},
-}
 _LANDMARK_MODELS = ("range", "bearing", "range_bearing")
-
-
-def _positive(value, key: str, source: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"expected a number, got {value!r}", source, key) from None
-    if not (math.isfinite(v) and v > 0.0):
-        raise ConfigError(f"must be a positive number, got {value!r}", source, key)
-    return v
-
-
-def _nonneg(value, key: str, source: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"expected a number, got {value!r}", source, key) from None
-    if not (math.isfinite(v) and v >= 0.0):
-        raise ConfigError(f"must be a non-negative number, got {value!r}", source, key)
-    return v
-
-
-def _vector(value, n: tuple[int, ...], key: str, source: str) -> tuple[float, ...]:
-    try:
-        v = tuple(float(a) for a in value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"expected a list of numbers, got {value!r}", source, key) from None
-    if len(v) not in n or not all(map(math.isfinite, v)):
-        raise ConfigError(
-            f"expected {' or '.join(map(str, n))} finite numbers, got {value!r}", source, key
-        )
-    return v
-
-
-def _gate(value, key: str, source: str) -> float | None:
-    if value is None or value is False:
-        return None
-    try:
-        g = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"expected a probability in (0, 1), got {value!r}", source, key) from None
-    if not 0.0 < g < 1.0:
-        raise ConfigError(f"expected a probability in (0, 1), got {value!r}", source, key)
-    return g
+# Sensor options that are not fields of the model (read by the estimators, or aliases).
+_NOT_MODEL_FIELDS = ("model", "robust", "gyrodometry", "threshold", "sigma_range")
 
 
 def _accepts(cls, name: str) -> bool:
@@ -743,78 +670,55 @@ def _accepts(cls, name: str) -> bool:
     return any(p.name == name or p.kind is p.VAR_KEYWORD for p in params)
 
 
-def _build_one(stream: str, block: Mapping, landmarks, source: str):
-    prefix = f"sensors.{stream}"
-    if not isinstance(block, Mapping):
-        raise ConfigError(f"expected a mapping, got {block!r}", source, prefix)
-    block = dict(block)
-    for k in _ESTIMATOR_KEYS:
-        block.pop(k, None)
-    gate = _gate(block.pop("gate", 0.999), f"{prefix}.gate", source)
-    if "class" in block:
-        spec = block.pop("class")
-        from odofuse.plugins import load_object
-
+def _build_plugin(stream: str, opts: PluginSensorOptions, landmarks, source: str):
+    prefix, spec, cls = f"sensors.{stream}", opts.spec, opts.cls
+    params = opts.params
+    kwargs = dict(
+        {f.name: getattr(params, f.name) for f in dataclasses.fields(params)}
+        if dataclasses.is_dataclass(params)
+        else params,
+        name=stream,
+    )
+    if _accepts(cls, "landmarks"):
+        kwargs["landmarks"] = landmarks
+    try:
+        model = cls(**kwargs)
+    except TypeError as exc:
+        raise ConfigError(f"cannot build {spec}: {exc}", source, f"{prefix}.class") from None
+    if hasattr(model, "gate") and dataclasses.is_dataclass(model):
         try:
-            cls = load_object(str(spec), f"measurement model of {prefix}")
-        except ConfigError as exc:
-            raise ConfigError(str(exc), source, f"{prefix}.class") from None
-        kwargs = dict(block, name=stream)
-        if _accepts(cls, "landmarks"):
-            kwargs["landmarks"] = landmarks
-        try:
-            model = cls(**kwargs)
-        except TypeError as exc:
-            raise ConfigError(f"cannot build {spec}: {exc}", source, f"{prefix}.class") from None
-        if hasattr(model, "gate") and dataclasses.is_dataclass(model):
-            try:
-                model = dataclasses.replace(model, gate=gate)
-            except (TypeError, ValueError):
-                pass
-        for attr in ("dim", "z", "h", "H", "R", "residual"):
-            if not hasattr(model, attr):
-                raise ConfigError(
-                    f"{spec} lacks '{attr}' of the MeasurementModel interface",
-                    source,
-                    f"{prefix}.class",
-                )
-        return model
-    kind = block.pop("model", STREAM_DEFAULTS.get(stream))
-    if kind not in MODELS:
-        raise ConfigError(
-            f"no measurement model for stream '{stream}'; set 'model' to one of "
-            f"{', '.join(MODELS)} or 'class' to 'package.module:Class'",
-            source,
-            f"{prefix}.model",
-        )
-    allowed = _KEYS[kind]
-    kwargs: dict = {"name": stream, "gate": gate}
-    for key, value in block.items():
-        k = f"{prefix}.{key}"
-        if key not in allowed:
+            model = dataclasses.replace(model, gate=opts.gate)
+        except (TypeError, ValueError):
+            pass
+    for attr in ("dim", "z", "h", "H", "R", "residual"):
+        if not hasattr(model, attr):
             raise ConfigError(
-                f"unknown key for a '{kind}' sensor; allowed: "
-                f"{', '.join(sorted(set(allowed) | {'gate', 'model', 'class'}))}",
+                f"{spec} lacks '{attr}' of the MeasurementModel interface",
                 source,
-                k,
+                f"{prefix}.class",
             )
-        fld = allowed[key]
-        if fld in ("sigma", "sigma_bearing", "bias_sigma", "scale_sigma", "offset_sigma"):
-            kwargs[fld] = _positive(value, k, source)
-        elif fld in ("bias_walk", "scale_walk", "offset_walk"):
-            kwargs[fld] = _nonneg(value, k, source)
-        elif fld == "calibrate":
-            if not isinstance(value, bool):
-                raise ConfigError(f"expected true or false, got {value!r}", source, k)
-            kwargs[fld] = value
-        elif fld == "lever_arm":
-            kwargs[fld] = _vector(value, (2,), k, source)
-        elif fld == "datum":
-            kwargs[fld] = _vector(value, (2, 3), k, source)
+    return model
+
+
+def _build_one(stream: str, opts, landmarks, source: str):
+    """The model of stream ``stream`` from its validated sensor options."""
+    if isinstance(opts, PluginSensorOptions):
+        return _build_plugin(stream, opts, landmarks, source)
+    kind = opts.kind
+    kwargs = {
+        f.name: getattr(opts, f.name)
+        for f in dataclasses.fields(opts)
+        if f.name not in _NOT_MODEL_FIELDS
+    }
+    if getattr(opts, "sigma_range", None) is not None:
+        kwargs["sigma"] = opts.sigma_range
+    kwargs["name"] = stream
     if kind in _LANDMARK_MODELS:
         if not landmarks:
             raise ConfigError(
-                f"a '{kind}' sensor needs a map (map.csv) of landmark positions", source, prefix
+                f"a '{kind}' sensor needs a map (map.csv) of landmark positions",
+                source,
+                f"sensors.{stream}",
             )
         kwargs["landmarks"] = {int(i): np.asarray(p, dtype=float) for i, p in landmarks.items()}
     return MODELS[kind](**kwargs)
@@ -826,11 +730,11 @@ def measurement_models(config, log=None) -> dict[str, MeasurementModel]:
     Parameters
     ----------
     config : RunConfig
-        ``sensors`` maps a stream name to its block: ``sigma``, ``gate`` (chi-square
-        probability, default 0.999; ``null`` disables), ``model`` (one of :data:`MODELS`,
-        default by stream name, :data:`STREAM_DEFAULTS`) or ``class: "package.module:Class"``,
-        and the model's own keys (``lever_arm``, ``datum``, ``calibrate``, ``sigma_bearing``,
-        ...). Keys used by the estimators (``gyrodometry``, ``threshold``) are skipped here.
+        ``sensors`` maps a stream name to its validated options
+        (:data:`odofuse.declarations.SENSOR_OPTIONS`, one class per model kind, chosen by the
+        block's ``model`` or the stream name, :data:`STREAM_DEFAULTS`; or a
+        ``class: "package.module:Class"`` plug-in). Keys used by the estimators
+        (``gyrodometry``, ``threshold``, ``robust``) are not passed to the models.
     log : SensorLog, optional
         Supplies the landmark map, and the first fix of a lat/lon GPS stream as its datum
         when the sensor block sets none.
@@ -848,12 +752,7 @@ def measurement_models(config, log=None) -> dict[str, MeasurementModel]:
     """
     source = getattr(config, "source", "<config>")
     landmarks = dict(getattr(log, "landmarks", {}) or {})
-    sensors = getattr(config, "sensors", {}) or {}
-    if not isinstance(sensors, Mapping):
-        raise ConfigError(
-            f"expected a mapping of stream -> block, got {sensors!r}", source, "sensors"
-        )
-    models = {str(s): _build_one(str(s), b or {}, landmarks, source) for s, b in sensors.items()}
+    models = {s: _build_one(s, b, landmarks, source) for s, b in config.sensors.items()}
     # A lat/lon GPS stream without a datum is expressed about its first fix (the usual default
     # of robot_localization's navsat_transform when no datum is set).
     streams = getattr(log, "streams", {}) or {}

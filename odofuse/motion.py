@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse import se2
-
-INTEGRATORS = ("euler", "rk2", "exact", "euler_end")
+from odofuse.declarations import INTEGRATORS, MotionOptions
+from odofuse.options import coerce
 
 
 def body_increment(twist, integrator: str = "exact", jacobian: bool = True):
@@ -385,40 +385,39 @@ def dead_reckon(model: MotionModel, pose0, P0, U, with_cov: bool = True):
     return poses, covs
 
 
-def error_model_from_config(drive, motion: dict) -> OdometryErrorModel:
-    """Build the error model from a config ``motion`` block.
+def error_model_from_config(drive, motion) -> OdometryErrorModel:
+    """Build the error model from the ``motion`` block (:class:`MotionOptions` or a mapping).
 
     Keys: ``k_r``/``k_l`` (differential and skid-steer: right/left wheel), or ``k`` (a number
-    for every wheel input, or a list per input), ``var_floor`` (a number or a list per input;
-    default 0), ``steer_sigma`` (rad, steering inputs; default 0.01), ``alphas`` (Thrun's
-    ``[a1, a2, a3, a4]`` on variances, for drives with ``quadratic_noise``: ``twist``).
-    ``k_l``/``k_r`` apply to every wheel of that side (``wheels_per_side``).
+    for every wheel input, or a list per input), ``var_floor`` (a number or a list per input),
+    ``steer_sigma`` (rad, steering inputs), ``alphas`` (Thrun's ``[a1, a2, a3, a4]`` on
+    variances, for drives with ``quadratic_noise``: ``twist``); defaults in
+    :class:`odofuse.declarations.MotionOptions`. ``k_l``/``k_r`` apply to every wheel of that
+    side (``wheels_per_side``).
     """
+    motion = coerce(MotionOptions, motion, "motion")
     names = tuple(drive.input_names)
     n = len(names)
     scale = np.asarray(drive.travel_scale(), dtype=float)
-    if "k" in motion:
-        k = np.broadcast_to(np.asarray(motion["k"], dtype=float), (n,)).copy()
-    else:
-        k = np.full(n, 1.0e-4)
-    if "k_r" in motion or "k_l" in motion:
+    k = np.broadcast_to(np.asarray(motion.k, dtype=float), (n,)).copy()
+    if motion.k_r is not None or motion.k_l is not None:
         sides = np.asarray(getattr(drive, "sides", ()))
         if sides.shape != (n,):
             raise ValueError(f"k_r/k_l apply to left/right wheels; this drive's inputs are {names}")
-        for side, key in (("left", "k_l"), ("right", "k_r")):
-            if key in motion:
-                k[sides == side] = float(motion[key])
-    floor = np.broadcast_to(np.asarray(motion.get("var_floor", 0.0), dtype=float), (n,)).copy()
-    steer_var = float(motion.get("steer_sigma", 0.01)) ** 2
+        for side, value in (("left", motion.k_l), ("right", motion.k_r)):
+            if value is not None:
+                k[sides == side] = float(value)
+    floor = np.broadcast_to(np.asarray(motion.var_floor, dtype=float), (n,)).copy()
+    steer_var = float(motion.steer_sigma) ** 2
     floor = np.where(scale > 0, floor, floor + steer_var)
     k = np.where(scale > 0, k, 0.0)
     quadratic = None
-    if "alphas" in motion:
+    if motion.alphas is not None:
         if not hasattr(drive, "quadratic_noise"):
             raise ValueError(
                 f"motion.alphas (Thrun's velocity model) needs the twist drive, not '{drive.name}'"
             )
-        quadratic = tuple(map(tuple, np.asarray(drive.quadratic_noise(motion["alphas"])).tolist()))
+        quadratic = tuple(map(tuple, np.asarray(drive.quadratic_noise(motion.alphas)).tolist()))
     return OdometryErrorModel(tuple(map(float, k)), tuple(map(float, floor)), quadratic)
 
 
@@ -473,10 +472,8 @@ def motion_model_from_config(config) -> MotionModel:
     robot = dict(config.robot)
     geometry = {k: v for k, v in robot.items() if k not in GEOMETRY_EXCLUDE}
     drive = make_drive(robot["drive"], **geometry)
-    motion = dict(config.motion or {})
-    return MotionModel(
-        drive, error_model_from_config(drive, motion), motion.get("integrator", "exact")
-    )
+    motion = config.motion
+    return MotionModel(drive, error_model_from_config(drive, motion), motion.integrator)
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ import pytest
 
 from odofuse import cli
 from odofuse.cli import COMMANDS, main
+from odofuse.options import to_mapping
 
 
 def square_log(folder, n=200, dt=0.1):
@@ -265,9 +266,10 @@ def test_export_then_run_matches_builtin(tmp_path, capsys):
     cfg = tmp_path / "p.yaml"
     pose = [0.0, 0.0, 4.222432]  # the dataset's published start (DRp row 0)
     cfg.write_text(
-        f"log: plaza1\nrobot: {{drive: increments}}\nmotion: {json.dumps(base.motion)}\n"
+        f"log: plaza1\nrobot: {{drive: increments}}\n"
+        f"motion: {json.dumps(to_mapping(base.motion))}\n"
         f"estimator: dead_reckoning\ninitial: {{pose: {pose}, sigma: "
-        f"{base.initial['sigma']}}}\noutput: out\n"
+        f"{list(base.initial.sigma)}}}\noutput: out\n"
     )
     assert main(["run", str(cfg)]) == 0
     assert main(["run", "--estimator", "dead_reckoning", "-o", str(tmp_path / "def")]) == 0

@@ -7,6 +7,13 @@ from pathlib import Path
 import pytest
 
 from odofuse.config import RunConfig, config_from_dict, load_config
+from odofuse.declarations import (
+    EkfOptions,
+    EncoderOptions,
+    GpsOptions,
+    InitialOptions,
+    MotionOptions,
+)
 from odofuse.errors import ConfigError
 
 GOOD = """\
@@ -48,13 +55,13 @@ def test_spec_example_loads(tmp_path):
     assert isinstance(c, RunConfig)
     assert Path(c.log) == p.parent / "../logs/square"  # relative to the config file
     assert Path(c.output) == p.parent / "out/square"
-    assert c.robot["encoder"] == {"ticks_per_rev": 979.2, "rollover": 65536}
+    assert c.robot["encoder"] == EncoderOptions(ticks_per_rev=979.2, rollover=65536)
     assert c.robot["track_width"] == 0.235
-    assert c.motion == {"integrator": "exact", "k_r": 1e-4, "k_l": 1e-4}
+    assert c.motion == MotionOptions(integrator="exact", k_r=1e-4, k_l=1e-4)
     assert c.estimator == "ekf"
-    assert c.initial == {"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.05]}
-    assert c.sensors["gps"] == {"sigma": 1.5, "gate": 0.999}
-    assert c.option_block() == {"late_window": 0.5}
+    assert c.initial == InitialOptions(pose=(0.0, 0.0, 0.0), sigma=(0.1, 0.1, 0.05))
+    assert c.sensors["gps"] == GpsOptions(model="gps", sigma=1.5, gate=0.999)
+    assert c.estimator_options() == EkfOptions(late_window=0.5)
     assert c.source == str(p)
 
 
@@ -141,7 +148,7 @@ def test_missing_file_is_oserror(tmp_path):
 def test_exponent_without_dot_is_a_number(tmp_path):
     # PyYAML's YAML 1.1 rules read "1e-4" as a string; we follow YAML 1.2.
     c = load_config(write(tmp_path, GOOD.replace("k_r: 1.0e-4", "k_r: 1e-4")))
-    assert c.motion["k_r"] == 1e-4
+    assert c.motion.k_r == 1e-4
     bad(tmp_path, GOOD.replace("k_r: 1.0e-4", "k_r: '1e-4'"), "motion.k_r", "number")
 
 

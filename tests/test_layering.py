@@ -44,7 +44,7 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
     # wheels.csv into drive inputs and by config to validate the geometry.
     ("robot", False, ("odofuse.drives", "odofuse.encoders")),
     ("io", False, ("odofuse.io",)),
-    ("config", False, ("odofuse.config",)),
+    ("config", False, ("odofuse.options", "odofuse.declarations", "odofuse.config")),
     ("models", False, ("odofuse.motion", "odofuse.measurements", "odofuse.frames")),
     ("estimators", False, ("odofuse.estimators",)),
     ("results", True, ("odofuse.evaluation", "odofuse.outputs", "odofuse.plotting")),

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from odofuse.declarations import DEFAULT_INITIAL_SIGMA  # noqa: F401 - re-exported
 from odofuse.errors import ConfigError, InputError
-
-DEFAULT_INITIAL_SIGMA = (0.1, 0.1, 0.05)
 
 
 def odometry_stream_name(model) -> str:
@@ -109,14 +108,14 @@ def _down_weight_side_outliers(log, model, U: np.ndarray) -> np.ndarray:
 
 def initial_state(config, log) -> tuple[np.ndarray, np.ndarray]:
     """Initial pose and covariance: ``config.initial`` or the log's own start pose, else 0."""
-    initial = dict(config.initial or {})
-    if "pose" in initial:
-        pose = np.asarray(initial["pose"], dtype=float)
+    initial = config.initial
+    if initial.pose is not None:
+        pose = np.asarray(initial.pose, dtype=float)
     elif log.initial_pose is not None:
         pose = np.asarray(log.initial_pose, dtype=float)
     else:
         pose = np.zeros(3)
-    sigma = np.asarray(initial.get("sigma", DEFAULT_INITIAL_SIGMA), dtype=float)
+    sigma = np.asarray(initial.sigma, dtype=float)
     if pose.shape != (3,) or sigma.shape != (3,) or not np.all(np.isfinite(np.r_[pose, sigma])):
         raise ConfigError(
             "initial.pose and initial.sigma must be 3 finite numbers",

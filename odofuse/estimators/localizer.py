@@ -47,21 +47,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse import se2
+from odofuse.declarations import DEFAULT_LATE_WINDOW
 from odofuse.errors import ConfigError, InputError
 from odofuse.trajectory import EstimateResult, Trajectory
-
-DEFAULT_LATE_WINDOW = 0.5  # s
-
-_OPTION_KEYS = (
-    "late_window",
-    "particles",
-    "seed",
-    "alpha",
-    "beta",
-    "kappa",
-    "resample_threshold",
-    "roughening",
-)
 
 
 @dataclass(frozen=True)
@@ -461,43 +449,17 @@ class Localizer:
 
 
 # --------------------------------------------------------------------- building from config
-def _float_option(opts, key, default, source, estimator, minimum=0.0):
-    value = opts.get(key, default)
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(
-            f"expected a number, got {value!r}", source, f"options.{estimator}.{key}"
-        ) from None
-    if not (math.isfinite(v) and v >= minimum):
-        raise ConfigError(
-            f"must be a finite number >= {minimum}, got {value!r}",
-            source,
-            f"options.{estimator}.{key}",
-        )
-    return v
-
-
 def _gyrodometry(config):
-    block = (config.sensors or {}).get("gyro")
-    if not isinstance(block, Mapping) or not block.get("gyrodometry", False):
+    opts = config.sensors.get("gyro")
+    if not getattr(opts, "gyrodometry", False):
         return None
-    if "threshold" not in block:
+    if opts.threshold is None:
         raise ConfigError(
             "gyrodometry needs a 'threshold' (rad per odometry step)",
             config.source,
             "sensors.gyro.threshold",
         )
-    thr = block["threshold"]
-    try:
-        thr = float(thr)
-    except (TypeError, ValueError):
-        raise ConfigError(
-            f"expected a number, got {thr!r}", config.source, "sensors.gyro.threshold"
-        ) from None
-    if not thr >= 0.0:
-        raise ConfigError("must be >= 0", config.source, "sensors.gyro.threshold")
-    return ("gyro", thr)
+    return ("gyro", opts.threshold)
 
 
 def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Localizer:
@@ -510,7 +472,8 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
     Parameters
     ----------
     make_backend : callable
-        ``make_backend(motion_model, models, x0, P0, walk, options) -> backend``.
+        ``make_backend(motion_model, models, x0, P0, walk, options) -> backend``; ``options``
+        is the estimator's typed options (``config.estimator_options(estimator)``).
     """
     from types import SimpleNamespace
 
@@ -520,14 +483,7 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
 
     if log is None:
         log = SimpleNamespace(landmarks={}, initial_pose=None, streams={})
-    opts = config.option_block(estimator)
-    for key in opts:
-        if key not in _OPTION_KEYS:
-            raise ConfigError(
-                f"unknown option; allowed: {', '.join(sorted(_OPTION_KEYS))}",
-                config.source,
-                f"options.{estimator}.{key}",
-            )
+    opts = config.estimator_options(estimator)
     motion = motion_model_from_config(config)
     pose0, P0 = initial_state(config, log)
     models = measurement_models(config, log)
@@ -538,7 +494,7 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
     filt = {s: (m.bind(index) if hasattr(m, "bind") else m) for s, m in filt.items()}
     x0, Pa, walk = augmented_prior(filt, names, pose0, P0)
     backend = make_backend(motion, filt, x0, Pa, walk, opts)
-    late = _float_option(opts, "late_window", DEFAULT_LATE_WINDOW, config.source, estimator)
+    late = opts.late_window
     if gyro is not None:
         gyro = (gyro[0], gyro[1], float(getattr(models["gyro"], "sigma", 0.0)))
     return Localizer(backend, filt, float(t0), late, gyro, estimator, motion)
@@ -597,6 +553,6 @@ def feed(loc: Localizer, log, t, U, streams) -> Localizer:
 def run_with(log, config, estimator: str, make_backend) -> EstimateResult:
     """Offline run: a thin wrapper that feeds the whole log to a :class:`Localizer`."""
     loc, t, U = build(config, log, estimator, make_backend)
-    streams = [s for s in (config.sensors or {}) if s in log.streams]
+    streams = [s for s in config.sensors if s in log.streams]
     feed(loc, log, t, U, streams)
     return loc.result()

@@ -28,8 +28,10 @@ import math
 
 import numpy as np
 
+from odofuse.declarations import ParticleOptions
 from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
+from odofuse.options import coerce
 from odofuse.se2 import wrap
 
 
@@ -66,22 +68,18 @@ class ParticleBackend:
         Gaussian prior the particles are drawn from.
     walk : ndarray (n,)
         Random-walk variance per second of each state.
-    options : dict
-        ``particles`` (default 1000), ``seed`` (0), ``resample_threshold`` (0.5),
-        ``roughening`` (0.1, the Liu-West kernel width ``h``, in (0, 1)).
+    options : ParticleOptions or dict, optional
+        ``particles``, ``seed``, ``resample_threshold``, ``roughening`` (the Liu-West kernel
+        width ``h``); a mapping is validated into :class:`ParticleOptions`.
     """
 
     def __init__(self, model, models, x0, P0, walk, options=None) -> None:
-        options = dict(options or {})
+        options = coerce(ParticleOptions, options, "options.particle")
         self.model = model
-        self.N = int(options.get("particles", 1000))
-        if self.N < 1:
-            raise ValueError(f"particles must be >= 1, got {self.N}")
-        self.rng = np.random.default_rng(int(options.get("seed", 0)))
-        self.resample_threshold = float(options.get("resample_threshold", 0.5))
-        self.roughening = float(options.get("roughening", 0.1))
-        if not 0.0 <= self.roughening < 1.0:
-            raise ValueError(f"roughening must be in [0, 1), got {self.roughening}")
+        self.N = options.particles
+        self.rng = np.random.default_rng(options.seed)
+        self.resample_threshold = options.resample_threshold
+        self.roughening = options.roughening
         x0 = np.asarray(x0, dtype=float)
         self.n = x0.size
         self.walk = np.asarray(walk, dtype=float)

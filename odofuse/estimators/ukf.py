@@ -20,9 +20,11 @@ import math
 
 import numpy as np
 
+from odofuse.declarations import UkfOptions
 from odofuse.estimators.ekf import FastIncrement
 from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
+from odofuse.options import coerce
 from odofuse.se2 import wrap
 
 
@@ -50,15 +52,15 @@ class UkfBackend:
     x0, P0 : ndarray (n,), (n, n)
     walk : ndarray (n,)
         Random-walk variance per second of each state.
-    options : dict
-        ``alpha`` (default 0.5), ``beta`` (2), ``kappa`` (0) of Van der Merwe's scaled
-        sigma points.
+    options : UkfOptions or dict, optional
+        ``alpha``, ``beta``, ``kappa`` of Van der Merwe's scaled sigma points; a mapping is
+        validated into :class:`UkfOptions`.
     """
 
     def __init__(self, model, models, x0, P0, walk, options=None) -> None:
         from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-        options = dict(options or {})
+        options = coerce(UkfOptions, options, "options.ukf")
         n = len(x0)
         self.model = model
         self.n = n
@@ -72,9 +74,9 @@ class UkfBackend:
         self.angles = np.array(sorted(set(angles)))
         points = MerweScaledSigmaPoints(
             n,
-            alpha=float(options.get("alpha", 0.5)),
-            beta=float(options.get("beta", 2.0)),
-            kappa=float(options.get("kappa", 0.0)),
+            alpha=options.alpha,
+            beta=options.beta,
+            kappa=options.kappa,
             subtract=self.residual_x,
             sqrt_method=_psd_sqrt,
         )

@@ -144,6 +144,8 @@ def load_log_for(config) -> SensorLog:
     robot = dict(config.robot or {})
     options = config.log_options or {}
     encoder = robot.get("encoder")
+    if encoder is not None:  # the typed robot.encoder block as the mapping the readers take
+        encoder = {**dataclasses.asdict(encoder), "columns": list(encoder.columns or [])}
     velocity = options.get("wheel_inputs") == "velocity"
     cols = None
     if (encoder and not encoder.get("columns")) or velocity:

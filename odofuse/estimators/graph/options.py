@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from odofuse.declarations import ROBUST_DEFAULT_K, ROBUST_KINDS  # noqa: F401 - re-exported
+from odofuse.declarations import robust_loss as _robust_entry
 from odofuse.errors import ConfigError
 
 #: Option keys accepted in ``options.<smoother|isam2|fixed_lag>``.
@@ -34,9 +36,6 @@ OPTION_KEYS = (
     "odometry_calibration",
     "calibration_freeze",
 )
-ROBUST_KINDS = ("none", "huber", "cauchy", "tukey")
-#: Default tuning constants (95 % asymptotic efficiency on Gaussian data; in units of sigma).
-ROBUST_DEFAULT_K = {"huber": 1.345, "cauchy": 2.3849, "tukey": 4.6851}
 
 
 @dataclass(frozen=True)
@@ -111,38 +110,6 @@ def _bool_option(value, key, source) -> bool:
     if not isinstance(value, bool):
         raise ConfigError(f"expected true or false, got {value!r}", file=source, key=key)
     return value
-
-
-def _robust_entry(value, key, source) -> tuple[str, float]:
-    if isinstance(value, str) or value is None:
-        kind, k = ("none" if value is None else value), None
-    elif isinstance(value, dict):
-        unknown = set(value) - {"type", "k"}
-        if unknown:
-            raise ConfigError(
-                f"unknown key(s) {', '.join(sorted(unknown))}; use type and k",
-                file=source,
-                key=f"{key}.{sorted(unknown)[0]}",
-            )
-        kind, k = value.get("type", "huber"), value.get("k")
-    else:
-        raise ConfigError(
-            f"expected a loss name or {{type, k}}, got {value!r}", file=source, key=key
-        )
-    if kind not in ROBUST_KINDS:
-        raise ConfigError(
-            f"unknown robust loss {kind!r}; use one of {', '.join(ROBUST_KINDS)}",
-            file=source,
-            key=key,
-        )
-    if kind == "none":
-        return ("none", 0.0)
-    if k is None:
-        return (kind, ROBUST_DEFAULT_K[kind])
-    kv = nonneg_option(k, f"{key}.k", source)
-    if kv == 0.0:
-        raise ConfigError("robust threshold k must be positive", file=source, key=f"{key}.k")
-    return (kind, kv)
 
 
 def _freeze_option(value, key, source, estimator) -> dict:
@@ -221,13 +188,11 @@ def parse_options(config, estimator: str) -> GraphOptions:
         For an unknown key or a bad value, naming ``options.<estimator>.<key>`` and the file.
     """
     source = getattr(config, "source", "<config>")
-    block = config.option_block(estimator)
+    block = dict(config.estimator_options(estimator).values)
     prefix = f"options.{estimator}"
     kw: dict = {}
     per_sensor = {
-        s: _robust_entry(b["robust"], f"sensors.{s}.robust", source)
-        for s, b in (getattr(config, "sensors", {}) or {}).items()
-        if isinstance(b, dict) and "robust" in b
+        s: b.robust for s, b in config.sensors.items() if getattr(b, "robust", None) is not None
     }
     for key, value in block.items():
         k = f"{prefix}.{key}"
