@@ -269,7 +269,7 @@ def local_client(workers: int | None = None, memory_limit: int | str | None = No
             processes=True,
             memory_limit=memory_limit,
             host="127.0.0.1",
-            dashboard_address=None,
+            dashboard_address="127.0.0.1:0",
             silence_logs=logging.ERROR,
         )
     return Client(cluster)
@@ -391,6 +391,7 @@ def run_batch(
             cluster = client.cluster
             client.close()
             cluster.close()
+    clean_stale(root)  # what a worker killed mid-log left behind; its log ran again elsewhere
     summary = BatchSummary(records)
     write_summary(root, summary)
     return summary
