@@ -114,7 +114,7 @@ def test_batch_equals_run_to_the_last_digit(logs, client, tmp_path):
 def test_bad_log_is_one_failed_row(logs, client, tmp_path, capsys):
     out = tmp_path / "out"
     specs = [logs["good"][2], logs["bad"], tmp_path / "missing"]
-    code = main(["batch", str(logs["config"]), *map(str, specs), "-o", str(out), "--workers", "2"])
+    code = main(["batch", str(logs["config"]), *map(str, specs), "-o", str(out), "--workers", "1"])
     assert code == 1
     rows = json.loads((out / "summary.json").read_text(encoding="utf-8"))
     assert [r["status"] for r in rows] == ["ok", "failed", "failed"]
@@ -206,9 +206,10 @@ class DaskProcesses:
                 p.wait(timeout=10)
 
 
-@pytest.fixture
-def dask_processes(tmp_path):
-    procs = DaskProcesses(2, tmp_path)
+@pytest.fixture(scope="module")
+def dask_processes(tmp_path_factory):
+    """Shared by the two tests below; the second one kills a worker, so it runs last."""
+    procs = DaskProcesses(2, tmp_path_factory.mktemp("dask"))
     yield procs
     procs.close()
 
