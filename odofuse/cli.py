@@ -85,22 +85,6 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimator", help="override the config's estimator")
 
 
-def run_one(config, log, out_dir: Path) -> dict:
-    """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics."""
-    from odofuse.estimators import run_estimator
-    from odofuse.evaluation import metrics
-    from odofuse.rundir import write_outputs
-
-    t0 = time.perf_counter()
-    result = run_estimator(config.estimator, log, config)
-    runtime = time.perf_counter() - t0
-    m = metrics(result, log, runtime)
-    m["log"] = config.log
-    m["config"] = config.source
-    write_outputs(out_dir, result, m, log)
-    return m
-
-
 def _fmt(v) -> str:
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.3f}"
 
@@ -135,6 +119,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     """Run an estimator on a log (or compare the default estimators on Plaza1)."""
     from odofuse.config import load_config
     from odofuse.io.loader import load_log_for
+    from odofuse.rundir import run_one
 
     if args.config:
         config = load_config(args.config)
@@ -172,6 +157,51 @@ def cmd_run(args: argparse.Namespace) -> int:
     print_table(rows)
     print(f"outputs in {out}/<estimator>/")
     return 1 if failed else 0
+
+
+# ------------------------------------------------------------------------------------- batch
+def _batch_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", help="run config (YAML); its log: is replaced by each LOG")
+    p.add_argument("logs", nargs="+", metavar="LOG", help="log folders, bags, graph files, globs")
+    p.add_argument("-o", "--out", required=True, help="output folder (OUT/<log name>/, summary)")
+    p.add_argument("--workers", type=int, help="local Dask workers (default: the cores)")
+    p.add_argument("--scheduler", help="address of a running Dask scheduler (tcp://HOST:PORT)")
+    p.add_argument("--estimator", help="override the config's estimator")
+    p.add_argument("--force", action="store_true", help="redo logs whose outputs exist")
+    p.add_argument("--split", help="cut each log into windows of DURATION (600s, 30m, 4h)")
+    p.add_argument("--overlap", help="overlap of the --split windows (default 10%% of DURATION)")
+
+
+@command("batch", _batch_args)
+def cmd_batch(args: argparse.Namespace) -> int:
+    """Run one config over many logs on Dask (local cluster or --scheduler), with a summary."""
+    from odofuse.batch import parse_duration, print_summary, run_batch
+
+    started = time.perf_counter()
+    split = parse_duration(args.split) if args.split else None
+    overlap = parse_duration(args.overlap) if args.overlap else None
+    client = None
+    if args.scheduler:
+        from distributed import Client
+
+        client = Client(args.scheduler, timeout="30s")
+    try:
+        records = run_batch(
+            args.config,
+            args.logs,
+            args.out,
+            client,
+            workers=args.workers,
+            estimator=args.estimator,
+            force=args.force,
+            split=split,
+            overlap=overlap,
+        )
+    finally:
+        if client is not None:
+            client.close()
+    print_summary(records, Path(args.out), started=started)
+    return 1 if records.failed else 0
 
 
 # ------------------------------------------------------------------------------------ export

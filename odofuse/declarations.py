@@ -520,7 +520,7 @@ def doc_tables() -> dict[str, str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m odofuse.declarations --write-docs [--check]``: regenerate the docs' option tables."""
+    """``python -m odofuse.declarations --write-docs [--check]``: regenerate docs tables."""
     import argparse
     from pathlib import Path
 

@@ -86,14 +86,14 @@ def _json_default(obj):
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
-def _clean(obj):
+def json_ready(obj):
     """Replace non-finite floats with None so that metrics.json is strict JSON."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): json_ready(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
+        return [json_ready(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
+        return json_ready(obj.tolist())
     if isinstance(obj, np.generic):
         obj = obj.item()
     if isinstance(obj, float) and not math.isfinite(obj):
@@ -103,7 +103,7 @@ def _clean(obj):
 
 def write_metrics(path: str | Path, metrics: dict) -> Path:
     """Write ``metrics.json`` atomically (sorted keys, non-finite numbers as ``null``)."""
-    text = json.dumps(_clean(metrics), indent=2, sort_keys=True, default=_json_default)
+    text = json.dumps(json_ready(metrics), indent=2, sort_keys=True, default=_json_default)
     return atomic_write_text(path, text + "\n")
 
 

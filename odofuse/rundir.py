@@ -1,4 +1,7 @@
-"""The output folder of one run: the four files of spec section 3, written all or nothing.
+"""One run and its output folder: the four files of spec section 3, written all or nothing.
+
+:func:`run_one` is the single path from a config and a log to a finished run folder, shared by
+``odofuse run`` and ``odofuse batch`` so that both give the same result to the last digit.
 
 It combines the file writers of :mod:`odofuse.outputs` with the picture of
 :mod:`odofuse.plotting` (which do not know each other); ``metrics.json`` comes last and marks a
@@ -7,6 +10,7 @@ complete run.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from odofuse.outputs import write_metrics, write_trajectory_csv, write_tum
@@ -61,3 +65,23 @@ def write_outputs(
             Path(p).unlink(missing_ok=True)
         raise
     return written
+
+
+def run_one(config, log, out_dir: Path) -> dict:
+    """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics."""
+    from odofuse.estimators import run_estimator
+
+    t0 = time.perf_counter()
+    result = run_estimator(config.estimator, log, config)
+    return finish_run(config, log, result, time.perf_counter() - t0, out_dir)
+
+
+def finish_run(config, log, result, runtime: float, out_dir: Path) -> dict:
+    """Metrics of ``result`` on ``log`` and the run's outputs in ``out_dir``; returns metrics."""
+    from odofuse.evaluation import metrics
+
+    m = metrics(result, log, runtime)
+    m["log"] = config.log
+    m["config"] = config.source
+    write_outputs(out_dir, result, m, log)
+    return m

@@ -49,6 +49,7 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
     ("estimators", False, ("odofuse.estimators",)),
     ("results", True, ("odofuse.evaluation", "odofuse.outputs", "odofuse.plotting")),
     ("run folder", False, ("odofuse.rundir",)),
+    ("fleet", False, ("odofuse.batch",)),
     ("command line", False, ("odofuse.cli", "odofuse.__main__")),
     # May import anything; imported only by itself and by odofuse.cli (see TEACHING_USERS).
     ("teaching", False, ("odofuse.teaching",)),

@@ -48,6 +48,11 @@ class Stream:
             msg = f"{self.source}: stream '{self.name}' has no column '{column}'"
             raise KeyError(msg) from None
 
+    def between(self, t_start: float, t_end: float) -> Stream:
+        """The rows with ``t_start <= t <= t_end`` (s), as a new stream."""
+        keep = (self.t >= t_start) & (self.t <= t_end)
+        return Stream(self.name, self.source, self.t[keep], self.columns, self.values[keep])
+
     def row(self, i: int) -> dict[str, float]:
         """Row ``i`` as ``{"t": ..., column: value, ...}``."""
         out = {"t": float(self.t[i])}
@@ -73,6 +78,24 @@ class SensorLog:
 
     def has(self, name: str) -> bool:
         return name in self.streams and len(self.streams[name]) > 0
+
+    def window(self, t_start: float, t_end: float) -> SensorLog:
+        """The rows of every stream (and of ground truth) with ``t_start <= t <= t_end`` (s).
+
+        The map and the repair counts are the whole log's; ``initial_pose`` is kept only when
+        the window starts at or before the log's first row (it is the pose of the log's start).
+        Cumulative streams (``wheels.csv``) stay cumulative: the window's first row is the
+        start of its first step.
+        """
+        first = min((float(s.t[0]) for s in self.streams.values() if len(s)), default=t_start)
+        return SensorLog(
+            self.source,
+            {name: s.between(t_start, t_end) for name, s in self.streams.items()},
+            dict(self.landmarks),
+            None if self.groundtruth is None else self.groundtruth.between(t_start, t_end),
+            dict(self.repairs),
+            self.initial_pose if t_start <= first else None,
+        )
 
 
 def time_ordered(

@@ -1,0 +1,149 @@
+"""What the whole-log and the split paths of ``odofuse batch`` share: the summary records,
+the per-log output folders (complete, temporary, published atomically) and gathering results
+from the cluster with a progress bar.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+import uuid
+from pathlib import Path
+
+#: Columns of ``summary.csv`` (and keys of each record), in order.
+SUMMARY_COLUMNS = (
+    "log",
+    "name",
+    "status",
+    "warnings",
+    "poses",
+    "runtime_s",
+    "ate_rmse_m",
+    "final_error_m",
+    "resumed",
+    "error",
+)
+#: Files that make a log's output folder complete (metrics.json is written last).
+COMPLETE_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json")
+#: Times the scheduler reschedules a log whose worker died while running it.
+DEFAULT_RETRIES = 3
+_TMP_MARK = ".tmp-"
+_OLD_MARK = ".old-"
+
+
+# ------------------------------------------------------------------------------- the records
+class BatchSummary(list):
+    """The summary of a batch: a list of plain dict records, one per log (SUMMARY_COLUMNS)."""
+
+    def to_pandas(self):
+        """The records as a :class:`pandas.DataFrame` (needs pandas, not a dependency)."""
+        import pandas as pd
+
+        return pd.DataFrame(list(self), columns=list(SUMMARY_COLUMNS))
+
+    @property
+    def failed(self) -> list[dict]:
+        """The records of the logs that did not run."""
+        return [r for r in self if r["status"] == "failed"]
+
+
+def one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
+
+
+def record(spec: str, name: str, metrics: dict | None, *, resumed=False, error=None) -> dict:
+    if metrics is None:
+        return {
+            **dict.fromkeys(SUMMARY_COLUMNS),
+            "log": spec,
+            "name": name,
+            "status": "failed",
+            "resumed": False,
+            "error": error,
+        }
+    warnings = metrics.get("warnings") or []
+    return {
+        "log": spec,
+        "name": name,
+        "status": metrics.get("status", "ok"),
+        "warnings": len(warnings) if isinstance(warnings, list) else int(warnings),
+        "poses": metrics.get("poses"),
+        "runtime_s": metrics.get("runtime_s"),
+        "ate_rmse_m": metrics.get("ate_rmse_m"),
+        "final_error_m": metrics.get("final_error_m"),
+        "resumed": resumed,
+        "error": None,
+    }
+
+
+def is_complete(folder: Path) -> bool:
+    """Whether ``folder`` holds a complete run (its COMPLETE_FILES, metrics.json readable)."""
+    if not all((folder / f).is_file() for f in COMPLETE_FILES):
+        return False
+    try:
+        json.loads((folder / "metrics.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return True
+
+
+def clean_stale(out: Path) -> list[Path]:
+    """Remove temporary folders that a killed batch left in ``out``; returns them."""
+    removed = []
+    if out.is_dir():
+        for p in out.iterdir():
+            if p.name.startswith(".") and (_TMP_MARK in p.name or _OLD_MARK in p.name):
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+    return removed
+
+
+def publish(tmp: Path, final: Path) -> None:
+    """Rename the complete folder ``tmp`` to ``final``, replacing an earlier run's folder.
+
+    An earlier ``final`` is first renamed aside (``.<name>.old-<id>``) and removed after; at
+    every instant ``final`` is either absent, the old complete run or the new one.
+    """
+    old = None
+    if final.exists():
+        old = final.with_name(f".{final.name}{_OLD_MARK}{uuid.uuid4().hex[:8]}")
+        os.replace(final, old)
+    os.replace(tmp, final)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def temp_folder(out: Path, name: str) -> Path:
+    """A fresh temporary folder for log ``name`` inside ``out`` (same file system)."""
+    tmp = out / f".{name}{_TMP_MARK}{uuid.uuid4().hex[:8]}"
+    tmp.mkdir(parents=True)
+    return tmp
+
+
+def _progress(total: int, desc: str, show: bool | None):
+    from tqdm import tqdm
+
+    on = sys.stderr.isatty() if show is None else show
+    return tqdm(total=total, desc=desc, unit="log", file=sys.stderr, disable=not on)
+
+
+def gather_records(client, futures, order: dict, desc: str, show: bool | None) -> list:
+    """Results of ``futures`` as they complete (progress bar); a lost task is a failed value.
+
+    ``order`` maps a future's key to ``(index, spec, name)``; the list is in index order.
+    """
+    from distributed import as_completed
+
+    out: list = [None] * len(order)
+    with _progress(len(futures), desc, show) as bar:
+        for fut in as_completed(futures):
+            i, spec, name = order[fut.key]
+            try:
+                out[i] = fut.result()
+            except Exception as exc:  # e.g. KilledWorker after every retry
+                out[i] = record(spec, name, None, error=one_line(exc))
+            bar.update(1)
+    return out
