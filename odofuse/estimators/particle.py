@@ -33,8 +33,8 @@ Against collapse (issue 10):
   the change since a cloned state (the gyro rate) would leave fewer than ``min_ess * N``
   effective particles (a precise gyro, whose rate noise is far below the cloud's heading
   spread over one sample interval, does this on every sample, and would force a resampling
-  at every step) the measurement is assimilated by *moving* the particles with the ensemble Kalman update with
-  perturbed observations (Evensen 1994): ``x_i += K (z + v_i - h(x_i))``, ``v_i ~ N(0, R)``,
+  at every step) the measurement is assimilated by *moving* the particles with the
+  ensemble Kalman update with perturbed observations (Evensen 1994): ``x_i += K (z + v_i - h(x_i))``, ``v_i ~ N(0, R)``,
   ``K = C_xz S^-1`` from the cloud, weights unchanged. For a linear model such as the gyro
   rate this is the exact Bayes update of a Gaussian cloud; the cloud keeps its spread instead
   of degenerating onto a few particles.
