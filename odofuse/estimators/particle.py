@@ -34,8 +34,9 @@ Against collapse (issue 10):
   effective particles (a precise gyro, whose rate noise is far below the cloud's heading
   spread over one sample interval, does this on every sample, and would force a resampling
   at every step) the measurement is assimilated by *moving* the particles with the
-  ensemble Kalman update with perturbed observations (Evensen 1994): ``x_i += K (z + v_i - h(x_i))``, ``v_i ~ N(0, R)``,
-  ``K = C_xz S^-1`` from the cloud, weights unchanged. For a linear model such as the gyro
+  ensemble Kalman update with perturbed observations (Evensen 1994):
+  ``x_i += K (z + v_i - h(x_i))``, ``v_i ~ N(0, R)``, ``K = C_xz S^-1`` from the cloud,
+  weights unchanged. For a linear model such as the gyro
   rate this is the exact Bayes update of a Gaussian cloud; the cloud keeps its spread instead
   of degenerating onto a few particles.
 * **Recovery**: :meth:`ParticleBackend.inflate` spreads the pose about its mean.
