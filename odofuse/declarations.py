@@ -383,7 +383,23 @@ def _plugin_sensor(stream: str, block: dict, source: str) -> PluginSensorOptions
 # ---------------------------------------------------------------------------- estimators
 @dataclass(frozen=True)
 class DeadReckoningOptions:
-    """``options.dead_reckoning``: none (the motion block says everything)."""
+    """``options.dead_reckoning``: the gyro-vs-wheels heading check (when a gyro is logged)."""
+
+    heading_window: float = option(
+        1.0,
+        unit="s",
+        doc="window over which gyro and wheel heading changes are compared",
+        **_POSITIVE,
+    )
+    heading_alpha: float = option(
+        1e-3,
+        unit="-",
+        doc="false-alarm probability of the disagreement test over the run",
+        **_POSITIVE,
+    )
+    bias_sigma: float = option(
+        0.01, unit="rad/s", doc="prior sigma of an unmodelled gyro bias in that test", **_NONNEG
+    )
 
 
 @dataclass(frozen=True)
@@ -395,6 +411,57 @@ class FilterOptions:
         unit="s",
         doc="measurements up to this late are replayed, older dropped",
         **_NONNEG,
+    )
+    nis_window: int = option(
+        20,
+        unit="readings",
+        doc="sliding window of one sensor's readings for the NIS band check",
+        minimum=2,
+    )
+    nis_alpha: float = option(
+        1e-3,
+        unit="-",
+        doc="false-alarm probability of the NIS band over the run (Bonferroni)",
+        **_POSITIVE,
+    )
+    reject_run: int = option(
+        5,
+        unit="readings",
+        doc="consecutive rejections of one stream that mean divergence",
+        minimum=1,
+    )
+    recovery: bool = option(
+        True, unit="-", doc="re-open (inflate the pose covariance) when a stream shows divergence"
+    )
+    max_inflation: float = option(
+        1e6, unit="-", doc="largest pose covariance inflation of one recovery", minimum=1
+    )
+    max_condition: float = option(
+        1e10, unit="-", doc="largest condition number of the pose correlation matrix", minimum=1
+    )
+    growth_factor: float = option(
+        100.0,
+        unit="-",
+        doc="growth of the position sigma over its running minimum reported",
+        minimum=1,
+    )
+    calib_sigmas: float = option(
+        5.0,
+        unit="sigma",
+        doc="distance from its prior of a calibration at its bound",
+        **_POSITIVE,
+    )
+    slip: bool = option(
+        True, unit="-", doc="robust odometry: widen a step's input noise when the gyro disagrees"
+    )
+    slip_gate: float = option(
+        0.999,
+        unit="-",
+        doc="chi-square probability of the per-step gyro-wheel disagreement",
+        minimum=0,
+        maximum=1,
+        exclusive_minimum=True,
+        exclusive_maximum=True,
     )
 
 
@@ -432,6 +499,22 @@ class ParticleOptions(FilterOptions):
         minimum=0,
         maximum=1,
         exclusive_maximum=True,
+    )
+    regularise: bool = option(
+        True, unit="-", doc="regularised resampling: kernel jitter of the pose after resampling"
+    )
+    bandwidth_scale: float = option(
+        1.0,
+        unit="-",
+        doc="multiplier of Silverman's kernel bandwidth for the pose jitter",
+        **_NONNEG,
+    )
+    min_ess: float = option(
+        0.1,
+        unit="-",
+        doc="a gyro update keeping fewer effective particles moves them instead",
+        minimum=0,
+        maximum=1,
     )
 
 

@@ -97,13 +97,36 @@ def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
     return np.column_stack([xy, th])
 
 
+#: Ground truth is not interpolated across a gap longer than this many median intervals.
+MAX_GAP_INTERVALS = 5.0
+
+
+def covered(est_t, gt_t, max_gap_intervals: float = MAX_GAP_INTERVALS) -> np.ndarray:
+    """Mask (M,) of estimate times the ground truth covers without interpolating over a gap.
+
+    A time is covered when it lies inside the ground truth's span and its two neighbouring
+    ground-truth samples are at most ``max_gap_intervals`` median sampling intervals apart
+    (or it coincides with a sample).
+    """
+    est_t, gt_t = np.asarray(est_t, dtype=float), np.asarray(gt_t, dtype=float)
+    tol = 1e-9 * max(1.0, abs(float(gt_t[-1])))
+    inside = (est_t >= gt_t[0] - tol) & (est_t <= gt_t[-1] + tol)
+    if gt_t.size < 2:
+        return inside
+    dt = np.diff(gt_t)
+    pos = dt[dt > 0]
+    limit = max_gap_intervals * (float(np.median(pos)) if pos.size else 0.0)
+    k = np.clip(np.searchsorted(gt_t, est_t, side="right") - 1, 0, gt_t.size - 2)
+    on_sample = (np.abs(est_t - gt_t[k]) <= tol) | (np.abs(est_t - gt_t[k + 1]) <= tol)
+    return inside & ((dt[k] <= limit) | on_sample)
+
+
 def associate(est: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of estimate poses inside the ground-truth time span and the interpolated truth.
+    """Indices of estimate poses the ground truth covers (:func:`covered`) and the truth there.
 
     Returns ``(idx (M,), gt_poses (M, 3))``; raises ``InputError`` when they do not overlap.
     """
-    tol = 1e-9 * max(1.0, abs(float(gt.t[-1])))
-    idx = np.flatnonzero((est.t >= gt.t[0] - tol) & (est.t <= gt.t[-1] + tol))
+    idx = np.flatnonzero(covered(est.t, gt.t))
     if idx.size == 0:
         raise InputError(
             f"estimate times [{est.t[0]:.6g}, {est.t[-1]:.6g}] s do not overlap the "
@@ -267,6 +290,62 @@ def nees(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> float:
     return float(v.mean()) if v.size else math.nan
 
 
+#: Largest plausible ground-truth coordinate (m): beyond it squares overflow.
+MAX_GT_COORDINATE = 1e12
+
+
+def check_groundtruth(stream) -> None:
+    """Raise ``InputError`` naming the file and row of the first non-finite ground-truth cell.
+
+    Rows count as in the file (header = row 1). Coordinates beyond
+    :data:`MAX_GT_COORDINATE` (e.g. ``1e308``) count as non-finite: their errors overflow.
+    """
+    cells = np.column_stack([stream.t, stream.values])
+    bad = ~np.isfinite(cells) | (np.abs(cells) > MAX_GT_COORDINATE)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        column = ("t",) + tuple(stream.columns)
+        raise InputError(
+            f"ground truth value {cells[i, j]!r} is not finite (or beyond "
+            f"{MAX_GT_COORDINATE:g}): the estimate cannot be scored",
+            file=stream.source,
+            row=int(i) + 2,
+            column=column[j],
+        )
+
+
+def _coverage(out: dict, traj: Trajectory, gt: Trajectory) -> list:
+    """Record what the ground truth covered; a finding when under half the estimate's span."""
+    from odofuse.health import Finding
+
+    mask = covered(traj.t, gt.t)
+    span = float(traj.t[-1] - traj.t[0])
+    t_in = traj.t[mask]
+    # Time covered: the estimate's steps whose both ends are scored.
+    steps = np.diff(traj.t)[mask[1:] & mask[:-1]] if traj.t.size > 1 else np.empty(0)
+    covered_s = float(steps.sum())
+    out["groundtruth"] = {
+        "poses_scored": int(mask.sum()),
+        "poses": len(traj),
+        "t_start": float(t_in[0]) if t_in.size else None,
+        "t_end": float(t_in[-1]) if t_in.size else None,
+        "covered_s": covered_s,
+        "estimate_span_s": span,
+    }
+    if span > 0 and covered_s < 0.5 * span:
+        return [
+            Finding(
+                "scoring",
+                f"ground truth covers {covered_s:.3g} s of the estimate's {span:.3g} s "
+                f"({int(mask.sum())} of {len(traj)} poses): the scores describe only that part",
+                t_start=out["groundtruth"]["t_start"],
+                t_end=out["groundtruth"]["t_end"],
+                figure=covered_s / span,
+            )
+        ]
+    return []
+
+
 def metrics(
     result: EstimateResult, log=None, runtime_s: float | None = None, rpe_delta_m: float = 10.0
 ) -> dict:
@@ -307,8 +386,11 @@ def metrics(
         "repairs": dict(getattr(log, "repairs", {}) or {}),
     }
     gt_stream = getattr(log, "groundtruth", None)
+    scoring = []
     if gt_stream is not None and len(gt_stream) and len(traj):
+        check_groundtruth(gt_stream)
         gt = trajectory_from_stream(gt_stream)
+        scoring = _coverage(out, traj, gt)
         a = ate(traj, gt)
         out["ate_rmse_m"] = a.rmse_m
         out["final_error_m"] = a.final_m
@@ -323,7 +405,7 @@ def metrics(
             out[key] = None if math.isnan(n) else n
     if result.extra:
         out["extra"] = result.extra
-    findings = assess(result)
+    findings = assess(result) + scoring
     out["status"] = status_of(findings)
     out["warnings"] = [f.line() for f in findings]
     out["findings"] = [f.as_dict() for f in findings]

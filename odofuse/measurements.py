@@ -373,7 +373,7 @@ class GyroYawRate(MeasurementModel):
     representative of the interval, as in the gyrodometry of ``002_88fc37db58155723.txt``).
     """
 
-    calibrate: bool = False
+    calibrate: bool = True  # a gyro's bias is estimated unless the config says otherwise
     bias_sigma: float = 0.01
     bias_walk: float = 0.0
 

@@ -188,11 +188,19 @@ class EkfBackend:
         self._diag = np.diag_indices(n)
 
     # -- prediction ---------------------------------------------------------------
-    def predict(self, u, dt: float, dtheta: float | None = None, var_dtheta: float = 0.0) -> None:
+    def predict(
+        self,
+        u,
+        dt: float,
+        dtheta: float | None = None,
+        var_dtheta: float = 0.0,
+        noise_scale: float = 1.0,
+    ) -> None:
         """Propagate through the motion model with input ``u`` over ``dt`` seconds.
 
         ``dtheta`` (gyrodometry) replaces the step's heading change, with variance
-        ``var_dtheta`` instead of the wheels' contribution to it.
+        ``var_dtheta`` instead of the wheels' contribution to it. ``noise_scale`` multiplies
+        the wheel input variances of the step (robust odometry during wheel slip).
         """
         x, P = self.kf.x, self.kf.P
         if self._fast is not None:
@@ -202,6 +210,9 @@ class EkfBackend:
             var = self._errors.variances(self._drive, u)
             d0, d1, d2 = delta.tolist()
             G = (J * np.sqrt(var)).tolist()
+        if noise_scale != 1.0:
+            r = math.sqrt(noise_scale)
+            G = [[g * r for g in row] for row in G]
         if dtheta is not None:
             d2 = float(dtheta)
             G = [G[0], G[1], [0.0] * len(G[2])]
@@ -271,17 +282,19 @@ class EkfBackend:
         x0, P0 = kf.x, kf.P  # filterpy rebinds x and P, so these stay the prior
         # Models without angle rows subtract plainly (filterpy's default, cheaper).
         residual = model.residual if getattr(model, "angle_rows", (0,)) else np.subtract
+        R = model.R(row)
         kf.update(
             model.z(row),
             model.H,
             model.h,
-            R=model.R(row),
+            R=R,
             args=(row,),
             hx_args=(row,),
             residual=residual,
         )
         y = kf.y
         nis = float(y.dot(kf.SI.dot(y)))
+        self.last_innovation = (y, kf.S, R)
         gate = self._gates.get(id(model))
         if gate is None:
             gate = gate_threshold(getattr(model, "gate", None), model.dim)
@@ -302,6 +315,12 @@ class EkfBackend:
         P[:, dst] = P[:, src]
         P[dst, dst] = P[src, src]
         self.kf.x, self.kf.P = x, P
+
+    def inflate(self, factor: float, idx) -> None:
+        """Scale the covariance of states ``idx`` by ``factor`` (``P <- D P D``, SPD kept)."""
+        D = np.ones(self.n)
+        D[list(idx)] = math.sqrt(factor)
+        self.kf.P = D[:, None] * self.kf.P * D[None, :]
 
     def snapshot(self):
         return self.kf.x.copy(), self.kf.P.copy()

@@ -47,8 +47,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse import se2
-from odofuse.declarations import DEFAULT_LATE_WINDOW
+from odofuse.declarations import DEFAULT_LATE_WINDOW, EkfOptions
 from odofuse.errors import ConfigError, InputError
+from odofuse.estimators import monitors
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -119,6 +120,8 @@ class Localizer:
         switching ``threshold`` (rad per odometry step) instead of as a measurement.
     name : str
         Estimator name for the result.
+    options : odofuse.declarations.FilterOptions, optional
+        Monitor, recovery and slip options (defaults: :class:`~odofuse.declarations.EkfOptions`).
     """
 
     def __init__(
@@ -130,6 +133,7 @@ class Localizer:
         gyrodometry=None,
         name: str = "filter",
         motion_model=None,
+        options=None,
     ) -> None:
         if not late_window >= 0.0:
             raise ValueError(f"late_window must be >= 0 s, got {late_window}")
@@ -155,6 +159,9 @@ class Localizer:
         )
         self._gyro: list[tuple[float, float]] = []  # (t, wz) samples, time-sorted
         self.gyro_switches = 0
+        self.options = options if options is not None else EkfOptions()
+        self.monitor = monitors.FilterMonitor(self.options, self.models)
+        self._init_recovery_and_slip()
         x = backend.mean()
         self._traj_t = [self.t]
         self._traj_x = [x[:3].copy()]
@@ -245,6 +252,8 @@ class Localizer:
             return
         if stream not in self.models:
             return
+        if stream == self._slip_stream and "wz" in row and math.isfinite(float(row["t"])):
+            self._store_gyro(float(row["t"]), float(row["wz"]))
         row = dict(row)
         t = float(row.get("t", math.nan))
         if not math.isfinite(t):
@@ -292,13 +301,16 @@ class Localizer:
         self._process_step(self.t, t, u, due)
         self._odom = se2.compose(self._odom, self._increment(u)[0])
 
-    def _add_gyro_sample(self, row) -> None:
-        t = float(row["t"])
-        bisect.insort(self._gyro, (t, float(row["wz"])))
+    def _store_gyro(self, t: float, wz: float) -> None:
+        bisect.insort(self._gyro, (t, wz))
         # Keep samples that can still matter for a replay plus the last one before it.
         horizon = self.t - self.late_window - 1.0
         while len(self._gyro) > 2 and self._gyro[1][0] < horizon:
             self._gyro.pop(0)
+
+    def _add_gyro_sample(self, row) -> None:
+        t = float(row["t"])
+        self._store_gyro(t, float(row["wz"]))
         if t <= self.t and self._steps and t > self._steps[0].t0:
             self._replay_with(None, since=t)
 
@@ -331,17 +343,22 @@ class Localizer:
                     self.gyro_switches += 1
         # Gyro heading increment variance: a rate noise sigma (rad/s) held over the step.
         var_g = (self._gyro_sigma * (t1 - t0)) ** 2 if dtheta_gyro is not None else 0.0
+        scale = self._slip_scale(t0, t1, u) if self._slip_stream is not None else 1.0
         span = t1 - t0
         done = 0.0
         for item in due:
             tm = item[0]
             f = 1.0 if span <= 0.0 else min(max((tm - t0) / span, done), 1.0)
             if f > done:
-                self._predict(u * (f - done), span * (f - done), dtheta_gyro, f - done, var_g)
+                self._predict(
+                    u * (f - done), span * (f - done), dtheta_gyro, f - done, var_g, scale
+                )
                 done = f
             self._apply(item)
         if done < 1.0 or not due:
-            self._predict(u * (1.0 - done), span * (1.0 - done), dtheta_gyro, 1.0 - done, var_g)
+            self._predict(
+                u * (1.0 - done), span * (1.0 - done), dtheta_gyro, 1.0 - done, var_g, scale
+            )
         if self.late_window > 0:
             self._steps.append(_Step(t0, t1, u, (snap, list(due)), len(self._traj_t)))
             horizon = t1 - self.late_window
@@ -353,11 +370,12 @@ class Localizer:
         self._traj_x.append(x[:3].copy())
         self._traj_P.append(P[:3, :3].copy())
 
-    def _predict(self, u, dt, dtheta_gyro, frac, var_g) -> None:
+    def _predict(self, u, dt, dtheta_gyro, frac, var_g, scale=1.0) -> None:
+        kw = {} if scale == 1.0 else {"noise_scale": scale}
         if dtheta_gyro is None:
-            self.backend.predict(u, dt)
+            self.backend.predict(u, dt, **kw)
         else:
-            self.backend.predict(u, dt, dtheta=dtheta_gyro * frac, var_dtheta=var_g * frac)
+            self.backend.predict(u, dt, dtheta=dtheta_gyro * frac, var_dtheta=var_g * frac, **kw)
 
     def _apply(self, item) -> None:
         tm, _, stream, row = item
@@ -372,6 +390,8 @@ class Localizer:
             row = dict(row)
             row["dt"] = tm - t_ref
         accepted, nis = self.backend.update(model, row)
+        if self.monitor.observe(stream, tm, accepted, nis):
+            accepted, nis = self._recover(stream, model, row)
         if accepted:
             self.used[stream] += 1
         else:
@@ -393,13 +413,17 @@ class Localizer:
             dict(self.rejected),
             dict(self._t_ref),
             self.gyro_switches,
+            self.monitor.snapshot(),
+            self.slip_steps,
         )
 
     def _restore(self, snap) -> None:
-        b, used, rejected, t_ref, switches = snap
+        b, used, rejected, t_ref, switches, mon, slips = snap
         self.backend.restore(b)
         self.used, self.rejected, self._t_ref = dict(used), dict(rejected), dict(t_ref)
         self.gyro_switches = switches
+        self.monitor.restore(mon)
+        self.slip_steps = slips
 
     def _replay_with(self, item, since: float | None = None) -> None:
         """Roll back to the step covering the late item (or time ``since``) and replay."""
@@ -442,10 +466,43 @@ class Localizer:
         }
         if self._gyro_stream is not None:
             extra["gyrodometry_switches"] = int(self.gyro_switches)
+        if self._slip_stream is not None:
+            extra["slip_steps"] = int(self.slip_steps)
+        extra["recoveries"] = len(self.monitor.recoveries)
         extra.update(getattr(self.backend, "extra", lambda: {})())
         used = {s: n for s, n in self.used.items()}
         rejected = {s: n for s, n in self.rejected.items()}
-        return EstimateResult(self.name, self.trajectory(), used, rejected, extra)
+        traj = self.trajectory()
+        findings = self._findings(traj.t, traj.covariances)
+        return EstimateResult(self.name, traj, used, rejected, extra, tuple(findings))
+
+    # ----------------------------------------------------------------- health
+    def health(self) -> monitors.Health:
+        """The filter's self-judgement so far (no ground truth): status and findings.
+
+        The same checks as the offline result's (windowed NIS, rejection runs, recoveries,
+        covariance conditioning and growth, calibration bounds, wheel slip), plus the
+        rejected fractions and covariance checks every estimator gets
+        (:func:`odofuse.health.assess`), so a pipeline can react to ``status == "degraded"``.
+        """
+        from odofuse.health import assess
+
+        traj = self.trajectory()
+        own = self._findings(traj.t, traj.covariances)
+        result = EstimateResult(self.name, traj, self.used, self.rejected, findings=tuple(own))
+        return monitors.health_of(assess(result))
+
+    def _findings(self, t, P) -> list:
+        return monitors.localizer_findings(self, t, P)
+
+    def _init_recovery_and_slip(self) -> None:
+        monitors.setup_localizer(self)
+
+    def _recover(self, stream, model, row) -> tuple[bool, float]:
+        return monitors.recover(self, stream, model, row)
+
+    def _slip_scale(self, t0: float, t1: float, u) -> float:
+        return monitors.step_slip_scale(self, t0, t1, u)
 
 
 # --------------------------------------------------------------------- building from config
@@ -497,7 +554,7 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
     late = opts.late_window
     if gyro is not None:
         gyro = (gyro[0], gyro[1], float(getattr(models["gyro"], "sigma", 0.0)))
-    return Localizer(backend, filt, float(t0), late, gyro, estimator, motion)
+    return Localizer(backend, filt, float(t0), late, gyro, estimator, motion, opts)
 
 
 def build(config, log, estimator: str, make_backend):

@@ -20,6 +20,26 @@ wrapped). Gating uses the cloud's own innovation statistics: ``y = z - mean(h)``
 Resampling is low-variance (systematic: one uniform draw, N evenly spaced pointers, Thrun
 "Probabilistic Robotics" table 4.4) when the effective sample size drops below
 ``resample_threshold * N``. All randomness comes from ``numpy.random.default_rng(seed)``.
+
+Against collapse (issue 10):
+
+* **Regularised resampling**: the pose is spread again after each resampling with the same
+  Liu-West shrinkage kernel, bandwidth ``h`` = ``bandwidth_scale`` times Silverman's optimal
+  ``(4 / (N (d + 2)))^(1 / (d + 4))`` (``d = 3``; Musso, Oudjane & Le Gland's regularised
+  particle filter), so duplicated particles separate while the cloud's mean and covariance
+  are kept (no variance inflation from the jitter). Heading clones move with the heading so
+  the gyro's ``theta - theta_ref`` is untouched.
+* **Relative measurements too sharp for the cloud**: when reweighting by a measurement of
+  the change since a cloned state (the gyro rate) would leave fewer than ``min_ess * N``
+  effective particles (a precise gyro, whose rate noise is far below the cloud's heading
+  spread over one sample interval, does this on every sample, and would force a resampling
+  at every step) the measurement is assimilated by *moving* the particles with the
+  ensemble Kalman update with perturbed observations (Evensen 1994):
+  ``x_i += K (z + v_i - h(x_i))``, ``v_i ~ N(0, R)``, ``K = C_xz S^-1`` from the cloud,
+  weights unchanged. For a linear model such as the gyro
+  rate this is the exact Bayes update of a Gaussian cloud; the cloud keeps its spread instead
+  of degenerating onto a few particles.
+* **Recovery**: :meth:`ParticleBackend.inflate` spreads the pose about its mean.
 """
 
 from __future__ import annotations
@@ -70,7 +90,8 @@ class ParticleBackend:
         Random-walk variance per second of each state.
     options : ParticleOptions or dict, optional
         ``particles``, ``seed``, ``resample_threshold``, ``roughening`` (the Liu-West kernel
-        width ``h``); a mapping is validated into :class:`ParticleOptions`.
+        width ``h``), ``regularise``, ``bandwidth_scale``, ``min_ess``; a mapping is validated
+        into :class:`~odofuse.declarations.ParticleOptions`.
     """
 
     def __init__(self, model, models, x0, P0, walk, options=None) -> None:
@@ -80,6 +101,12 @@ class ParticleBackend:
         self.rng = np.random.default_rng(options.seed)
         self.resample_threshold = options.resample_threshold
         self.roughening = options.roughening
+        self.options = options
+        d = 3
+        silverman = (4.0 / (self.N * (d + 2))) ** (1.0 / (d + 4))
+        self.bandwidth = min(float(options.bandwidth_scale) * silverman, 0.99)
+        if not options.regularise:
+            self.bandwidth = 0.0
         x0 = np.asarray(x0, dtype=float)
         self.n = x0.size
         self.walk = np.asarray(walk, dtype=float)
@@ -103,15 +130,26 @@ class ParticleBackend:
             id(m): gate_threshold(getattr(m, "gate", None), m.dim) for m in models.values()
         }
         self.resamples = 0
+        self.moves = 0  # updates assimilated by the ensemble move
 
     # -- motion -----------------------------------------------------------------------------
     def increment(self, u):
         return self.model.increment(u)
 
-    def predict(self, u, dt: float, dtheta: float | None = None, var_dtheta: float = 0.0) -> None:
-        """Sample every particle's input from the error model and move it."""
+    def predict(
+        self,
+        u,
+        dt: float,
+        dtheta: float | None = None,
+        var_dtheta: float = 0.0,
+        noise_scale: float = 1.0,
+    ) -> None:
+        """Sample every particle's input from the error model and move it.
+
+        ``noise_scale`` multiplies the input variances (robust odometry during wheel slip).
+        """
         u = np.asarray(u, dtype=float)
-        var = self.model.errors.variances(self.model.drive, u)
+        var = self.model.errors.variances(self.model.drive, u) * noise_scale
         U = u + self.rng.standard_normal((self.N, u.size)) * np.sqrt(var)
         delta, _ = self.model.increment(U)
         if dtheta is not None:
@@ -148,6 +186,7 @@ class ParticleBackend:
         S = (D * w[:, None]).T @ D + R
         Si = np.linalg.inv(S)
         nis = float(y @ Si @ y)
+        self.last_innovation = (y, S, R)
         gate = self._gates.get(id(model))
         if gate is None:
             gate = self._gates[id(model)] = gate_threshold(getattr(model, "gate", None), model.dim)
@@ -157,14 +196,42 @@ class ParticleBackend:
         logl = -0.5 * np.einsum("ni,ij,nj->n", E, Ri, E)
         logw = np.log(np.maximum(w, 1e-300)) + logl
         logw -= logw.max()
-        w = np.exp(logw)
-        self.w = w / w.sum()
+        wn = np.exp(logw)
+        wn /= wn.sum()
+        relative = bool(model.clones()) if hasattr(model, "clones") else False
+        if relative and 1.0 / np.sum(wn**2) < self.options.min_ess * self.N:
+            self._ensemble_move(E, D, S, R, rows)
+        else:
+            self.w = wn
         if 1.0 / np.sum(self.w**2) < self.resample_threshold * self.N:
             self._resample()
         return True, nis
 
+    def _ensemble_move(self, E, D, S, R, rows) -> None:
+        """Ensemble Kalman update with perturbed observations (weights unchanged)."""
+        w = self.w
+        m = self.mean()
+        DX = self.X - m
+        DX[:, self.angles] = wrap(DX[:, self.angles])
+        # D holds mean(h) - h_i, so C_xz = -sum_i w_i DX_i D_i^T.
+        K = -np.linalg.solve(S, ((DX * w[:, None]).T @ D).T).T  # C_xz S^-1, (n, dim)
+        V = self.rng.standard_normal(E.shape) @ np.linalg.cholesky(R).T
+        innov = E + V
+        if rows:
+            innov[:, rows] = wrap(innov[:, rows])
+        self.X += innov @ K.T
+        self.X[:, self.angles] = wrap(self.X[:, self.angles])
+        self.moves += 1
+
     def _resample(self) -> None:
         cols = self._kernel_cols
+        h = self.bandwidth
+        if h > 0:
+            P = self.X[:, :3]
+            mp = self.mean()[:3]
+            DP = P - mp
+            DP[:, 2] = wrap(DP[:, 2])
+            VP = (DP * self.w[:, None]).T @ DP
         if cols and self.roughening > 0:
             # Liu & West kernel shrinkage for the (static) augmented states: the weighted
             # posterior mean m and covariance V are kept, while duplicated particles are spread
@@ -184,19 +251,49 @@ class ParticleBackend:
             root = vecs * np.sqrt(np.clip(vals, 0.0, None) * h2)
             noise = self.rng.standard_normal((self.N, len(cols))) @ root.T
             self.X[:, cols] = a * self.X[:, cols] + (1.0 - a) * m + noise
+        if h > 0:
+            # Regularised resampling of the pose: the same shrinkage kernel with Silverman's
+            # bandwidth; heading clones get the heading's shift so theta - clone is kept.
+            a = math.sqrt(1.0 - h * h)
+            vals, vecs = np.linalg.eigh(0.5 * (VP + VP.T))
+            root = vecs * np.sqrt(np.clip(vals, 0.0, None) * h * h)
+            D = self.X[:, :3] - mp
+            D[:, 2] = wrap(D[:, 2])
+            shift = (a - 1.0) * D + self.rng.standard_normal((self.N, 3)) @ root.T
+            self.X[:, :3] += shift
+            for i in self.angles:
+                if i != 2:
+                    self.X[:, i] += shift[:, 2]
+            self.X[:, self.angles] = wrap(self.X[:, self.angles])
 
     # -- bookkeeping ------------------------------------------------------------------------
     def clone(self, dst: int, src: int) -> None:
         self.X[:, dst] = self.X[:, src]
 
+    def inflate(self, factor: float, idx) -> None:
+        """Spread states ``idx`` about their weighted mean by ``sqrt(factor)`` (recovery)."""
+        idx = list(idx)
+        m = self.mean()
+        D = self.X[:, idx] - m[idx]
+        ang = [k for k, i in enumerate(idx) if i in self.angles]
+        D[:, ang] = wrap(D[:, ang])
+        self.X[:, idx] = m[idx] + math.sqrt(factor) * D
+        self.X[:, self.angles] = wrap(self.X[:, self.angles])
+
     def snapshot(self):
-        return self.X.copy(), self.w.copy(), self.rng.bit_generator.state, self.resamples
+        return (
+            self.X.copy(),
+            self.w.copy(),
+            self.rng.bit_generator.state,
+            self.resamples,
+            self.moves,
+        )
 
     def restore(self, snap) -> None:
-        X, w, state, resamples = snap
+        X, w, state, resamples, moves = snap
         self.X, self.w = X.copy(), w.copy()
         self.rng.bit_generator.state = state
-        self.resamples = resamples
+        self.resamples, self.moves = resamples, moves
 
     def mean(self) -> np.ndarray:
         """Weighted mean (circular for heading and heading clones)."""
@@ -213,7 +310,11 @@ class ParticleBackend:
         return 0.5 * (C + C.T)
 
     def extra(self) -> dict:
-        return {"particles": self.N, "resamples": int(self.resamples)}
+        return {
+            "particles": self.N,
+            "resamples": int(self.resamples),
+            "ensemble_moves": int(self.moves),
+        }
 
 
 def make_backend(model, models, x0, P0, walk, options) -> ParticleBackend:

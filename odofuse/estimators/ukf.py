@@ -135,13 +135,24 @@ class UkfBackend:
         out[2] = wrap(s[2] + delta[2])
         return out
 
-    def predict(self, u, dt: float, dtheta: float | None = None, var_dtheta: float = 0.0) -> None:
-        """Sigma points through ``pose (+) delta(u)``; additive ``Q = F_u Sigma_u F_u^T``."""
+    def predict(
+        self,
+        u,
+        dt: float,
+        dtheta: float | None = None,
+        var_dtheta: float = 0.0,
+        noise_scale: float = 1.0,
+    ) -> None:
+        """Sigma points through ``pose (+) delta(u)``; additive ``Q = F_u Sigma_u F_u^T``.
+
+        ``noise_scale`` multiplies ``Sigma_u`` (robust odometry during wheel slip).
+        """
         if self._fast is not None:
             delta, J, var = self._fast(np.asarray(u, dtype=float))
         else:
             delta, J = self.model.increment(u)
             var = self.model.errors.variances(self.model.drive, u)
+        var = var * noise_scale
         if dtheta is not None:
             delta, J = delta.copy(), J.copy()
             delta[2] = dtheta
@@ -170,9 +181,11 @@ class UkfBackend:
         kf.residual_z = model.residual
         kf.z_mean = model.mean
         kf._dim_z = model.dim
-        kf.update(model.z(row), R=model.R(row), hx=lambda s: model.h(s, row))
+        R = model.R(row)
+        kf.update(model.z(row), R=R, hx=lambda s: model.h(s, row))
         y = kf.y
         nis = float(y @ kf.SI @ y)
+        self.last_innovation = (y.copy(), kf.S.copy(), R)
         gate = self._gates.get(id(model))
         if gate is None:
             gate = self._gates[id(model)] = gate_threshold(getattr(model, "gate", None), model.dim)
@@ -191,6 +204,13 @@ class UkfBackend:
         P[:, dst] = P[:, src]
         P[dst, dst] = P[src, src]
         self.kf.x, self.kf.P = x, P
+        self._fresh = False
+
+    def inflate(self, factor: float, idx) -> None:
+        """Scale the covariance of states ``idx`` by ``factor`` (``P <- D P D``, SPD kept)."""
+        D = np.ones(self.n)
+        D[list(idx)] = math.sqrt(factor)
+        self.kf.P = D[:, None] * self.kf.P * D[None, :]
         self._fresh = False
 
     def snapshot(self):

@@ -52,7 +52,7 @@ def run_config(sim: Simulation, estimator: str = "ekf") -> dict:
         motion["k"] = k
     sensors: dict = {}
     if sc.gyro is not None:
-        sensors["gyro"] = {"sigma": float(max(sc.gyro.sigma, 1e-6))}
+        sensors["gyro"] = {"sigma": float(max(sc.gyro.sigma, 1e-6)), "calibrate": True}
     if sc.gps is not None:
         sensors["gps"] = {"sigma": float(sc.gps.sigma), "gate": 0.999}
     if sc.compass is not None:

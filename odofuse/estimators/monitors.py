@@ -1,0 +1,519 @@
+"""Self-checks of the filters without ground truth.
+
+Their options (windows, false-alarm probabilities, recovery, slip) are declared once with the
+filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF, particle) and
+:class:`odofuse.declarations.DeadReckoningOptions`. This module owns
+
+* :class:`FilterMonitor`, fed every gated update by the streaming
+  :class:`~odofuse.estimators.localizer.Localizer`: it says when a stream shows divergence (a
+  run of consecutive rejections while the stream keeps arriving), computes the covariance
+  inflation that makes the rejected innovation admissible (:func:`inflation_factor`), and
+  turns what it saw into :class:`~odofuse.health.Finding` records (windowed NIS outside its
+  chi-square band, rejection runs, recoveries, pose covariance conditioning and growth,
+  calibration states that ran to their bounds or collapsed);
+* :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
+* :func:`gyro_wheel_findings`, dead reckoning's own tell-tale: gyro and wheels disagreeing.
+
+Thresholds are chosen a priori from statistics (chi-square quantiles, false-alarm
+probabilities, window lengths counted in readings of the sensor concerned), never from
+ground truth.
+"""
+
+from __future__ import annotations
+
+import math
+from array import array
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from odofuse.declarations import FilterOptions
+from odofuse.health import Finding, status_of
+from odofuse.measurements import gate_threshold
+
+
+# ----------------------------------------------------------------------------- recovery
+def inflation_factor(y, S, R, dim: int, cap: float) -> float:
+    """Scale ``lambda >= 1`` of the predicted measurement covariance that admits ``y``.
+
+    With ``A = S - R`` the part of the innovation covariance that comes from the state,
+    ``lambda`` solves ``y^T (lambda A + R)^-1 y = dim`` (the innovation becomes a typical,
+    expected-value draw): the state covariance was ``lambda`` times too small to explain it.
+    Bisection on ``log lambda``; ``cap`` when even that does not admit it.
+    """
+    y = np.atleast_1d(np.asarray(y, dtype=float))
+    S = np.atleast_2d(np.asarray(S, dtype=float))
+    R = np.atleast_2d(np.asarray(R, dtype=float))
+    A = 0.5 * ((S - R) + (S - R).T)
+
+    def nis(lam):
+        try:
+            return float(y @ np.linalg.solve(lam * A + R, y))
+        except np.linalg.LinAlgError:
+            return math.inf
+
+    if nis(1.0) <= dim:
+        return 1.0
+    if nis(cap) > dim:
+        return float(cap)
+    lo, hi = 0.0, math.log(cap)
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if nis(math.exp(mid)) > dim:
+            lo = mid
+        else:
+            hi = mid
+    return float(math.exp(hi))
+
+
+def slip_scale(disagreement: float, var_odo: float, var_ref: float, gate: float) -> float:
+    """Robust odometry: the factor that widens one step's wheel input noise.
+
+    ``disagreement`` (rad) is the gyro heading change minus the wheels' over the step,
+    ``var_odo`` the wheels' heading variance of the step (rad^2) and ``var_ref`` that of the
+    gyro's change (rate noise and bias uncertainty). When the disagreement fails the
+    chi-square test ``d^2 > gate (var_odo + var_ref)`` the wheels slipped (the gyrodometry
+    switching rule of ``002_88fc37db58155723.txt``, with a statistical threshold); the
+    returned factor ``d^2 / var_odo`` makes the wheel noise of that step large enough that
+    the disagreement is a one-sigma event (a heavy-tailed odometry model). Else 1.
+    """
+    if not var_odo > 0.0:
+        return 1.0
+    d2 = disagreement * disagreement
+    if d2 <= gate * (var_odo + var_ref):
+        return 1.0
+    return d2 / var_odo
+
+
+# ----------------------------------------------------------------------------- monitor
+@dataclass(frozen=True)
+class Health:
+    """Live health of a streaming filter: :meth:`Localizer.health`'s answer."""
+
+    status: str
+    findings: tuple
+
+
+@dataclass(frozen=True)
+class _Recovery:
+    stream: str
+    t_first: float  # first rejected reading of the run
+    t: float  # the reading that triggered the recovery
+    factor: float
+    readings: int
+
+
+def _spans(flags: np.ndarray) -> list[tuple[int, int]]:
+    """``[(i0, i1), ...]`` index ranges (inclusive) of the runs of True in ``flags``."""
+    if not flags.any():
+        return []
+    d = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1, strict=True))
+
+
+def _s(x: float) -> str:
+    return f"{x:.3g}"
+
+
+class FilterMonitor:
+    """Per-stream innovation bookkeeping of one filter, its recovery trigger and its findings.
+
+    Parameters
+    ----------
+    options : KalmanOptions
+    models : dict
+        Stream -> bound measurement model (``dim``, ``gate``, calibration priors).
+    """
+
+    def __init__(self, options: FilterOptions, models: Mapping[str, object]) -> None:
+        self.options = options
+        self.dims = {s: int(m.dim) for s, m in models.items()}
+        self.gates = {
+            s: gate_threshold(getattr(m, "gate", None), int(m.dim)) for s, m in models.items()
+        }
+        self._t = {s: array("d") for s in models}
+        self._nis = {s: array("d") for s in models}
+        self._ok = {s: array("b") for s in models}
+        self._floor = {s: 0 for s in models}  # rejections before this index are handled
+        self.recoveries: list[_Recovery] = []
+        self._priors = {}
+        self._clones = set()
+        for m in models.values():
+            for s, (v, sd) in (m.calib_prior() if hasattr(m, "calib_prior") else {}).items():
+                self._priors.setdefault(s, (float(v), float(sd)))
+            self._clones |= set(m.clones() if hasattr(m, "clones") else {})
+
+    # -- live ------------------------------------------------------------------------------
+    def snapshot(self):
+        """Cheap state token (list lengths) for the Localizer's late-measurement replay."""
+        return {s: len(a) for s, a in self._t.items()}, dict(self._floor), len(self.recoveries)
+
+    def restore(self, snap) -> None:
+        lengths, floor, n_rec = snap
+        for s, n in lengths.items():
+            del self._t[s][n:], self._nis[s][n:], self._ok[s][n:]
+        self._floor = dict(floor)
+        del self.recoveries[n_rec:]
+
+    def observe(self, stream: str, t: float, accepted: bool, nis: float) -> bool:
+        """Record one gated update; True when the stream shows divergence (recovery due).
+
+        Divergence: the last ``reject_run`` readings of the stream were all rejected. With a
+        gate of probability ``p`` a consistent filter does that with probability
+        ``(1 - p)^reject_run`` (1e-15 for 0.999 and 5): the filter, not the sensor, is off
+        (or the sensor is broken for that long, which the findings then show).
+        """
+        self._t[stream].append(t)
+        self._nis[stream].append(nis if math.isfinite(nis) else 1e300)
+        self._ok[stream].append(1 if accepted else 0)
+        if accepted or not self.options.recovery:
+            return False
+        ok, k = self._ok[stream], self.options.reject_run
+        n = len(ok)
+        if k < 1 or n - self._floor[stream] < k:
+            return False
+        return not any(ok[n - k :])
+
+    def recovered(self, stream: str, factor: float) -> None:
+        """Note a recovery triggered by the last reading of ``stream``."""
+        n = len(self._t[stream])
+        k = self.options.reject_run
+        rec = _Recovery(stream, self._t[stream][n - k], self._t[stream][n - 1], factor, k)
+        self.recoveries.append(rec)
+        self._floor[stream] = n
+
+    # -- findings --------------------------------------------------------------------------
+    def findings(self, t, P, calibration) -> list[Finding]:
+        """Everything the monitor noticed so far.
+
+        Parameters
+        ----------
+        t : ndarray (N,)
+            Pose times (s).
+        P : ndarray (N, 3, 3)
+            Pose covariances (world frame).
+        calibration : dict
+            State -> ``{"value", "sigma"}`` (the filter's current augmented states).
+        """
+        out: list[Finding] = []
+        for s in self._t:
+            out += self._nis_findings(s)
+            out += self._run_findings(s)
+        out += self._recovery_findings()
+        out += covariance_health(t, P, self.options)
+        out += self._calibration_findings(calibration)
+        return out
+
+    def _nis_findings(self, s: str) -> list[Finding]:
+        from scipy.stats import chi2
+
+        # Accepted readings only: gated outliers are the gate's business (rejection runs and
+        # fractions report those); the gate at 0.999 barely truncates the chi-square law.
+        ok = np.frombuffer(self._ok[s], dtype=np.int8) == 1
+        nis = np.minimum(np.frombuffer(self._nis[s], dtype=float)[ok], 1e12)
+        t = np.frombuffer(self._t[s], dtype=float)[ok]
+        n, d, w = nis.size, self.dims[s], max(int(self.options.nis_window), 1)
+        if n < w:
+            return []
+        c = np.concatenate([[0.0], np.cumsum(nis)])
+        mean = (c[w:] - c[:-w]) / w  # window k covers readings k .. k+w-1
+        # The sum of w consistent NIS values is chi-square with w*d degrees of freedom; the
+        # band holds all n/w independent windows with probability 1 - nis_alpha.
+        a = self.options.nis_alpha / max(n // w, 1)
+        lo, hi = chi2.ppf(0.5 * a, w * d) / w, chi2.ppf(1.0 - 0.5 * a, w * d) / w
+        out = []
+        for flags, side, degrades in ((mean > hi, "above", True), (mean < lo, "below", False)):
+            spans = _spans(flags)
+            if not spans:
+                continue
+            inside = np.zeros(n, dtype=bool)  # readings inside a flagged window
+            for a0, b in spans:
+                inside[a0 : b + w] = True
+            covered = sum(t[j1] - t[j0] for j0, j1 in _spans(inside))
+            a0, b = max(spans, key=lambda ab: np.max(np.abs(mean[ab[0] : ab[1] + 1] - d)))
+            worst = float(mean[a0 : b + 1].max() if side == "above" else mean[a0 : b + 1].min())
+            what = (
+                "the filter is overconfident or off"
+                if side == "above"
+                else "the filter is pessimistic (covariance larger than the errors)"
+            )
+            out.append(
+                Finding(
+                    "nis",
+                    f"mean NIS over {w} readings {side} its band [{_s(lo)}, {_s(hi)}] "
+                    f"(expected {d}) in {len(spans)} span(s), {covered:.1f} s in all; worst "
+                    f"{_s(worst)}: {what}",
+                    sensor=s,
+                    t_start=float(t[a0]),
+                    t_end=float(t[min(b + w - 1, n - 1)]),
+                    figure=worst,
+                    degrades=degrades,
+                )
+            )
+        return out
+
+    def _run_findings(self, s: str) -> list[Finding]:
+        k = max(int(self.options.reject_run), 1)
+        ok = np.frombuffer(self._ok[s], dtype=np.int8)
+        if ok.size < k:
+            return []
+        spans = [(a, b) for a, b in _spans(ok == 0) if b - a + 1 >= k]
+        if not spans:
+            return []
+        t = np.frombuffer(self._t[s], dtype=float)
+        a, b = max(spans, key=lambda ab: t[ab[1]] - t[ab[0]])
+        total = sum(b1 - a1 + 1 for a1, b1 in spans)
+        return [
+            Finding(
+                "rejection_run",
+                f"{len(spans)} run(s) of >= {k} consecutive rejections ({total} readings); "
+                f"longest {b - a + 1} readings over {t[b] - t[a]:.2f} s",
+                sensor=s,
+                t_start=float(t[a]),
+                t_end=float(t[b]),
+                figure=float(b - a + 1),
+            )
+        ]
+
+    def _recovery_findings(self) -> list[Finding]:
+        out = []
+        for s in sorted({r.stream for r in self.recoveries}):
+            rs = [r for r in self.recoveries if r.stream == s]
+            top = max(r.factor for r in rs)
+            out.append(
+                Finding(
+                    "recovery",
+                    f"diverged {len(rs)} time(s) ({rs[0].readings} readings in a row rejected); "
+                    f"pose covariance inflated up to x{_s(top)} to admit the innovation, "
+                    "measurements re-admitted",
+                    sensor=s,
+                    t_start=rs[0].t_first,
+                    t_end=rs[-1].t,
+                    figure=float(len(rs)),
+                )
+            )
+        return out
+
+    def _calibration_findings(self, calibration) -> list[Finding]:
+        out = []
+        k = self.options.calib_sigmas
+        for s, est in (calibration or {}).items():
+            if s in self._clones or s not in self._priors:
+                continue
+            v0, sd0 = self._priors[s]
+            v, sd = float(est["value"]), float(est["sigma"])
+            if sd0 > 0 and abs(v - v0) > k * sd0:
+                out.append(
+                    Finding(
+                        "calibration",
+                        f"{s} = {_s(v)} is {abs(v - v0) / sd0:.1f} prior sigmas from its prior "
+                        f"{_s(v0)} (bound {k:g}): it ran to its bound, other errors leak into it",
+                        sensor=s,
+                        figure=v,
+                    )
+                )
+            elif sd0 > 0 and sd < 1e-3 * sd0:
+                out.append(
+                    Finding(
+                        "calibration",
+                        f"{s} sigma {_s(sd)} collapsed below 1e-3 of its prior {_s(sd0)}",
+                        sensor=s,
+                        figure=sd,
+                    )
+                )
+        return out
+
+
+def covariance_health(t, P, options: FilterOptions) -> list[Finding]:
+    """Conditioning and growth of the pose covariances (SPD is :mod:`odofuse.health`'s).
+
+    The condition number is that of the correlation matrix (unit-free: metres and radians
+    do not mix); growth is the position sigma over its running minimum, reported once it
+    exceeds ``options.growth_factor``.
+    """
+    P = np.asarray(P, dtype=float)
+    t = np.asarray(t, dtype=float)
+    if P.size == 0:
+        return []
+    out = []
+    d = np.sqrt(np.clip(np.einsum("nii->ni", P), 1e-300, None))
+    finite = np.isfinite(P).all(axis=(1, 2)) & (np.einsum("nii->ni", P) > 0).all(axis=1)
+    if finite.any():
+        C = P[finite] / (d[finite, :, None] * d[finite, None, :])
+        eig = np.linalg.eigvalsh(0.5 * (C + np.swapaxes(C, 1, 2)))
+        cond = eig[:, -1] / np.maximum(eig[:, 0], 1e-300)
+        bad = cond > options.max_condition
+        if bad.any():
+            idx = np.flatnonzero(finite)[bad]
+            out.append(
+                Finding(
+                    "covariance",
+                    f"{idx.size} pose covariance(s) ill-conditioned (correlation condition "
+                    f"up to {_s(cond.max())} > {_s(options.max_condition)})",
+                    t_start=float(t[idx[0]]),
+                    t_end=float(t[idx[-1]]),
+                    figure=float(cond.max()),
+                )
+            )
+    sig = np.sqrt(np.clip(P[:, 0, 0] + P[:, 1, 1], 0.0, None))
+    sig = np.where(np.isfinite(sig), sig, np.inf)
+    floored = np.maximum(sig, 1e-12)
+    run_min = np.minimum.accumulate(floored)
+    ratio = sig / run_min
+    if ratio.size and ratio.max() > options.growth_factor:
+        k = int(np.argmax(ratio))
+        k0 = int(np.flatnonzero(floored[: k + 1] == run_min[k])[-1])
+        out.append(
+            Finding(
+                "covariance_growth",
+                f"position sigma grew {_s(ratio[k])}-fold ({_s(sig[k0])} -> {_s(sig[k])} m): "
+                "the sensors stopped constraining the position",
+                t_start=float(t[k0]),
+                t_end=float(t[k]),
+                figure=float(ratio[k]),
+            )
+        )
+    return out
+
+
+def health_of(findings) -> Health:
+    """:class:`Health` of a list of findings."""
+    return Health(status_of(findings), tuple(findings))
+
+
+# ----------------------------------------------------------------------------- localizer
+def localizer_findings(loc, t, P) -> list:
+    """The Localizer monitor's findings plus its wheel-slip note."""
+    from odofuse.health import Finding
+
+    out = loc.monitor.findings(t, P, loc.calibration())
+    if loc.slip_steps:
+        out.append(
+            Finding(
+                "slip",
+                f"gyro and wheels disagreed on {loc.slip_steps} odometry step(s): the "
+                "wheel noise of those steps was widened to cover it (robust odometry)",
+                sensor=loc._slip_stream,
+                figure=float(loc.slip_steps),
+                degrades=False,
+            )
+        )
+    return out
+
+
+def setup_localizer(loc) -> None:
+    """Recovery indices (pose and heading clones), gyro-bias index and the slip stream."""
+    from odofuse.measurements import GyroYawRate, gate_threshold
+
+    index: dict[str, int] = {}
+    clones = []
+    for m in loc.models.values():
+        index.update(getattr(m, "calib_index", {}))
+        clones += [s for s in (m.clones() if hasattr(m, "clones") else {})]
+    # Recovery inflates the pose and its clones (a clone is a past copy of theta).
+    loc._pose_idx = [0, 1, 2] + sorted({index[s] for s in clones if s in index})
+    loc._bias_idx = index.get("gyro_bias")
+    gyros = [s for s, m in loc.models.items() if isinstance(m, GyroYawRate)]
+    on = loc.options.slip and gyros and loc._gyro_stream is None
+    loc._slip_stream = gyros[0] if on else None
+    loc._slip_gate = gate_threshold(loc.options.slip_gate, 1)
+    loc.slip_steps = 0
+
+
+def recover(loc, stream, model, row) -> tuple[bool, float]:
+    """Re-open after divergence: inflate the pose covariance, re-apply the reading."""
+    y, S, R = loc.backend.last_innovation
+    factor = inflation_factor(y, S, R, model.dim, loc.options.max_inflation)
+    loc.backend.inflate(factor, loc._pose_idx)
+    loc.monitor.recovered(stream, factor)
+    return loc.backend.update(model, row)
+
+
+def step_slip_scale(loc, t0: float, t1: float, u) -> float:
+    """Input-noise factor of one odometry step (robust odometry, :func:`slip_scale`)."""
+    g = loc._gyro_increment(t0, t1)
+    if g is None or t1 <= t0:
+        return 1.0
+    model = loc.models[loc._slip_stream]
+    delta, J = loc._increment(u)
+    mm = loc.motion_model
+    var_odo = float((J[2] ** 2) @ mm.errors.variances(mm.drive, u))
+    span = t1 - t0
+    if loc._bias_idx is not None:
+        bias = float(loc.backend.mean()[loc._bias_idx])
+        var_b = float(loc.backend.cov()[loc._bias_idx, loc._bias_idx])
+    else:
+        bias, var_b = 0.0, float(getattr(model, "bias_sigma", 0.0)) ** 2
+    sigma = float(getattr(model, "sigma", 0.0))
+    var_ref = (sigma**2 + var_b) * span**2
+    scale = slip_scale(g - bias * span - float(delta[2]), var_odo, var_ref, loc._slip_gate)
+    if scale > 1.0:
+        loc.slip_steps += 1
+    return scale
+
+
+# ----------------------------------------------------------------------------- dead reckoning
+def gyro_wheel_findings(t, dtheta_odo, var_odo, gyro_t, gyro_wz, gyro_sigma, options):
+    """Windows in which the gyro and the wheels disagree about the heading change.
+
+    Parameters
+    ----------
+    t : ndarray (N+1,)
+        Odometry pose times (s).
+    dtheta_odo, var_odo : ndarray (N,)
+        Wheel heading change of each step (rad) and its variance (rad^2, error model).
+    gyro_t, gyro_wz : ndarray (M,)
+        Gyro times (s) and yaw rates (rad/s).
+    gyro_sigma : float
+        Gyro rate noise (rad/s per sample).
+    options : DeadReckoningOptions
+
+    Returns
+    -------
+    list of Finding
+        One finding (the worst window, the count and the time covered) when any window of
+        ``heading_window`` seconds fails the chi-square test on
+        ``(Delta_gyro - Delta_wheels)^2 / (var_wheels + var_gyro + (bias_sigma T)^2)``.
+    """
+    from scipy.stats import chi2
+
+    t = np.asarray(t, dtype=float)
+    gt, gw = np.asarray(gyro_t, dtype=float), np.asarray(gyro_wz, dtype=float)
+    if gt.size < 2 or t.size < 2:
+        return []
+    T = float(options.heading_window)
+    edges = np.arange(max(t[0], gt[0]), min(t[-1], gt[-1]), T)
+    if edges.size < 2:
+        return []
+    # Gyro heading (zero-order hold of each rate until the next sample) at the window edges.
+    cum_g = np.concatenate([[0.0], np.cumsum(gw[:-1] * np.diff(gt))])
+    k = np.clip(np.searchsorted(gt, edges, side="right") - 1, 0, gt.size - 1)
+    th_g = cum_g[k] + gw[k] * (edges - gt[k])
+    cum_o = np.concatenate([[0.0], np.cumsum(dtheta_odo)])
+    cum_v = np.concatenate([[0.0], np.cumsum(var_odo)])
+    th_o = np.interp(edges, t, cum_o)
+    v_o = np.interp(edges, t, cum_v)
+    rate = (gt.size - 1) / max(gt[-1] - gt[0], 1e-12)
+    var = np.diff(v_o) + gyro_sigma**2 * T / rate + (options.bias_sigma * T) ** 2
+    stat = np.diff(th_g - th_o) ** 2 / np.maximum(var, 1e-300)
+    bound = chi2.ppf(1.0 - options.heading_alpha / stat.size, 1)
+    flags = stat > bound
+    spans = _spans(flags)
+    if not spans:
+        return []
+    worst = int(np.argmax(stat))
+    dis = float(np.diff(th_g - th_o)[worst])
+    return [
+        Finding(
+            "gyro_wheels",
+            f"gyro and wheel heading changes disagree in {int(flags.sum())} window(s) of "
+            f"{T:g} s ({len(spans)} span(s)); worst {dis:+.3g} rad at {edges[worst]:.2f} s "
+            f"({math.sqrt(stat[worst]):.1f} sigma): wheel slip or a gyro fault, dead reckoning "
+            "keeps the error",
+            sensor="gyro",
+            t_start=float(edges[spans[0][0]]),
+            t_end=float(edges[spans[-1][1] + 1]),
+            figure=dis,
+        )
+    ]
