@@ -89,15 +89,23 @@ def run_one(config, log, out_dir: Path) -> dict:
     """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics."""
     from odofuse.estimators import run_estimator
     from odofuse.evaluation import metrics
+    from odofuse.io.log_defaults import apply_log_defaults
     from odofuse.outputs import write_outputs
+    from odofuse.outputs_ros import dead_reckoning_at, mcap_options
 
+    config, log = apply_log_defaults(config, log)
+    ros = mcap_options(config, log)
     t0 = time.perf_counter()
     result = run_estimator(config.estimator, log, config)
     runtime = time.perf_counter() - t0
     m = metrics(result, log, runtime)
     m["log"] = config.log
     m["config"] = config.source
-    write_outputs(out_dir, result, m, log)
+    if log.ros.get("defaults"):
+        m["log_defaults"] = log.ros["defaults"]
+    if ros is not None:
+        ros["odom_poses"] = dead_reckoning_at(config, log, result.trajectory.t)
+    write_outputs(out_dir, result, m, log, ros=ros)
     return m
 
 

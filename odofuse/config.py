@@ -59,7 +59,7 @@ TOP_KEYS = (
 )
 ENCODER_KEYS = ("ticks_per_rev", "gear_ratio", "rollover", "columns")
 INITIAL_KEYS = ("pose", "sigma")
-LOG_KEYS = ("path", "topics")
+LOG_KEYS = ("path", "topics", "joints")
 INTEGRATORS = ("euler", "rk2", "exact")
 #: Sensor-block keys that must be numbers (or, for sigma*, lists of numbers).
 _SENSOR_NUMBER_KEY = re.compile(
@@ -144,7 +144,15 @@ def _resolve_log(v, src: str, base_dir: Path | None) -> tuple[str, dict]:
         path = _string(block["path"], "log.path", src)
         if "topics" in block:
             topics = _mapping(block["topics"], "log.topics", src)
-            opts["topics"] = {k: _string(t, f"log.topics.{k}", src) for k, t in topics.items()}
+            opts["topics"] = {
+                k: [_string(x, f"log.topics.{k}[{i}]", src) for i, x in enumerate(t)]
+                if isinstance(t, list)
+                else _string(t, f"log.topics.{k}", src)
+                for k, t in topics.items()
+            }
+        if "joints" in block:  # drive input name -> JointState joint name
+            joints = _mapping(block["joints"], "log.joints", src)
+            opts["joints"] = {k: _string(j, f"log.joints.{k}", src) for k, j in joints.items()}
     else:
         path = _string(v, "log", src)
     if path.startswith("builtin:"):

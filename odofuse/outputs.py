@@ -1,5 +1,9 @@
 """Output writers and readers: trajectory.csv, trajectory.tum, metrics.json, trajectory.png.
 
+TUM files: ``<estimator>.tum`` (``ekf.tum``, so evo's legend names the estimator), the same
+content as ``trajectory.tum`` (kept as an alias), and ``groundtruth.tum`` whenever the log has
+ground truth. ``trajectory.mcap`` (ROS 2) is :mod:`odofuse.outputs_ros`.
+
 Every file is written atomically: the content goes to a temporary file in the destination
 folder, which is then renamed over the target with :func:`os.replace` (atomic on POSIX and
 Windows within one file system). A run that fails part-way leaves no half-written file, and
@@ -33,7 +37,14 @@ CSV_HEADER = (
     "cov_ytheta",
     "var_theta",
 )
-OUTPUT_NAMES = ("trajectory.csv", "trajectory.tum", "trajectory.png", "metrics.json")
+OUTPUT_NAMES = (
+    "trajectory.csv",
+    "trajectory.tum",
+    "trajectory.png",
+    "metrics.json",
+    "groundtruth.tum",
+    "trajectory.mcap",
+)
 #: (row, col) of the covariance entries in CSV_HEADER order after the pose.
 _COV_IDX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -146,8 +157,35 @@ def write_metrics(path: str | Path, metrics: dict) -> Path:
     return atomic_write_text(path, text + "\n")
 
 
+def tum_name(estimator: str) -> str:
+    """``<estimator>.tum`` with characters other than letters, digits, ``-`` and ``_`` as ``_``."""
+    name = estimator.rsplit(":", 1)[-1] or "trajectory"
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name) + ".tum"
+
+
+def evo_t_max_diff(t_est, t_gt) -> float:
+    """The ``--t_max_diff`` (s) evo needs to match every estimate pose inside the ground truth.
+
+    evo pairs each pose of the sparser trajectory with the nearest stamp of the other within
+    ``t_max_diff``: this is the largest such distance over the estimate poses within the
+    ground truth's time span (0 when they share stamps).
+    """
+    t_est, t_gt = np.asarray(t_est, dtype=float), np.sort(np.asarray(t_gt, dtype=float))
+    t_est = t_est[(t_est >= t_gt[0]) & (t_est <= t_gt[-1])]
+    if t_est.size == 0:
+        return math.nan
+    i = np.clip(np.searchsorted(t_gt, t_est), 1, t_gt.size - 1)
+    gap = np.minimum(np.abs(t_est - t_gt[i - 1]), np.abs(t_gt[i] - t_est))
+    return float(gap.max())
+
+
 def write_outputs(
-    out_dir: str | Path, result: EstimateResult, metrics: dict, log=None, plot: bool = True
+    out_dir: str | Path,
+    result: EstimateResult,
+    metrics: dict,
+    log=None,
+    plot: bool = True,
+    ros: dict | None = None,
 ) -> dict[str, Path]:
     """Write the four outputs of a run (spec section 3) into ``out_dir``.
 
@@ -163,11 +201,16 @@ def write_outputs(
         For ground truth and landmarks in the picture.
     plot : bool
         Also write ``trajectory.png``.
+    ros : dict, optional
+        Keyword arguments of :func:`odofuse.outputs_ros.write_trajectory_mcap` (``odom_poses``,
+        frames, topic): also write ``trajectory.mcap``.
 
     Returns
     -------
     dict
-        ``{"csv": path, "tum": path, "metrics": path, "png": path}``.
+        ``{"csv", "tum", "tum_estimator", "metrics"}`` paths, and ``"png"``, ``"groundtruth"``
+        (``groundtruth.tum``, with ``metrics["evo_t_max_diff_s"]`` set) and ``"mcap"`` when
+        written.
 
     If any writer fails, files written by this call are removed again and the error propagates.
     """
@@ -175,12 +218,26 @@ def write_outputs(
     out.mkdir(parents=True, exist_ok=True)
     # Outputs of an earlier run in this folder go first, so that a run failing half-way
     # cannot leave a mix of old and new files.
-    for name in OUTPUT_NAMES:
+    named_tum = tum_name(result.estimator)
+    for name in (*OUTPUT_NAMES, named_tum):
         (out / name).unlink(missing_ok=True)
     written: dict[str, Path] = {}
+    gt = getattr(log, "groundtruth", None)
     try:
         written["csv"] = write_trajectory_csv(out / "trajectory.csv", result.trajectory)
         written["tum"] = write_tum(out / "trajectory.tum", result.trajectory)
+        if named_tum != "trajectory.tum":
+            written["tum_estimator"] = write_tum(out / named_tum, result.trajectory)
+        if gt is not None and len(gt):
+            gt_traj = Trajectory(gt.t, np.column_stack([gt["x"], gt["y"], gt["theta"]]))
+            written["groundtruth"] = write_tum(out / "groundtruth.tum", gt_traj)
+            metrics = {**metrics, "evo_t_max_diff_s": evo_t_max_diff(result.trajectory.t, gt.t)}
+        if ros is not None:
+            from odofuse.outputs_ros import write_trajectory_mcap
+
+            written["mcap"] = write_trajectory_mcap(
+                out / "trajectory.mcap", result.trajectory, **ros
+            )
         if plot:
             from odofuse.plotting import plot_run
 

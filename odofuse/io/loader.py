@@ -55,6 +55,7 @@ def load_log(
     *,
     encoder: dict | None = None,
     topics: dict | None = None,
+    joints: dict | None = None,
 ) -> SensorLog:
     """Load a log from ``builtin:NAME``, a CSV folder, a ROS bag/MCAP or a GTSAM text file.
 
@@ -67,7 +68,9 @@ def load_log(
     encoder : dict, optional
         The robot's encoder block (CSV ``wheels.csv`` in ticks).
     topics : dict, optional
-        ``{stream: topic}`` for bags.
+        ``{stream: topic or [topics]}`` for bags.
+    joints : dict, optional
+        ``{drive input: JointState joint name}`` for bags.
 
     Returns
     -------
@@ -89,7 +92,7 @@ def load_log(
     if kind == "bag":
         from odofuse.io.bags import read_bag
 
-        return read_bag(path, topics=topics)
+        return read_bag(path, topics=topics, joints=joints)
     from odofuse.io.gtsam_text import read_gtsam_text
 
     return read_gtsam_text(path)
@@ -111,4 +114,7 @@ def load_log_for(config) -> SensorLog:
         kinds = getattr(drive, "input_kinds", ("wheel",) * len(drive.input_names))
         cols = [n for n, k in zip(drive.input_names, kinds, strict=True) if k == "wheel"]
         encoder = {**encoder, "columns": cols}
-    return load_log(config.log, encoder=encoder, topics=(config.log_options or {}).get("topics"))
+    opts = config.log_options or {}
+    return load_log(
+        config.log, encoder=encoder, topics=opts.get("topics"), joints=opts.get("joints")
+    )
