@@ -139,7 +139,11 @@ def _resolve_log(v, src: str, base_dir: Path | None) -> tuple[str, dict]:
         block = from_mapping(LogOptions, v, "log", src)
         path = block.path
         if block.topics is not None:
-            opts["topics"] = dict(block.topics)
+            opts["topics"] = {
+                k: list(v) if isinstance(v, tuple) else v for k, v in block.topics.items()
+            }
+        if block.joints is not None:  # drive input name -> JointState joint name
+            opts["joints"] = dict(block.joints)
         if block.repair is not None:  # CSV repair policy: odofuse.io.csvlog.REPAIR
             opts["repair"] = {"sort": block.repair.sort, "duplicates": block.repair.duplicates}
         if block.wheel_inputs != "position":

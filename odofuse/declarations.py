@@ -172,7 +172,12 @@ class LogOptions:
     """``log`` as a mapping (a bag with its topics)."""
 
     path: str = option(unit="-", doc="log folder, bag or builtin:NAME (relative to the config)")
-    topics: dict[str, str] | None = option(None, unit="-", doc="stream -> topic name of a bag")
+    topics: dict[str, str | tuple[str, ...]] | None = option(
+        None, unit="-", doc="stream kind -> topic name (or list of topics) of a bag"
+    )
+    joints: dict[str, str] | None = option(
+        None, unit="-", doc="drive input name -> JointState joint name of a bag"
+    )
     repair: RepairOptions | None = option(
         None, unit="-", doc="CSV folders: opt-in repair policy for time order and duplicates"
     )
@@ -342,6 +347,14 @@ class PluginSensorOptions:
     robust: tuple[str, float] | None = None
 
 
+def stream_kind(stream: str) -> str | None:
+    """The default model kind of a stream name; ``gyro_2`` (a second IMU) is a ``gyro``."""
+    if stream in STREAM_DEFAULTS:
+        return STREAM_DEFAULTS[stream]
+    base, _, number = stream.rpartition("_")
+    return STREAM_DEFAULTS.get(base) if number.isdigit() else None
+
+
 def sensor_options(stream: str, block, source: str = "<config>"):
     """Validate the block ``sensors.<stream>`` into its kind's options (or a plug-in's)."""
     prefix = f"sensors.{stream}"
@@ -352,7 +365,7 @@ def sensor_options(stream: str, block, source: str = "<config>"):
     block = dict(block)
     if "class" in block:
         return _plugin_sensor(stream, block, source)
-    kind = block.get("model", STREAM_DEFAULTS.get(stream))
+    kind = block.get("model", stream_kind(stream))
     if kind not in SENSOR_OPTIONS:
         raise ConfigError(
             f"no measurement model for stream '{stream}'; set 'model' to one of "
@@ -548,6 +561,27 @@ ESTIMATOR_OPTIONS: dict[str, type] = {
     "fixed_lag": UncheckedOptions,
 }
 
+
+@dataclass(frozen=True)
+class OutputOptions:
+    """``options.output``: the ROS 2 replay file ``trajectory.mcap`` of a run."""
+
+    mcap: bool | None = option(
+        None, unit="-", doc="write trajectory.mcap; null: when the log is a ROS 2 bag"
+    )
+    topic: str = option("/odometry/filtered", unit="-", doc="topic of the nav_msgs/Odometry")
+    map_frame: str = option("map", unit="-", doc="REP-105 map frame id")
+    odom_frame: str | None = option(
+        None, unit="-", doc="REP-105 odom frame id; null: the bag's Odometry frame, else odom"
+    )
+    base_frame: str | None = option(
+        None, unit="-", doc="robot frame id; null: the bag's child_frame_id, else base_link"
+    )
+
+
+#: ``options.<name>`` blocks that configure the run rather than an estimator.
+RUN_OPTIONS: dict[str, type] = {"output": OutputOptions}
+
 #: Config block -> options class.
 BLOCK_OPTIONS: dict[str, type] = {
     "motion": MotionOptions,
@@ -561,6 +595,8 @@ def estimator_options_class(name: str, source: str = "<config>") -> type:
     """The options class of estimator ``name``: registered, or a user function's ``Options``."""
     if name in ESTIMATOR_OPTIONS:
         return ESTIMATOR_OPTIONS[name]
+    if name in RUN_OPTIONS:
+        return RUN_OPTIONS[name]
     if ":" not in name:
         raise ConfigError(
             f"unknown estimator '{name}'; known: {', '.join(ESTIMATOR_OPTIONS)}",
@@ -594,6 +630,8 @@ def catalogue() -> dict[str, tuple[type, str]]:
     for name, cls in ESTIMATOR_OPTIONS.items():
         if cls is not UncheckedOptions and dataclasses.fields(cls):
             out[name] = (cls, f"options.{name}")
+    for name, cls in RUN_OPTIONS.items():
+        out[name] = (cls, f"options.{name}")
     return out
 
 

@@ -276,6 +276,8 @@ def from_mapping(cls, mapping, key_prefix: str, source: str = "<config>"):
             parse(v, key, source) if parse else _value(hints[f.name], v, f.metadata, key, source)
         )
     obj = cls(**kwargs)
+    # Which keys the user wrote (a default and an explicit value can be equal): see explicit().
+    object.__setattr__(obj, "_explicit", frozenset(kwargs))
     check = getattr(obj, "check", None)
     if check is not None:
         try:
@@ -283,6 +285,17 @@ def from_mapping(cls, mapping, key_prefix: str, source: str = "<config>"):
         except ConfigError as exc:
             raise ConfigError(_bare(exc), source, _join(key_prefix, exc.key or "")) from None
     return obj
+
+
+def explicit(obj) -> frozenset[str]:
+    """The keys the config gave for the options instance ``obj`` (not filled by defaults).
+
+    Where the config is silent some values come from the data instead (a ROS message's
+    covariance where a sensor block gives no ``sigma``); this is how a reader tells the two
+    apart. An instance not made by :func:`from_mapping` has every field explicit.
+    """
+    given = getattr(obj, "_explicit", None)
+    return given if given is not None else frozenset(f.name for f in _fields(type(obj)))
 
 
 def _join(prefix: str, key: str) -> str:

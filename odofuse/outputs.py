@@ -1,5 +1,9 @@
 """Output file writers and readers: trajectory.csv, trajectory.tum, metrics.json.
 
+TUM files: ``<estimator>.tum`` (``ekf.tum``, so evo's legend names the estimator), the same
+content as ``trajectory.tum`` (kept as an alias), and ``groundtruth.tum`` whenever the log has
+ground truth. ``trajectory.mcap`` (ROS 2) is :mod:`odofuse.outputs_ros`.
+
 Every file is written atomically through :mod:`odofuse.io.atomic`, so a failure leaves no
 half-written file. The picture is :mod:`odofuse.plotting`'s; the whole output folder of a run
 (all four files, all or nothing) is :func:`odofuse.rundir.write_outputs`.
@@ -105,6 +109,28 @@ def write_metrics(path: str | Path, metrics: dict) -> Path:
     """Write ``metrics.json`` atomically (sorted keys, non-finite numbers as ``null``)."""
     text = json.dumps(json_ready(metrics), indent=2, sort_keys=True, default=_json_default)
     return atomic_write_text(path, text + "\n")
+
+
+def tum_name(estimator: str) -> str:
+    """``<estimator>.tum`` with characters other than letters, digits, ``-`` and ``_`` as ``_``."""
+    name = estimator.rsplit(":", 1)[-1] or "trajectory"
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name) + ".tum"
+
+
+def evo_t_max_diff(t_est, t_gt) -> float:
+    """The ``--t_max_diff`` (s) evo needs to match every estimate pose inside the ground truth.
+
+    evo pairs each pose of the sparser trajectory with the nearest stamp of the other within
+    ``t_max_diff``: this is the largest such distance over the estimate poses within the
+    ground truth's time span (0 when they share stamps).
+    """
+    t_est, t_gt = np.asarray(t_est, dtype=float), np.sort(np.asarray(t_gt, dtype=float))
+    t_est = t_est[(t_est >= t_gt[0]) & (t_est <= t_gt[-1])]
+    if t_est.size == 0:
+        return math.nan
+    i = np.clip(np.searchsorted(t_gt, t_est), 1, t_gt.size - 1)
+    gap = np.minimum(np.abs(t_est - t_gt[i - 1]), np.abs(t_gt[i] - t_est))
+    return float(gap.max())
 
 
 def read_trajectory_csv(path: str | Path) -> Trajectory:

@@ -63,7 +63,10 @@ def test_run_config_writes_outputs(tmp_path, capsys):
     assert main(["run", str(cfg)]) == 0
     text = capsys.readouterr().out
     assert "dead_reckoning" in text and "position RMSE [m]" in text
+    # <estimator>.tum and groundtruth.tum (the log has ground truth): issue 14
     assert outputs_left(tmp_path) == [
+        "dead_reckoning.tum",
+        "groundtruth.tum",
         "metrics.json",
         "trajectory.csv",
         "trajectory.png",

@@ -44,10 +44,18 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
     # wheels.csv into drive inputs and by config to validate the geometry.
     ("robot", False, ("odofuse.drives", "odofuse.encoders")),
     ("io", False, ("odofuse.io",)),
-    ("config", False, ("odofuse.options", "odofuse.declarations", "odofuse.config")),
+    (
+        "config",
+        False,
+        ("odofuse.options", "odofuse.declarations", "odofuse.config", "odofuse.log_defaults"),
+    ),
     ("models", False, ("odofuse.motion", "odofuse.measurements", "odofuse.frames")),
     ("estimators", False, ("odofuse.estimators",)),
-    ("results", True, ("odofuse.evaluation", "odofuse.outputs", "odofuse.plotting")),
+    (
+        "results",
+        True,
+        ("odofuse.evaluation", "odofuse.outputs", "odofuse.outputs_ros", "odofuse.plotting"),
+    ),
     ("run folder", False, ("odofuse.rundir",)),
     ("fleet", False, ("odofuse.batch",)),
     ("command line", False, ("odofuse.cli", "odofuse.__main__")),

@@ -84,7 +84,9 @@ def test_metrics_json_is_strict(tmp_path):
 def test_write_outputs_all_four(tmp_path):
     res = EstimateResult("ekf", sample(), used={"ranges": 3})
     paths = write_outputs(tmp_path / "out", res, {"estimator": "ekf", "poses": 50})
+    # ekf.tum: the TUM file named after the estimator (issue 14), trajectory.tum its alias
     assert sorted(p.name for p in paths.values()) == [
+        "ekf.tum",
         "metrics.json",
         "trajectory.csv",
         "trajectory.png",

@@ -1,21 +1,33 @@
 """ROS 2 bags (sqlite3 ``.db3`` or MCAP storage) and ROS 1 bags via ``rosbags.highlevel.AnyReader``.
 
-Message types map to the streams of a log folder (shared spec section 1):
+This module reads bags: it chooses the topics, names the streams, checks message frames
+against ``/tf_static`` and assembles the ``SensorLog``. What each message type means is
+:mod:`odofuse.io.ros_msgs`.
 
 ==============================  ===========  ==================================================
 message type                    stream       columns
 ==============================  ===========  ==================================================
-``sensor_msgs/msg/JointState``  ``wheels``   one column per joint name: ``position`` (rad), or
-                                             ``velocity`` (rad/s) with ``joint_field``
-``nav_msgs/msg/Odometry``       ``odometry`` ``ds, dtheta``: increment between consecutive poses
-``sensor_msgs/msg/Imu``         ``gyro``     ``wz`` = ``angular_velocity.z`` (rad/s)
-``sensor_msgs/msg/NavSatFix``   ``gps``      ``lat, lon`` (deg), ``sigma`` (m) from the covariance
+``sensor_msgs/msg/JointState``  ``wheels``   one column per joint (or per ``joints`` entry):
+                                             ``position`` (rad), or ``velocity`` integrated
+``nav_msgs/msg/Odometry``       ``odometry`` ``ds, dtheta`` [+ ``var_ds, var_dtheta``]
+``sensor_msgs/msg/Imu``         ``gyro``     ``wz`` [+ ``sigma``]; and ``compass``:
+                                             ``heading, sigma`` where the orientation is valid
+``sensor_msgs/msg/NavSatFix``   ``gps``      ``lat, lon`` (deg) [+ ``sigma`` (m)]
 ==============================  ===========  ==================================================
 
 Time stamps are the message ``header.stamp`` (the bag receive time when the stamp is zero).
-Topics come from ``topics`` (``{stream: topic}``, the config's ``log.topics``) or, for streams
-not named there, from the one topic of the matching message type (two candidate topics of one
-type without a mapping is an error that lists them).
+Topics come from ``topics`` (``{kind: topic or [topics]}``, the config's ``log.topics``) or,
+for kinds not named there, from the one topic of the matching message type (two candidate
+topics of one type without a mapping is an error that lists them). The k-th topic of a kind
+(k >= 2) becomes stream ``<kind>_<k>`` (``gyro: [/imu/data, /imu2/data]`` -> ``gyro`` and
+``gyro_2``, with ``compass`` and ``compass_2`` from their orientations).
+
+Frames: when the bag has ``/tf_static``, the ``header.frame_id`` of every Imu and NavSatFix
+message must be the base frame (the Odometry ``child_frame_id``, else ``base_link``), empty, or
+a frame connected to it in ``/tf_static``; another frame is a one-line error. The planar pose of
+each sensor frame in the base frame is kept in ``SensorLog.ros["mounts"]`` (GPS lever arms);
+an IMU's yaw offset is removed from its compass headings here. Without ``/tf_static``, frames
+are not checked and offsets come only from the config.
 
 Odometry increments: for consecutive poses ``p_{k-1}, p_k`` (``pose.pose``, yaw from the
 quaternion), ``d = p_{k-1}^-1 p_k`` in the child (body) frame; ``ds = sign(d_x) |(d_x, d_y)|``
@@ -25,14 +37,14 @@ the Plaza ``DR`` stream.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
 from odofuse.errors import InputError
+from odofuse.io import ros_msgs
 from odofuse.io.log import SensorLog, Stream
-from odofuse.se2 import wrap
+from odofuse.io.ros_msgs import odometry_increments  # noqa: F401  (public, used by tests)
 
 MSG_STREAMS = {
     "sensor_msgs/msg/JointState": "wheels",
@@ -41,6 +53,9 @@ MSG_STREAMS = {
     "sensor_msgs/msg/NavSatFix": "gps",
 }
 STREAM_MSGS = {v: k for k, v in MSG_STREAMS.items()}
+TF_STATIC = "/tf_static"
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+DEFAULT_BASE_FRAME = "base_link"
 
 
 def _normalise_type(msgtype: str) -> str:
@@ -49,96 +64,59 @@ def _normalise_type(msgtype: str) -> str:
     return f"{parts[0]}/msg/{parts[-1]}" if len(parts) == 2 else msgtype
 
 
-def _stamp(msg, bag_ns: int) -> float:
-    header = getattr(msg, "header", None)
-    if header is not None:
-        st = header.stamp
-        sec = getattr(st, "sec", None)
-        if sec is None:  # ROS 1 Time
-            sec, nsec = st.secs, st.nsecs
-        else:
-            nsec = st.nanosec
-        if sec or nsec:
-            return sec + nsec * 1e-9
-    return bag_ns * 1e-9
+def stream_name(kind: str, k: int) -> str:
+    """Stream name of the k-th (0-based) topic of a kind: ``gyro``, ``gyro_2``, ..."""
+    return kind if k == 0 else f"{kind}_{k + 1}"
 
 
-def _yaw(q) -> float:
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-
-
-def odometry_increments(t, poses) -> tuple[np.ndarray, np.ndarray]:
-    """Body-frame increments ``(ds, dtheta)`` between consecutive poses.
-
-    Parameters
-    ----------
-    t : array_like, shape (N,)
-        Time stamps (s).
-    poses : array_like, shape (N, 3)
-        ``[x, y, theta]`` in the odometry frame.
-
-    Returns
-    -------
-    t : ndarray, shape (N - 1,)
-        ``t[1:]``.
-    inc : ndarray, shape (N - 1, 2)
-        ``ds = sign(dx) * hypot(dx, dy)`` (m) and ``dtheta`` (rad, wrapped), with
-        ``(dx, dy, dtheta) = p_{k-1}^-1 p_k``.
-    """
-    p = np.asarray(poses, dtype=float)
-    c, s = np.cos(p[:-1, 2]), np.sin(p[:-1, 2])
-    ddx, ddy = np.diff(p[:, 0]), np.diff(p[:, 1])
-    dx = c * ddx + s * ddy
-    dy = -s * ddx + c * ddy
-    ds = np.where(dx < 0, -1.0, 1.0) * np.hypot(dx, dy)
-    return np.asarray(t, dtype=float)[1:], np.column_stack([ds, wrap(np.diff(p[:, 2]))])
-
-
-def _choose_topics(reader, topics: dict | None, source: str) -> dict[str, object]:
-    """{stream: [connections]} for every stream we can read."""
+def _choose_topics(reader, topics: dict | None, source: str) -> dict[str, tuple[str, list]]:
+    """``{stream: (topic, [connections])}`` for every stream we can read."""
     topics = dict(topics or {})
     by_topic: dict[str, list] = {}
     for c in reader.connections:
         by_topic.setdefault(c.topic, []).append(c)
-    chosen: dict[str, list] = {}
-    for stream, topic in topics.items():
-        if stream not in STREAM_MSGS:
+    chosen: dict[str, tuple[str, list]] = {}
+    for kind, wanted in topics.items():
+        if kind not in STREAM_MSGS:
             raise InputError(
-                f"cannot read stream '{stream}' from a bag (readable: {', '.join(STREAM_MSGS)})",
+                f"cannot read stream '{kind}' from a bag (readable: {', '.join(STREAM_MSGS)})",
                 source,
-                column=f"log.topics.{stream}",
+                column=f"log.topics.{kind}",
             )
-        if topic not in by_topic:
-            raise InputError(
-                f"topic '{topic}' (for {stream}) is not in the bag; topics: "
-                f"{', '.join(sorted(by_topic))}",
-                source,
-            )
-        conns = by_topic[topic]
-        want = STREAM_MSGS[stream]
-        if _normalise_type(conns[0].msgtype) != want:
-            raise InputError(
-                f"topic '{topic}' has type {conns[0].msgtype}, {stream} needs {want}", source
-            )
-        chosen[stream] = conns
-    for stream, want in STREAM_MSGS.items():
-        if stream in chosen:
+        for k, topic in enumerate([wanted] if isinstance(wanted, str) else list(wanted)):
+            if topic not in by_topic:
+                raise InputError(
+                    f"topic '{topic}' (for {kind}) is not in the bag; topics: "
+                    f"{', '.join(sorted(by_topic))}",
+                    source,
+                )
+            conns = by_topic[topic]
+            want = STREAM_MSGS[kind]
+            if _normalise_type(conns[0].msgtype) != want:
+                raise InputError(
+                    f"topic '{topic}' has type {conns[0].msgtype}, {kind} needs {want}", source
+                )
+            chosen[stream_name(kind, k)] = (topic, conns)
+    for kind, want in STREAM_MSGS.items():
+        if kind in topics:
             continue
         cands = sorted(t for t, cs in by_topic.items() if _normalise_type(cs[0].msgtype) == want)
         if len(cands) > 1:
             raise InputError(
                 f"several {want} topics ({', '.join(cands)}); choose one with "
-                f"log: {{topics: {{{stream}: TOPIC}}}} in the config",
+                f"log: {{topics: {{{kind}: TOPIC}}}} in the config (or a list of topics: "
+                f"{kind}, {kind}_2, ...)",
                 source,
             )
         if cands:
-            chosen[stream] = by_topic[cands[0]]
+            chosen[kind] = (cands[0], by_topic[cands[0]])
+    tf = by_topic.get(TF_STATIC)
+    if tf and _normalise_type(tf[0].msgtype) == TF_TYPE:
+        chosen[TF_STATIC] = (TF_STATIC, tf)
     return chosen
 
 
-def read_bag(
-    path: str | Path, topics: dict | None = None, joint_field: str = "position"
-) -> SensorLog:
+def read_bag(path: str | Path, topics: dict | None = None, joints: dict | None = None) -> SensorLog:
     """Read a ROS 2 bag folder (``.db3`` or MCAP storage), a ``.mcap``/``.db3`` file inside one,
     or a ROS 1 ``.bag`` into a ``SensorLog``.
 
@@ -147,15 +125,20 @@ def read_bag(
     path : str or Path
         The bag.
     topics : dict, optional
-        ``{stream: topic}`` overriding the defaults by message type.
-    joint_field : {"position", "velocity"}
-        The JointState array read into ``wheels`` (``log.wheel_inputs``).
+        ``{kind: topic or [topics]}`` overriding the defaults by message type.
+    joints : dict, optional
+        ``{drive input name: joint name}`` for the JointState streams (``log.joints``).
 
     Returns
     -------
     SensorLog
         Repairs: ``<stream>.reordered`` (messages sorted by header stamp),
-        ``gps.no_fix_dropped`` (NavSatFix with status < 0 or non-finite lat/lon).
+        ``gps.no_fix_dropped`` (NavSatFix with status < 0 or non-finite lat/lon),
+        ``<stream>.velocity_integrated`` (wheel angles integrated from JointState velocity).
+        ``ros``: ``base_frame``, ``odom_frame`` (from Odometry, or None), ``frames``
+        (stream -> frame_id), ``mounts`` (stream -> ``[x, y, yaw]`` of its frame in the base
+        frame, from ``/tf_static``) and ``message_noise`` (stream -> columns taken from
+        message covariances).
     """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
@@ -168,21 +151,23 @@ def read_bag(
         and (path.parent / "metadata.yaml").exists()
     ):
         path = path.parent
-    repairs: dict[str, int] = {}
     raw: dict[str, list] = {}
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             chosen = _choose_topics(reader, topics, source)
-            conn_stream = {c.id: s for s, cs in chosen.items() for c in cs}
-            conns = [c for cs in chosen.values() for c in cs]
+            conn_stream = {c.id: s for s, (_, cs) in chosen.items() for c in cs}
+            conns = [c for _, cs in chosen.values() for c in cs]
             for conn, bag_ns, data in reader.messages(connections=conns):
                 stream = conn_stream[conn.id]
                 msg = reader.deserialize(data, conn.msgtype)
-                raw.setdefault(stream, []).append((_stamp(msg, bag_ns), msg))
+                raw.setdefault(stream, []).append((ros_msgs.stamp(msg, bag_ns), msg))
     except InputError:
         raise
     except Exception as exc:  # rosbags raises its own error types for unreadable bags
         raise InputError(f"cannot read bag: {exc}", source) from None
+    edges = ros_msgs.tf_edges([m for _, m in raw.pop(TF_STATIC, [])])
+    ros = _frames(raw, chosen, edges, source)
+    repairs: dict[str, int] = {}
     streams: dict[str, Stream] = {}
     for stream, items in raw.items():
         t = np.array([s for s, _ in items])
@@ -190,74 +175,90 @@ def read_bag(
         if np.any(order != np.arange(t.size)):
             repairs[f"{stream}.reordered"] = int(np.count_nonzero(order != np.arange(t.size)))
         items = [items[i] for i in order]
-        s = _convert(stream, items, source, repairs, joint_field)
-        if s is not None and len(s):
-            streams[stream] = s
+        ctx = (source, chosen[stream][0], repairs, joints, ros)
+        for s in _convert(stream, items, ctx):
+            if len(s):
+                streams[s.name] = s
     if not streams:
         raise InputError(
             "no readable topics (JointState, Odometry, Imu, NavSatFix) in the bag", source
         )
-    return SensorLog(source, streams, {}, None, repairs)
+    return SensorLog(source, streams, {}, None, repairs, ros=ros)
 
 
-def _convert(
-    stream: str, items, source: str, repairs: dict, joint_field: str = "position"
-) -> Stream | None:
+def _frames(raw: dict, chosen: dict, edges: dict, source: str) -> dict:
+    """Base/odom frames, each sensor stream's frame and, with ``/tf_static``, its mount."""
+    odom = next((raw[s] for s in raw if s.split("_")[0] == "odometry" and raw[s]), None)
+    base = (str(odom[0][1].child_frame_id).lstrip("/") if odom else "") or DEFAULT_BASE_FRAME
+    ros: dict = {
+        "base_frame": base,
+        "odom_frame": (ros_msgs.frame_of(odom[0][1]) or None) if odom else None,
+        "frames": {},
+        "mounts": {},
+        "message_noise": {},
+        "tf_static": bool(edges),
+    }
+    for stream, items in raw.items():
+        kind = stream.rsplit("_", 1)[0] if stream[-1].isdigit() else stream
+        if kind not in ("gyro", "gps") or not items:
+            continue
+        topic = chosen[stream][0]
+        frames = sorted({ros_msgs.frame_of(m) for _, m in items})
+        if len(frames) > 1:
+            raise InputError(
+                f"topic {topic}: messages in several frames ({', '.join(frames)})", source
+            )
+        frame = frames[0]
+        ros["frames"][stream] = frame or base
+        if not edges or frame in ("", base):
+            continue
+        mount = ros_msgs.frame_in(edges, frame, base)
+        if mount is None:
+            known = sorted({base, *edges, *(p for p, _ in edges.values())})
+            raise InputError(
+                f"topic {topic}: frame '{frame}' is not connected to '{base}' in /tf_static "
+                f"(frames: {', '.join(known)})",
+                source,
+            )
+        ros["mounts"][stream] = [float(v) for v in mount]
+    return ros
+
+
+def _convert(stream: str, items, ctx) -> list[Stream]:
+    source, topic, repairs, joints, ros = ctx
     t = np.array([s for s, _ in items])
     msgs = [m for _, m in items]
-    if stream == "wheels":
-        names = tuple(msgs[0].name)
-        if not names:
-            raise InputError("JointState without joint names", source, column="wheels")
-        vals = np.empty((len(msgs), len(names)))
-        for k, m in enumerate(msgs):
-            array = np.asarray(getattr(m, joint_field), dtype=float)
-            pos = dict(zip(m.name, array, strict=False))
-            try:
-                vals[k] = [pos[n] for n in names]
-            except KeyError as exc:
-                raise InputError(
-                    f"JointState message {k + 1} lacks joint {exc}", source, column="wheels"
-                ) from None
-        return Stream("wheels", source, t, names, vals)
-    if stream == "odometry":
+    kind = stream.rsplit("_", 1)[0] if stream[-1].isdigit() else stream
+    suffix = stream[len(kind) :]
+    noise = ros["message_noise"]
+    if kind == "wheels":
+        cols, vals = ros_msgs.joint_columns(t, msgs, joints, source, topic, repairs, stream)
+        return [Stream(stream, source, t, cols, vals)]
+    if kind == "odometry":
         if len(msgs) < 2:
-            return None
-        poses = np.array(
-            [
-                [m.pose.pose.position.x, m.pose.pose.position.y, _yaw(m.pose.pose.orientation)]
-                for m in msgs
-            ]
-        )
-        ti, inc = odometry_increments(t, poses)
-        return Stream("odometry", source, ti, ("ds", "dtheta"), inc)
-    if stream == "gyro":
-        return Stream("gyro", source, t, ("wz",), np.array([[m.angular_velocity.z] for m in msgs]))
-    if stream == "gps":
-        keep = [
-            k
-            for k, m in enumerate(msgs)
-            if m.status.status >= 0 and math.isfinite(m.latitude) and math.isfinite(m.longitude)
-        ]
-        if len(keep) < len(msgs):
-            repairs["gps.no_fix_dropped"] = len(msgs) - len(keep)
-        msgs = [msgs[k] for k in keep]
-        t = t[keep]
-        ll = np.array([[m.latitude, m.longitude] for m in msgs]).reshape(-1, 2)
-        # covariance_type 0 = unknown; otherwise sigma = sqrt of the mean horizontal variance.
-        known = [
-            m.position_covariance_type != 0
-            and m.position_covariance[0] > 0
-            and m.position_covariance[4] > 0
-            for m in msgs
-        ]
-        if msgs and all(known):
-            sig = np.array(
-                [
-                    math.sqrt(0.5 * (m.position_covariance[0] + m.position_covariance[4]))
-                    for m in msgs
-                ]
-            )
-            return Stream("gps", source, t, ("lat", "lon", "sigma"), np.column_stack([ll, sig]))
-        return Stream("gps", source, t, ("lat", "lon"), ll)
-    return None  # pragma: no cover
+            return []
+        ti, cols, vals = ros_msgs.odometry_columns(t, msgs)
+        if "var_ds" in cols:
+            noise[stream] = ["var_ds", "var_dtheta"]
+        return [Stream(stream, source, ti, cols, vals)]
+    if kind == "gyro":
+        yaw_offset = ros["mounts"].get(stream, [0.0, 0.0, 0.0])[2]
+        (gcols, gvals), compass = ros_msgs.imu_columns(msgs, yaw_offset)
+        out = [Stream(stream, source, t, gcols, gvals)]
+        if "sigma" in gcols:
+            noise[stream] = ["sigma"]
+        if compass is not None:
+            ccols, cvals, keep = compass
+            name = f"compass{suffix}"
+            out.append(Stream(name, source, t[keep], ccols, cvals))
+            noise[name] = ["sigma"]
+            ros["frames"][name] = ros["frames"].get(stream, ros["base_frame"])
+        return out
+    if kind == "gps":
+        cols, vals, keep = ros_msgs.navsat_columns(msgs)
+        if not keep.all():
+            repairs[f"{stream}.no_fix_dropped"] = int(np.count_nonzero(~keep))
+        if "sigma" in cols:
+            noise[stream] = ["sigma"]
+        return [Stream(stream, source, t[keep], cols, vals)]
+    return []  # pragma: no cover

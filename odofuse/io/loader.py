@@ -75,7 +75,7 @@ def load_log(
     encoder: dict | None = None,
     topics: dict | None = None,
     repair: dict | None = None,
-    joint_field: str = "position",
+    joints: dict | None = None,
 ) -> SensorLog:
     """Load a log from ``builtin:NAME``, a CSV folder, a ROS bag/MCAP or a GTSAM text file.
 
@@ -88,11 +88,11 @@ def load_log(
     encoder : dict, optional
         The robot's encoder block (CSV ``wheels.csv`` in ticks).
     topics : dict, optional
-        ``{stream: topic}`` for bags.
+        ``{stream: topic or [topics]}`` for bags.
     repair : dict, optional
         CSV repair policy ``{sort: bool, duplicates: str}`` (:data:`odofuse.io.csvlog.REPAIR`).
-    joint_field : {"position", "velocity"}
-        Which JointState array of a bag becomes the ``wheels`` stream.
+    joints : dict, optional
+        ``{drive input: JointState joint name}`` for bags.
 
     Returns
     -------
@@ -118,7 +118,7 @@ def load_log(
     if kind == "bag":
         from odofuse.io.bags import read_bag
 
-        return read_bag(path, topics=topics, joint_field=joint_field)
+        return read_bag(path, topics=topics, joints=joints)
     if kind == "pyfg":
         from odofuse.io.pyfg import read_pyfg
 
@@ -157,6 +157,13 @@ def load_log_for(config) -> SensorLog:
         cols = [n for n, k in zip(drive.input_names, kinds, strict=True) if k == "wheel"]
     if encoder and not encoder.get("columns"):
         encoder = {**encoder, "columns": cols}
+    if velocity and not config.log.startswith("builtin:") and log_kind(Path(config.log)) == "bag":
+        raise ConfigError(
+            "bags: JointState velocity is read (and integrated) by itself when position is "
+            "empty; leave log.wheel_inputs out",
+            config.source,
+            "log.wheel_inputs",
+        )
     if velocity and encoder and encoder.get("rollover"):
         raise ConfigError(
             "encoder.rollover unwraps counter positions; wheel speeds cannot roll over",
@@ -168,7 +175,7 @@ def load_log_for(config) -> SensorLog:
         encoder=encoder,
         topics=options.get("topics"),
         repair=options.get("repair"),
-        joint_field="velocity" if velocity else "position",
+        joints=options.get("joints"),
     )
     if velocity and "wheels" in log.streams:
         wheels = integrate_wheel_velocities(log.streams["wheels"], cols)

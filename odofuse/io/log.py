@@ -67,6 +67,8 @@ class SensorLog:
     ``groundtruth`` has columns ``("x", "y", "theta")`` and is never fed to an estimator.
     ``repairs`` counts documented repairs (``"wheels.duplicate_t"``, ``"wheels.rollover"``...).
     ``initial_pose`` is the dataset's own published start pose when it has one (m, m, rad).
+    ``ros`` holds what a ROS bag says about frames and noise (empty for other logs): see
+    :func:`odofuse.io.bags.read_bag`.
     """
 
     source: str
@@ -75,6 +77,7 @@ class SensorLog:
     groundtruth: Stream | None = None
     repairs: dict[str, int] = field(default_factory=dict)
     initial_pose: np.ndarray | None = None
+    ros: dict = field(default_factory=dict)
 
     def has(self, name: str) -> bool:
         return name in self.streams and len(self.streams[name]) > 0
