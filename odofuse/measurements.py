@@ -588,11 +588,14 @@ class LandmarkRangeBearing(MeasurementModel):
     """Range (m) and bearing (rad, robot frame) to a mapped landmark; ``dim = 2``.
 
     ``sigma`` is the range sigma, ``sigma_bearing`` the bearing sigma; rows hold ``id``,
-    ``range``, ``bearing``.
+    ``range``, ``bearing``. Rows that carry their own finite ``sigma_range`` and
+    ``sigma_bearing`` (pose-graph files, docs/formats.md section 3) use those unless the
+    sensor block sets a sigma (``file_noise`` false).
     """
 
     landmarks: Mapping[int, np.ndarray] = field(default_factory=dict)
     sigma_bearing: float = 0.02
+    file_noise: bool = True
 
     dim = 2
     angle_rows = (1,)
@@ -621,6 +624,10 @@ class LandmarkRangeBearing(MeasurementModel):
         return J
 
     def R(self, row) -> np.ndarray:
+        if self.file_noise and row is not None and "sigma_range" in row and "sigma_bearing" in row:
+            sr, sb = float(row["sigma_range"]), float(row["sigma_bearing"])
+            if math.isfinite(sr) and math.isfinite(sb) and sr > 0 and sb > 0:
+                return np.diag([sr * sr, sb * sb])
         return np.diag([self.sigma**2, self.sigma_bearing**2])
 
     def factor(self, key, row, calib_keys=None, noise=None, landmark_key=None):
@@ -660,6 +667,10 @@ STREAM_DEFAULTS: dict[str, str] = {
     "bearings": "bearing",
     "landmarks": "range_bearing",
 }
+
+#: Streams whose sensor block configures the graph estimators, not a measurement model
+#: (``odofuse.estimators.graph.loops``).
+ESTIMATOR_STREAMS = ("loop_closures",)
 
 # Sensor-block keys read by the estimators themselves (not model parameters).
 _ESTIMATOR_KEYS = ("gyrodometry", "threshold", "robust")  # read by estimators, not models
@@ -811,6 +822,8 @@ def _build_one(stream: str, block: Mapping, landmarks, source: str):
             kwargs[fld] = _vector(value, (2,), k, source)
         elif fld == "datum":
             kwargs[fld] = _vector(value, (2, 3), k, source)
+    if kind == "range_bearing" and {"sigma", "sigma_range", "sigma_bearing"} & set(block):
+        kwargs["file_noise"] = False  # the config's sigmas override the file's
     if kind in _LANDMARK_MODELS:
         if not landmarks:
             raise ConfigError(
@@ -853,7 +866,11 @@ def measurement_models(config, log=None) -> dict[str, MeasurementModel]:
         raise ConfigError(
             f"expected a mapping of stream -> block, got {sensors!r}", source, "sensors"
         )
-    models = {str(s): _build_one(str(s), b or {}, landmarks, source) for s, b in sensors.items()}
+    models = {
+        str(s): _build_one(str(s), b or {}, landmarks, source)
+        for s, b in sensors.items()
+        if s not in ESTIMATOR_STREAMS
+    }
     # A lat/lon GPS stream without a datum is expressed about its first fix (the usual default
     # of robot_localization's navsat_transform when no datum is set).
     streams = getattr(log, "streams", {}) or {}
