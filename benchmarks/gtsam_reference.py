@@ -18,6 +18,7 @@ is plain GTSAM (``gtsam.load2D`` / ``gtsam.readG2o``, ``LevenbergMarquardtOptimi
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
@@ -152,3 +153,69 @@ def odofuse_values(result, pose_keys, landmark_key=None):
 def position_rms(a: np.ndarray, b: np.ndarray) -> float:
     """RMS of the position difference of two ``(N, 3)`` pose arrays (m)."""
     return float(np.sqrt(np.mean(np.sum((a[:, :2] - b[:, :2]) ** 2, axis=1))))
+
+
+def dataset_config(log, path, estimator: str = "smoother", **options):
+    """The odofuse run of a dataset of the wheel: every stream it has, with the file's noise.
+
+    ``loop_closures`` when the log has them; ``landmarks`` (range-bearing) as SLAM; ``ranges``
+    against the log's map when it has one (pyfg beacons), else as SLAM. ``options`` go into
+    ``options.<estimator>``.
+    """
+    from odofuse.config import RunConfig
+
+    sensors: dict = {}
+    if log.has("loop_closures"):
+        sensors["loop_closures"] = {}
+    if log.has("landmarks"):
+        sensors["landmarks"] = {}
+        options.setdefault("slam", True)
+    if log.has("ranges"):
+        sensors["ranges"] = {}
+        if not log.landmarks:
+            options.setdefault("slam", True)
+    return RunConfig(
+        log=str(path),
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": [1e-6, 1e-8]},
+        estimator=estimator,
+        sensors=sensors,
+        options={estimator: options},
+        source=f"<{os.path.basename(str(path))}>",
+    )
+
+
+def apply_se2(T, xy) -> np.ndarray:
+    """Points ``xy`` ``(N, 2)`` moved by the rigid transform ``T = (tx, ty, angle)``."""
+    c, s = math.cos(T[2]), math.sin(T[2])
+    return np.asarray(xy, dtype=float) @ np.array([[c, s], [-s, c]]) + np.asarray(T[:2])
+
+
+def aligned_start(slam, log):
+    """The transform of a SLAM map onto the log's known beacons, and the start pose it implies.
+
+    No ground truth: the beacons are the map the localisation run uses. Returns
+    ``(T, start)``: ``T = (tx, ty, angle)`` from :func:`odofuse.evaluation.align_se2` of the
+    estimated beacons onto the known ones, and ``start = T`` composed with the first pose.
+    """
+    from odofuse.evaluation import align_se2
+
+    ids = sorted(log.landmarks)
+    A = np.array([slam.extra["landmarks"][i] for i in ids])
+    B = np.array([log.landmarks[i] for i in ids])
+    _, t, angle = align_se2(A, B)
+    T = np.array([t[0], t[1], angle])
+    x0 = slam.trajectory.poses[0]
+    start = np.r_[apply_se2(T, x0[None, :2])[0], math.remainder(x0[2] + angle, 2 * math.pi)]
+    return T, start
+
+
+def range_residuals(result, log) -> np.ndarray:
+    """``||p - b|| - r`` (m) of every range row at the estimated pose of its time, with the
+    estimated beacons (SLAM) or the log's map."""
+    beacons = result.extra.get("landmarks") or log.landmarks
+    r = log.streams["ranges"]
+    tr = result.trajectory
+    k = np.clip(np.searchsorted(tr.t, r.t), 0, len(tr.t) - 1)
+    b = np.array([beacons[int(i)] for i in r["id"]])
+    return np.linalg.norm(tr.poses[k, :2] - b, axis=1) - r["range"]

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from odofuse.outputs import write_metrics, write_trajectory_csv, write_tum
+from odofuse.outputs import write_landmarks_csv, write_metrics, write_trajectory_csv, write_tum
 from odofuse.trajectory import EstimateResult
 
 OUTPUT_NAMES = ("trajectory.csv", "trajectory.tum", "trajectory.png", "metrics.json")
+#: Written besides when the estimator estimated landmarks (SLAM): ``id,x,y,var_x,cov_xy,var_y``.
+LANDMARKS_NAME = "landmarks.csv"
 
 
 def write_outputs(
@@ -36,7 +38,8 @@ def write_outputs(
     Returns
     -------
     dict
-        ``{"csv": path, "tum": path, "metrics": path, "png": path}``.
+        ``{"csv": path, "tum": path, "metrics": path, "png": path}``, and ``"landmarks"``
+        (``landmarks.csv``) when ``result.extra`` holds estimated landmarks.
 
     If any writer fails, files written by this call are removed again and the error propagates.
     """
@@ -44,12 +47,18 @@ def write_outputs(
     out.mkdir(parents=True, exist_ok=True)
     # Outputs of an earlier run in this folder go first, so that a run failing half-way
     # cannot leave a mix of old and new files.
-    for name in OUTPUT_NAMES:
+    for name in (*OUTPUT_NAMES, LANDMARKS_NAME):
         (out / name).unlink(missing_ok=True)
     written: dict[str, Path] = {}
     try:
         written["csv"] = write_trajectory_csv(out / "trajectory.csv", result.trajectory)
         written["tum"] = write_tum(out / "trajectory.tum", result.trajectory)
+        if result.extra.get("landmarks"):
+            written["landmarks"] = write_landmarks_csv(
+                out / LANDMARKS_NAME,
+                result.extra["landmarks"],
+                result.extra.get("landmark_covariances"),
+            )
         if plot:
             from odofuse.plotting import plot_run  # matplotlib only when a picture is wanted
 

@@ -7,10 +7,11 @@ Owns the two closed-form initialisations SLAM tries before the grid search of
   (``l = p + r [cos(theta + b), sin(theta + b)]``), as GTSAM's own ``load2D`` initialises
   the landmarks of a bearing-range dataset;
 * :func:`multilaterate`: linear least squares of ``||p_k - l||^2 = r_k^2`` over several
-  ranges (the mean equation subtracted, which removes ``||l||^2``), then Gauss-Newton on the
-  3-sigma inliers of the ranges themselves. It refuses (returns ``None``) when the poses do not
-  span two dimensions (a straight path leaves the mirror image equally good) or when fewer
-  than half the ranges end up inliers, and the caller falls back to the grid search.
+  ranges (the mean equation subtracted, which removes ``||l||^2``), then Cauchy-weighted
+  Gauss-Newton on the ranges themselves and Gauss-Newton on their 3-sigma inliers. It
+  refuses (returns ``None``) when the poses do not span two dimensions (a straight path
+  leaves the mirror image equally good) or when fewer than half the ranges end up inliers,
+  and the caller falls back to the grid search.
 """
 
 from __future__ import annotations
@@ -71,8 +72,22 @@ def multilaterate(P, R, sig) -> np.ndarray | None:
     A = -2.0 * Q
     q2 = np.sum(Q * Q, axis=1)
     b = (R**2 - np.mean(R**2)) - (q2 - np.mean(q2))
-    m = np.linalg.lstsq(A, b, rcond=None)[0]
-    lm, inl = refine(c + m, P, R, sig)
+    lm = c + np.linalg.lstsq(A, b, rcond=None)[0]
+    # the squared ranges weigh outliers heavily: Cauchy-weighted Gauss-Newton on the ranges,
+    # scale from the residuals' MAD (never below 3 sigma), before the 3-sigma refinement
+    for _ in range(30):
+        diff = lm - P
+        d = np.maximum(np.linalg.norm(diff, axis=1), 1e-9)
+        e = d - R
+        scale = max(
+            1.4826 * float(np.median(np.abs(e - np.median(e)))), 3.0 * float(np.median(sig))
+        )
+        w = np.sqrt(1.0 / (1.0 + (e / scale) ** 2))
+        step = np.linalg.lstsq(diff / d[:, None] * w[:, None], -e * w, rcond=None)[0]
+        lm = lm + step
+        if np.linalg.norm(step) < 1e-6:
+            break
+    lm, inl = refine(lm, P, R, sig)
     if inl.mean() < MIN_INLIERS or not np.all(np.isfinite(lm)):
         return None
     return lm

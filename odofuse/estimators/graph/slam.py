@@ -21,6 +21,11 @@ if TYPE_CHECKING:  # a type only: problem.py imports this module
     from odofuse.estimators.graph.problem import GraphProblem
 
 
+#: The grid search uses at most this many cells along each axis (its cell grows beyond
+#: ``slam_grid`` for ranges of hundreds of metres, e.g. the acoustic ranges of GOATS).
+MAX_CELLS_PER_SIDE = 400
+
+
 def log_with_ids(log):
     """A view of ``log`` whose map lists every landmark id seen (positions unused in SLAM)."""
     import dataclasses
@@ -80,10 +85,11 @@ def slam_initial_landmarks(problem: GraphProblem, poses) -> dict[int, np.ndarray
 def grid_search(P, R, sig, cell: float) -> np.ndarray:
     """Robust landmark position from ranges ``R`` (m, sigmas ``sig``) taken at ``P`` ``(n, 2)``.
 
-    A grid of cell ``cell`` m over the positions' bounding box grown by the largest range is
-    scored with a truncated quadratic of ``||p_k - l|| - r_k`` (truncated at 3 sigma, so
-    multipath outliers and a few-percent scale error cannot pull the minimum), then refined by
-    Gauss-Newton on the inliers. The range-only ring ambiguity is broken by the robot's own
+    A grid of cell ``cell`` m (coarser when it would exceed :data:`MAX_CELLS_PER_SIDE`)
+    over the positions' bounding box grown by the largest range is scored with a truncated
+    quadratic of ``||p_k - l|| - r_k`` (truncated at 3 sigma, so multipath outliers and a
+    few-percent scale error cannot pull the minimum), then refined by Gauss-Newton on the
+    inliers. The range-only ring ambiguity is broken by the robot's own
     motion: a landmark seen from a 2-D path has one minimum.
     """
     if len(P) > 400:  # a spread-out subsample is plenty for the grid
@@ -93,6 +99,7 @@ def grid_search(P, R, sig, cell: float) -> np.ndarray:
         Pg, Rg, Sg = P, R, sig
     lo = P.min(0) - R.max()
     hi = P.max(0) + R.max()
+    cell = max(cell, float((hi - lo).max()) / MAX_CELLS_PER_SIDE)  # km-scale ranges: coarser
     gx = np.arange(lo[0], hi[0] + cell, cell)
     gy = np.arange(lo[1], hi[1] + cell, cell)
     G = np.stack(np.meshgrid(gx, gy, indexing="ij"), -1).reshape(-1, 2)
