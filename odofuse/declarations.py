@@ -309,6 +309,26 @@ class RangeBearingOptions(SensorOptions):
 
 
 #: Model kind -> options class (the ``model`` key of a sensor block).
+@dataclass(frozen=True)
+class LoopClosureOptions:
+    """``sensors.loop_closures``: the pose graph's loop closures (graph estimators only)."""
+
+    kind: ClassVar[str] = "loop_closures"
+    sigma: float | tuple[float, float, float] | None = option(
+        None,
+        unit="m, m, rad",
+        doc="replaces the file's covariance by diag(sigma^2); null: the file's own noise",
+        **_POSITIVE,
+    )
+    robust: tuple[str, float] | None = option(
+        None,
+        unit="sigma",
+        doc="robust loss of the loop closures",
+        parse=robust_loss,
+        type_name="huber \\| cauchy \\| tukey \\| none or {type, k}",
+    )
+
+
 SENSOR_OPTIONS: dict[str, type] = {
     c.kind: c
     for c in (
@@ -320,6 +340,8 @@ SENSOR_OPTIONS: dict[str, type] = {
         RangeBearingOptions,
     )
 }
+#: Sensor blocks that configure the graph estimators' use of a stream, not a measurement model.
+GRAPH_STREAM_OPTIONS: dict[str, type] = {"loop_closures": LoopClosureOptions}
 
 #: The model a stream gets when its block names neither ``model`` nor ``class``.
 STREAM_DEFAULTS: dict[str, str] = {
@@ -365,6 +387,8 @@ def sensor_options(stream: str, block, source: str = "<config>"):
     block = dict(block)
     if "class" in block:
         return _plugin_sensor(stream, block, source)
+    if stream in GRAPH_STREAM_OPTIONS:
+        return from_mapping(GRAPH_STREAM_OPTIONS[stream], block, prefix, source)
     kind = block.get("model", stream_kind(stream))
     if kind not in SENSOR_OPTIONS:
         raise ConfigError(
@@ -627,6 +651,8 @@ def catalogue() -> dict[str, tuple[type, str]]:
     out = {name: (cls, name) for name, cls in BLOCK_OPTIONS.items()}
     for kind, cls in SENSOR_OPTIONS.items():
         out[f"sensors.{kind}"] = (cls, "sensors.<stream>")
+    for stream, cls in GRAPH_STREAM_OPTIONS.items():
+        out[f"sensors.{stream}"] = (cls, f"sensors.{stream}")
     for name, cls in ESTIMATOR_OPTIONS.items():
         if cls is not UncheckedOptions and dataclasses.fields(cls):
             out[name] = (cls, f"options.{name}")

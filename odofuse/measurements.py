@@ -44,8 +44,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from odofuse.declarations import STREAM_DEFAULTS, PluginSensorOptions
+from odofuse.declarations import STREAM_DEFAULTS, LoopClosureOptions, PluginSensorOptions
 from odofuse.errors import ConfigError
+from odofuse.options import explicit
 from odofuse.se2 import wrap
 
 __all__ = [
@@ -591,11 +592,14 @@ class LandmarkRangeBearing(MeasurementModel):
     """Range (m) and bearing (rad, robot frame) to a mapped landmark; ``dim = 2``.
 
     ``sigma`` is the range sigma, ``sigma_bearing`` the bearing sigma; rows hold ``id``,
-    ``range``, ``bearing``.
+    ``range``, ``bearing``. Rows that carry their own finite ``sigma_range`` and
+    ``sigma_bearing`` (pose-graph files, docs/formats.md section 3) use those unless the
+    sensor block sets a sigma (``file_noise`` false).
     """
 
     landmarks: Mapping[int, np.ndarray] = field(default_factory=dict)
     sigma_bearing: float = 0.02
+    file_noise: bool = True
 
     dim = 2
     angle_rows = (1,)
@@ -624,6 +628,10 @@ class LandmarkRangeBearing(MeasurementModel):
         return J
 
     def R(self, row) -> np.ndarray:
+        if self.file_noise and row is not None and "sigma_range" in row and "sigma_bearing" in row:
+            sr, sb = float(row["sigma_range"]), float(row["sigma_bearing"])
+            if math.isfinite(sr) and math.isfinite(sb) and sr > 0 and sb > 0:
+                return np.diag([sr * sr, sb * sb])
         return np.diag([self.sigma**2, self.sigma_bearing**2])
 
     def factor(self, key, row, calib_keys=None, noise=None, landmark_key=None):
@@ -713,6 +721,8 @@ def _build_one(stream: str, opts, landmarks, source: str):
     if getattr(opts, "sigma_range", None) is not None:
         kwargs["sigma"] = opts.sigma_range
     kwargs["name"] = stream
+    if kind == "range_bearing" and {"sigma", "sigma_range", "sigma_bearing"} & explicit(opts):
+        kwargs["file_noise"] = False  # the config's sigmas override the file's
     if kind in _LANDMARK_MODELS:
         if not landmarks:
             raise ConfigError(
@@ -752,7 +762,11 @@ def measurement_models(config, log=None) -> dict[str, MeasurementModel]:
     """
     source = getattr(config, "source", "<config>")
     landmarks = dict(getattr(log, "landmarks", {}) or {})
-    models = {s: _build_one(s, b, landmarks, source) for s, b in config.sensors.items()}
+    models = {
+        s: _build_one(s, b, landmarks, source)
+        for s, b in config.sensors.items()
+        if not isinstance(b, LoopClosureOptions)  # read by the graph estimators, not a model
+    }
     # A lat/lon GPS stream without a datum is expressed about its first fix (the usual default
     # of robot_localization's navsat_transform when no datum is set).
     streams = getattr(log, "streams", {}) or {}

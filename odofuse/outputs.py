@@ -77,6 +77,35 @@ def write_trajectory_csv(path: str | Path, traj: Trajectory) -> Path:
     return atomic_write_text(path, trajectory_csv_text(traj))
 
 
+#: Header of ``landmarks.csv``: SLAM landmark estimates, world frame, covariance in m^2.
+LANDMARK_COLUMNS = ("id", "x", "y", "var_x", "cov_xy", "var_y")
+
+
+def landmarks_csv_text(landmarks: dict, covariances: dict | None = None) -> str:
+    """``landmarks.csv`` content: one row per landmark id (sorted), covariance ``nan`` when
+    the estimator gave none.
+
+    Parameters
+    ----------
+    landmarks : dict
+        id -> ``[x, y]`` (m, world frame).
+    covariances : dict, optional
+        id -> ``[var_x, cov_xy, var_y]`` (m^2).
+    """
+    covariances = covariances or {}
+    lines = [",".join(LANDMARK_COLUMNS)]
+    for lid in sorted(landmarks, key=int):
+        c = covariances.get(lid, [math.nan] * 3)
+        vals = [*landmarks[lid], *c]
+        lines.append(f"{int(lid)}," + ",".join(f"{float(v):.17g}" for v in vals))
+    return "\n".join(lines) + "\n"
+
+
+def write_landmarks_csv(path: str | Path, landmarks: dict, covariances: dict | None = None):
+    """Write ``landmarks.csv`` atomically (:func:`landmarks_csv_text`)."""
+    return atomic_write_text(path, landmarks_csv_text(landmarks, covariances))
+
+
 def write_tum(path: str | Path, traj: Trajectory) -> Path:
     """Write a TUM trajectory file atomically."""
     return atomic_write_text(path, trajectory_tum_text(traj))

@@ -62,7 +62,9 @@ def plot_run(
     result : EstimateResult or Trajectory
         The estimate.
     log : SensorLog, optional
-        Ground truth (``log.groundtruth``) and landmarks (``log.landmarks``).
+        Ground truth (``log.groundtruth``) and landmarks (``log.landmarks``). Landmarks the
+        estimator estimated (``result.extra["landmarks"]``, SLAM) are drawn beside them, with
+        2-sigma ellipses from ``extra["landmark_covariances"]``.
     ellipses : int
         About this many 2-sigma position ellipses, evenly spaced along the trajectory
         (only where covariances exist).
@@ -114,6 +116,17 @@ def plot_run(
         ax.plot(pts[:, 0], pts[:, 1], "^", color="k", ms=8, label="beacons / landmarks")
         for i, p in zip(ids, pts, strict=False):
             ax.annotate(str(i), p, textcoords="offset points", xytext=(5, 5), fontsize=8)
+    estimated = result.extra.get("landmarks") if isinstance(result, EstimateResult) else None
+    if estimated:
+        ids = sorted(estimated, key=int)
+        pts = np.array([estimated[i] for i in ids], dtype=float)
+        ax.plot(pts[:, 0], pts[:, 1], "+", color="tab:purple", ms=8, label="estimated landmarks")
+        covs = result.extra.get("landmark_covariances") or {}
+        for i, p in zip(ids, pts, strict=True):
+            if i in covs and np.all(np.isfinite(covs[i])):
+                vx, cxy, vy = covs[i]
+                e = covariance_ellipse(p, [[vx, cxy], [cxy, vy]])
+                ax.plot(e[:, 0], e[:, 1], color="tab:purple", lw=0.6, alpha=0.7)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal", adjustable="datalim")

@@ -15,7 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from odofuse.outputs import evo_t_max_diff, tum_name, write_metrics, write_trajectory_csv, write_tum
+from odofuse.outputs import (
+    evo_t_max_diff,
+    tum_name,
+    write_landmarks_csv,
+    write_metrics,
+    write_trajectory_csv,
+    write_tum,
+)
 from odofuse.trajectory import EstimateResult, Trajectory
 
 OUTPUT_NAMES = (
@@ -26,6 +33,8 @@ OUTPUT_NAMES = (
     "groundtruth.tum",
     "trajectory.mcap",
 )
+#: Written besides when the estimator estimated landmarks (SLAM): ``id,x,y,var_x,cov_xy,var_y``.
+LANDMARKS_NAME = "landmarks.csv"
 
 
 def write_outputs(
@@ -59,7 +68,8 @@ def write_outputs(
     dict
         ``{"csv", "tum", "tum_estimator", "metrics"}`` paths, and ``"png"``, ``"groundtruth"``
         (``groundtruth.tum``, with ``metrics["evo_t_max_diff_s"]`` set) and ``"mcap"`` when
-        written.
+        written, and ``"landmarks"`` (``landmarks.csv``) when ``result.extra`` holds estimated
+        landmarks.
 
     If any writer fails, files written by this call are removed again and the error propagates.
     """
@@ -68,7 +78,7 @@ def write_outputs(
     # Outputs of an earlier run in this folder go first, so that a run failing half-way
     # cannot leave a mix of old and new files.
     named_tum = tum_name(result.estimator)
-    for name in (*OUTPUT_NAMES, named_tum):
+    for name in (*OUTPUT_NAMES, LANDMARKS_NAME, named_tum):
         (out / name).unlink(missing_ok=True)
     written: dict[str, Path] = {}
     gt = getattr(log, "groundtruth", None)
@@ -77,6 +87,12 @@ def write_outputs(
         written["tum"] = write_tum(out / "trajectory.tum", result.trajectory)
         if named_tum != "trajectory.tum":
             written["tum_estimator"] = write_tum(out / named_tum, result.trajectory)
+        if result.extra.get("landmarks"):
+            written["landmarks"] = write_landmarks_csv(
+                out / LANDMARKS_NAME,
+                result.extra["landmarks"],
+                result.extra.get("landmark_covariances"),
+            )
         if gt is not None and len(gt):
             gt_traj = Trajectory(gt.t, np.column_stack([gt["x"], gt["y"], gt["theta"]]))
             written["groundtruth"] = write_tum(out / "groundtruth.tum", gt_traj)

@@ -426,11 +426,12 @@ def test_bad_options_name_the_key(options, key):
     assert exc.value.key == key and exc.value.file == "test.yaml"
 
 
-def test_slam_only_for_the_smoother():
+def test_slam_not_for_the_fixed_lag_smoother():
+    # isam2 has an incremental SLAM path since issue 12 (tests/test_graph_datasets.py)
     log = _simulate(T=10.0)
-    cfg = _config("isam2", {"ranges": {"sigma": 0.2}}, {"slam": True})
+    cfg = _config("fixed_lag", {"ranges": {"sigma": 0.2}}, {"slam": True})
     with pytest.raises(ConfigError, match="slam"):
-        graph.run_isam2(log, cfg)
+        graph.run_fixed_lag(log, cfg)
 
 
 # --------------------------------------------------------------------------- Plaza1

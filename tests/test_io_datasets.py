@@ -349,3 +349,36 @@ def test_pose_graph_log_round_trips_through_csv_export(walk, tmp_path):
     for s in ("odometry", "loop_closures"):
         np.testing.assert_allclose(back.streams[s].values, log.streams[s].values, rtol=1e-15)
     assert not math.isnan(back.streams["odometry"]["cov_tt"][0])
+
+
+#: Planar logs run in ``benchmarks/bench_datasets.py`` only (tens of seconds each).
+RUN_IN_BENCHMARK = {"w10000.graph", "w20000.txt", "victoria_park.txt"}
+
+
+@pytest.mark.parametrize("name", sorted(PLANAR - RUN_IN_BENCHMARK))
+def test_walk_runs_every_small_planar_log(walk, name):
+    """Loaded *and run*: the smoother with every stream the file has (loop closures, SLAM
+    landmarks, ranges), or dead reckoning for the raw Plaza text (its range-only SLAM is in
+    the benchmark)."""
+    import dataclasses
+    import sys
+    from pathlib import Path
+
+    from odofuse.estimators import run_estimator
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import gtsam_reference as ref
+
+    log = walk[name]
+    estimator = "dead_reckoning" if name.startswith("Plaza") else "smoother"
+    if estimator == "dead_reckoning":  # options are validated per estimator
+        cfg = ref.dataset_config(log, os.path.join(DATA, name))
+        cfg = dataclasses.replace(cfg, estimator=estimator, sensors={}, options={})
+    else:
+        cfg = ref.dataset_config(log, os.path.join(DATA, name), estimator, covariances=False)
+    res = run_estimator(estimator, log, cfg)
+    assert np.all(np.isfinite(res.trajectory.poses)) and len(res.trajectory) > 3
+    for stream, used in res.used.items():
+        assert used + res.rejected.get(stream, 0) == len(log.streams[stream]), stream
+    if estimator == "smoother":
+        assert set(res.used) == set(log.streams)  # every stream of the file was used

@@ -32,5 +32,27 @@ def get_estimator(name: str):
 
 
 def run_estimator(name: str, log, config):
-    """Run estimator ``name`` on ``log`` with ``config``; returns an ``EstimateResult``."""
-    return get_estimator(name)(log, config)
+    """Run estimator ``name`` on ``log`` with ``config``; returns an ``EstimateResult``.
+
+    A log with loop closures (``loop_closures`` stream) that the estimator did not use gets
+    a non-degrading finding saying so (only the graph estimators use them, with
+    ``sensors: {loop_closures: {}}``).
+    """
+    result = get_estimator(name)(log, config)
+    streams = getattr(log, "streams", {}) or {}
+    n = len(streams["loop_closures"]) if "loop_closures" in streams else 0
+    if n and "loop_closures" not in result.used:
+        import dataclasses
+
+        from odofuse.health import Finding
+
+        note = Finding(
+            "loop_closures",
+            f"{n} loop closures in the log are not used by '{name}' (the graph estimators use "
+            "them with sensors: {loop_closures: {}})",
+            sensor="loop_closures",
+            figure=float(n),
+            degrades=False,
+        )
+        result = dataclasses.replace(result, findings=tuple(result.findings) + (note,))
+    return result

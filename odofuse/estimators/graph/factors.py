@@ -20,6 +20,7 @@ from odofuse.estimators.graph.custom_factors import (
     range_landmark_factor,
 )
 from odofuse.estimators.graph.keys import B, L, X, model_kind
+from odofuse.estimators.graph.loops import STREAM
 from odofuse.estimators.graph.options import ROBUST_DEFAULT_K
 from odofuse.estimators.graph.problem import GraphProblem, Measurement
 
@@ -81,6 +82,11 @@ class Factors:
         self.by_kf: dict[int, list[Measurement]] = {}
         for meas in problem.measurements:
             self.by_kf.setdefault(meas.keyframe, []).append(meas)
+        self.loops_by_kf: dict[int, list] = {}  # graph.loops.Loop records by later keyframe
+        for loop in problem.loops:
+            self.loops_by_kf.setdefault(loop.later, []).append(loop)
+        if problem.loops:
+            self.used[STREAM] = 0
         self.landmark_keys: dict[int, int] = {}
         needs_landmarks = {m.landmark for m in problem.measurements if m.landmark is not None}
         for lid in sorted(needs_landmarks):
@@ -158,9 +164,8 @@ class Factors:
         """``BetweenFactorPose2`` from keyframe ``i-1`` to ``i``."""
         d = self.p.deltas[i - 1]
         loss, k = self.p.robust.get(self.p.odometry_stream, ("none", 0.0))
-        nm = robust_noise(
-            _odometry_noise(self.p.covs[i - 1], self.p.options.odometry_floor), loss, k
-        )
+        floor = 0.0 if self.p.pose_graph else self.p.options.odometry_floor  # the file's noise
+        nm = robust_noise(_odometry_noise(self.p.covs[i - 1], floor), loss, k)
         oc = self.p.odometry_calibration
         if oc is not None:
             self.python_factors += 1
@@ -168,6 +173,15 @@ class Factors:
                 X(i - 1), X(i), self.p.odometry_key, d, self.p.G[i - 1], oc.nominal, nm
             )
         return self.gtsam.BetweenFactorPose2(X(i - 1), X(i), self.gtsam.Pose2(*d), nm)
+
+    def loop(self, loop):
+        """``BetweenFactorPose2`` of a :class:`~odofuse.estimators.graph.loops.Loop`, with the
+        robust loss of ``sensors.loop_closures.robust``."""
+        loss, k = self.p.robust.get(STREAM, ("none", 0.0))
+        nm = robust_noise(self.gtsam.noiseModel.Gaussian.Covariance(loop.cov), loss, k)
+        return self.gtsam.BetweenFactorPose2(
+            X(loop.i), X(loop.j), self.gtsam.Pose2(*loop.delta), nm
+        )
 
     def measurement(self, meas: Measurement):
         """The factor of one sensor row (robust loss of its stream applied)."""
@@ -257,6 +271,9 @@ class Factors:
             g.add(self.odometry(i))
             v.insert(X(i), values_guess)
             self.dims[X(i)] = 3
+        for loop in self.loops_by_kf.get(i, ()):
+            g.add(self.loop(loop))
+            self.used[STREAM] += 1
         for meas in self.by_kf.get(i, ()):
             f = self.measurement(meas)
             g.add(f)

@@ -16,10 +16,16 @@ import numpy as np
 from odofuse import se2
 from odofuse.errors import ConfigError
 from odofuse.estimators.graph.factors import Factors
+from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X, model_kind
 from odofuse.estimators.graph.options import GraphOptions
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
-from odofuse.estimators.graph.solvers import finish, pose_array, world_covs
+from odofuse.estimators.graph.solvers import (
+    finish,
+    landmark_covariances,
+    pose_array,
+    world_covs,
+)
 from odofuse.trajectory import EstimateResult
 
 
@@ -164,6 +170,10 @@ def run_isam2(log, config) -> EstimateResult:
     import gtsam
 
     problem = build_problem(log, config, "isam2")
+    if problem.options.slam:  # unknown landmarks: odofuse.estimators.graph.isam2_slam
+        params = _isam2_params(problem.options)
+        isam, fac, lat = incremental_slam(problem, params, getattr(config, "source", "<config>"))
+        return _slam_result(problem, isam, fac, {"latency": _latency_summary(lat)})
     fac = Factors(problem)
     groups = _freeze_groups(problem, fac, getattr(config, "source", "<config>"))
     spec = problem.options.calibration_freeze or {}
@@ -238,6 +248,16 @@ def run_isam2(log, config) -> EstimateResult:
     extra = {"latency": _latency_summary(latency), "latency_step": _latency_summary(step)}
     if groups:
         extra["calibration_freeze"] = freeze_info
+    return finish(problem, fac, result, covs, "isam2", extra)
+
+
+def _slam_result(problem, isam, fac, extra) -> EstimateResult:
+    """The final iSAM2 SLAM estimate with pose and landmark covariances."""
+    result = isam.calculateEstimate()
+    covs = None
+    if problem.options.covariances:
+        covs = world_covs(problem, pose_array(result, len(problem.kt)), isam.marginalCovariance)
+        extra["landmark_covariances"] = landmark_covariances(fac, result, isam.marginalCovariance)
     return finish(problem, fac, result, covs, "isam2", extra)
 
 

@@ -35,7 +35,10 @@ OPTION_KEYS = (
     "final_relinearizations",
     "odometry_calibration",
     "calibration_freeze",
+    "slam_init",
 )
+#: Values of ``slam_init`` (the smoother's initial values of a SLAM problem).
+SLAM_INITS = ("auto", "incremental", "dead_reckoning")
 
 
 @dataclass(frozen=True)
@@ -62,6 +65,13 @@ class GraphOptions:
         Compute marginal covariances (world frame).
     slam_grid : float
         m, cell of the landmark initialisation grid.
+    slam_init : str
+        Smoother only: initial values of a SLAM problem. ``incremental``: an iSAM2 pass in
+        which each landmark enters from the current estimate of the poses
+        (:mod:`odofuse.estimators.graph.isam2_slam`); ``dead_reckoning``: dead-reckoned poses
+        and landmarks placed off them; ``auto`` (default): ``incremental`` unless the graph
+        estimates calibration states (their Python factors, relinearised inside iSAM2, make
+        the pass slow).
     known_landmark_sigma : float
         m, sigma of the prior that pins a known landmark variable.
     calibration_freeze : dict or None
@@ -94,6 +104,7 @@ class GraphOptions:
     final_relinearizations: int = 3
     odometry_calibration: object = False
     calibration_freeze: dict | None = None
+    slam_init: str = "auto"
 
 
 def nonneg_option(value, key, source) -> float:
@@ -219,6 +230,12 @@ def parse_options(config, estimator: str) -> GraphOptions:
             if not isinstance(value, bool | list):
                 raise ConfigError(
                     f"expected true, false or a list of prior sigmas, got {value!r}", source, k
+                )
+            kw[key] = value
+        elif key == "slam_init":
+            if value not in SLAM_INITS:
+                raise ConfigError(
+                    f"expected one of {', '.join(SLAM_INITS)}, got {value!r}", source, k
                 )
             kw[key] = value
         elif key == "calibration_freeze":

@@ -10,7 +10,7 @@ odometry and the dead-reckoned initial guess. The factors themselves are made by
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -20,6 +20,14 @@ from odofuse.estimators.common import initial_state, odometry_inputs, odometry_s
 from odofuse.estimators.graph.calibration import OdometryCalibration, odometry_calibration_for
 from odofuse.estimators.graph.keyframes import keyframe_times, preintegrate
 from odofuse.estimators.graph.keys import C, model_kind
+from odofuse.estimators.graph.loops import (
+    STREAM,
+    file_odometry,
+    is_pose_graph,
+    loop_block,
+    loop_closures,
+    loop_times,
+)
 from odofuse.estimators.graph.options import GraphOptions, parse_options
 from odofuse.estimators.graph.slam import log_with_ids, slam_initial_landmarks
 
@@ -78,6 +86,8 @@ class GraphProblem:
     robust: dict
     odometry_calibration: OdometryCalibration | None = None
     G: np.ndarray | None = None
+    loops: list = field(default_factory=list)  # graph.loops.Loop records
+    pose_graph: bool = False  # odometry edges as stored in a pose-graph file (graph.loops)
 
     @property
     def odometry_key(self) -> int:
@@ -110,9 +120,9 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
     from odofuse.motion import motion_model_from_config
 
     options = parse_options(config, estimator)
-    if options.slam and estimator != "smoother":
+    if options.slam and estimator == "fixed_lag":
         raise ConfigError(
-            "slam (unknown landmarks) is implemented for the batch smoother only",
+            "slam (unknown landmarks) is implemented for the smoother and isam2 only",
             file=config.source,
             key=f"options.{estimator}.slam",
         )
@@ -120,6 +130,10 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
     t_odo, U = odometry_inputs(log, model)
     pose0, P0 = initial_state(config, log)
     models = measurement_models(config, log_with_ids(log) if options.slam else log)
+    loops_cfg = loop_block(config)
+    pose_graph = is_pose_graph(log, odometry_stream_name(model))
+    if pose_graph:  # one keyframe per pose, each edge with the file's covariance
+        t_odo, pg_deltas, pg_covs = file_odometry(log, odometry_stream_name(model), t_odo, model)
     t_lo, t_hi = float(t_odo[0]), float(t_odo[-1])
 
     rejected: dict[str, int] = {}
@@ -161,7 +175,10 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         rejected[name] = n_rej
 
     sensor_times = np.array([t for t, _ in pending])
-    kt = keyframe_times(t_odo, U, model, sensor_times, options)
+    if loops_cfg is not None:
+        sensor_times = np.concatenate([sensor_times, loop_times(log)])
+        sensor_times = sensor_times[(sensor_times >= t_lo) & (sensor_times <= t_hi)]
+    kt = t_odo if pose_graph else keyframe_times(t_odo, U, model, sensor_times, options)
     for t, meas in pending:
         meas.keyframe = int(np.searchsorted(kt, t))
         if meas.prev_keyframe is not None:
@@ -174,7 +191,15 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         config.source,
     )
     G = None
-    if odo_cal is None:
+    if pose_graph and odo_cal is not None:
+        raise ConfigError(
+            "a pose-graph log has relative poses, not drive inputs, to calibrate",
+            file=config.source,
+            key=f"options.{estimator}.odometry_calibration",
+        )
+    if pose_graph:
+        deltas, covs = pg_deltas, pg_covs
+    elif odo_cal is None:
         deltas, covs = preintegrate(t_odo, U, model, kt)
     else:
         deltas, covs, G = preintegrate(t_odo, U, model, kt, odo_cal)
@@ -193,6 +218,7 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
     robust[odometry_stream_name(model)] = options.robust.get(
         odometry_stream_name(model), ("none", 0.0)
     )
+    robust[STREAM] = options.robust.get(STREAM, ("none", 0.0))
     problem = GraphProblem(
         kt,
         deltas,
@@ -211,6 +237,10 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         odo_cal,
         G,
     )
+    problem.pose_graph = pose_graph
+    if loops_cfg is not None:
+        lag = options.lag if estimator == "fixed_lag" else None
+        problem.loops, rejected[STREAM] = loop_closures(log, loops_cfg, kt, lag)
     if options.slam:
         problem.landmarks = slam_initial_landmarks(problem, problem.dead_reckoning())
     return problem

@@ -18,6 +18,7 @@ factors use GTSAM's own LM.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -25,7 +26,9 @@ import numpy as np
 
 from odofuse import se2
 from odofuse.estimators.graph.factors import Factors
+from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X, model_kind
+from odofuse.estimators.graph.marginals import batch_marginals
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.trajectory import EstimateResult, Trajectory
 
@@ -157,6 +160,16 @@ def world_covs(problem, poses, cov_of) -> np.ndarray:
     return 0.5 * (covs + np.swapaxes(covs, 1, 2))
 
 
+def landmark_covariances(fac: Factors, values, cov_of) -> dict:
+    """SLAM landmark id -> ``[var_x, cov_xy, var_y]`` (m^2, world frame) from ``cov_of(key)``."""
+    out = {}
+    for lid, key in fac.landmark_keys.items():
+        if values.exists(key):
+            c = cov_of(key)
+            out[int(lid)] = [float(c[0, 0]), float(0.5 * (c[0, 1] + c[1, 0])), float(c[1, 1])]
+    return out
+
+
 def finish(problem, fac, values, covs, estimator, extra) -> EstimateResult:
     poses = pose_array(values, len(problem.kt))
     extra = {**_extra(problem, fac, values, estimator), **extra}
@@ -180,6 +193,27 @@ def build_graph(problem: GraphProblem):
     return fac, graph, values
 
 
+def incremental_initial_values(problem: GraphProblem, values):
+    """``values`` with the poses and landmarks of an iSAM2 SLAM pass (``slam_init``).
+
+    GTSAM's default iSAM2 parameters but QR factorisation (as ``estimator: isam2``); a
+    landmark the pass could not fix keeps its dead-reckoned initial value. Returns the values
+    and ``{"init_s": s}`` (its wall time).
+    """
+    import gtsam
+
+    t0 = time.perf_counter()
+    rejected = dict(problem.rejected)
+    params = gtsam.ISAM2Params()
+    params.setFactorization("QR")  # odometry floors can be too ill-conditioned for Cholesky
+    isam, _, _ = incremental_slam(problem, params)
+    problem.rejected.clear()
+    problem.rejected.update(rejected)  # the batch graph still holds every row
+    out = gtsam.Values(values)
+    out.update(isam.calculateEstimate())  # every key of the pass is in the batch graph
+    return out, {"init_s": time.perf_counter() - t0}
+
+
 def run_smoother(log, config) -> EstimateResult:
     """Batch Levenberg-Marquardt over the whole log (``estimator: smoother``).
 
@@ -196,6 +230,12 @@ def run_smoother(log, config) -> EstimateResult:
     problem = build_problem(log, config, "smoother")
     fac, graph, values = build_graph(problem)
     opts = problem.options
+    extra: dict = {}
+    calibrated = bool(problem.calib) or problem.odometry_calibration is not None
+    if opts.slam and (
+        opts.slam_init == "incremental" or (opts.slam_init == "auto" and not calibrated)
+    ):
+        values, extra = incremental_initial_values(problem, values)
     t0 = time.perf_counter()
     if fac.python_factors:
         result, iterations, err = levenberg_marquardt(
@@ -209,17 +249,18 @@ def run_smoother(log, config) -> EstimateResult:
         result = optimizer.optimize()
         iterations, err = optimizer.iterations(), graph.error(result)
     solve_s = time.perf_counter() - t0
-    covs = None
+    covs, notes, cov_of = None, [], None
     if opts.covariances:
-        marginals = gtsam.Marginals(graph, result)
+        cov_of, notes = batch_marginals(graph, result)
+    if cov_of is not None:
         poses = pose_array(result, len(problem.kt))
-        covs = world_covs(problem, poses, marginals.marginalCovariance)
-        if problem.calib:
-            sig = {
-                name: float(np.sqrt(marginals.marginalCovariance(key)[0, 0]))
-                for name, (key, _, _) in problem.calib.items()
-            }
-    extra = {"iterations": int(iterations), "final_error": float(err), "solve_s": solve_s}
-    if opts.covariances and problem.calib:
-        extra["calibration_sigma"] = sig
-    return finish(problem, fac, result, covs, "smoother", extra)
+        covs = world_covs(problem, poses, cov_of)
+    extra.update(iterations=int(iterations), final_error=float(err), solve_s=solve_s)
+    if cov_of is not None and problem.calib:
+        extra["calibration_sigma"] = {
+            name: float(np.sqrt(cov_of(key)[0, 0])) for name, (key, _, _) in problem.calib.items()
+        }
+    if cov_of is not None and problem.options.slam:
+        extra["landmark_covariances"] = landmark_covariances(fac, result, cov_of)
+    res = finish(problem, fac, result, covs, "smoother", extra)
+    return dataclasses.replace(res, findings=tuple(res.findings) + tuple(notes))

@@ -1,0 +1,143 @@
+"""Incremental SLAM: iSAM2 with unknown landmarks entering the graph as they are first fixed.
+
+Owns :func:`incremental_slam` (used by ``estimator: isam2`` with ``slam: true``, and by the
+smoother's ``slam_init: incremental`` as its initial values). A new landmark enters the graph
+with the measurement that first fixes it, initialised from the *current* iSAM2 estimate of the
+poses rather than from dead reckoning:
+
+* a range-bearing sighting places it at once
+  (:func:`~odofuse.estimators.graph.landmarks.from_sighting`);
+* ranges are held back until :func:`~odofuse.estimators.graph.landmarks.multilaterate` fixes
+  the landmark from at least :data:`MIN_RANGES` of them (a single range leaves a landmark
+  undetermined, which iSAM2 cannot factor); then the landmark and all its held ranges enter
+  together. Ranges still held at the end of the log are counted as rejected.
+
+Bearing-only landmarks are not initialised incrementally (their rows are counted as
+rejected). The calibration freeze of :func:`~odofuse.estimators.graph.isam2.run_isam2` is not
+available here.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from odofuse.errors import ConfigError
+from odofuse.estimators.graph.factors import Factors
+from odofuse.estimators.graph.keys import X, model_kind
+from odofuse.estimators.graph.landmarks import from_sighting, multilaterate
+from odofuse.estimators.graph.problem import GraphProblem
+
+#: Ranges a landmark needs before it is multilaterated into the graph.
+MIN_RANGES = 5
+#: Keyframes between two reads of the current pose estimate, which the next keyframes are
+#: dead-reckoned from (a read makes iSAM2 back-substitute; new landmarks always read it).
+ESTIMATE_EVERY = 10
+
+
+def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
+    """Run iSAM2 over the keyframes of a SLAM problem (module docstring).
+
+    Parameters
+    ----------
+    problem : GraphProblem
+        With ``options.slam`` set.
+    params : gtsam.ISAM2Params
+    source : str
+        Config file, for errors.
+
+    Returns
+    -------
+    isam : gtsam.ISAM2
+        After ``options.final_relinearizations`` forced relinearising updates.
+    fac : Factors
+        The factors added (``fac.created``, ``fac.used``; held-back ranges are in
+        ``problem.rejected``).
+    latency : list of float
+        s, wall time of each ``ISAM2.update``.
+    """
+    import gtsam
+
+    if problem.options.calibration_freeze:
+        raise ConfigError(
+            "calibration_freeze is not available with slam", source, "options.isam2.slam"
+        )
+    fac = Factors(problem)
+    graph, values = fac.static()
+    for key in fac.landmark_keys.values():  # landmarks enter with their first fix
+        values.erase(key)
+    held: dict[int, list] = {}
+    landmark_rows: dict[int, list] = {}
+    for i, ms in fac.by_kf.items():
+        landmark_rows[i] = [m for m in ms if m.landmark is not None]
+        fac.by_kf[i] = [m for m in ms if m.landmark is None]
+    frozen = gtsam.KeyList()
+    for key, _, _ in problem.calib.values():
+        frozen.push_back(key)
+    if problem.odometry_calibration is not None:
+        frozen.push_back(problem.odometry_key)
+    placed: set[int] = set()
+    latency = []
+
+    def add(meas) -> None:
+        f = fac.measurement(meas)
+        graph.add(f)
+        fac.created.append((meas, f))
+        fac.used[meas.stream] = fac.used.get(meas.stream, 0) + 1
+
+    def pose_now(k: int, i: int, current) -> np.ndarray:
+        if k == i and i > 0:  # the current estimate of the previous pose, plus the odometry
+            current = isam.calculateEstimatePose2(X(i - 1)).compose(
+                gtsam.Pose2(*problem.deltas[i - 1])
+            )
+        p = current if k == i else isam.calculateEstimatePose2(X(k))
+        return np.array([p.x(), p.y(), p.theta()])
+
+    isam = gtsam.ISAM2(params)
+    current = gtsam.Pose2(*problem.pose0)
+    for i in range(len(problem.kt)):
+        if i > 0:
+            current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
+        fac.keyframe(i, current, graph, values)
+        for meas in landmark_rows.get(i, ()):
+            lid, kind = meas.landmark, model_kind(problem.models[meas.stream])
+            key = fac.landmark_keys[lid]
+            if lid in placed:
+                add(meas)
+            elif kind == "LandmarkRangeBearing":
+                lm = from_sighting(pose_now(i, i, current), meas.row["range"], meas.row["bearing"])
+                values.insert(key, gtsam.Point2(*lm))
+                placed.add(lid)
+                add(meas)
+            elif kind == "BeaconRange":
+                held.setdefault(lid, []).append(meas)
+                rows = held[lid]
+                if len(rows) < MIN_RANGES:
+                    continue
+                m = problem.models[meas.stream]
+                P = np.array([pose_now(r.keyframe, i, current)[:2] for r in rows])
+                R = np.array([float(r.row["range"]) for r in rows])
+                sig = np.array([float(np.sqrt(m.R(r.row)[0, 0])) for r in rows])
+                lm = multilaterate(P, R, sig)
+                if lm is None:
+                    continue
+                values.insert(key, gtsam.Point2(*lm))
+                placed.add(lid)
+                for r in held.pop(lid):
+                    add(r)
+            else:
+                held.setdefault(lid, []).append(meas)
+        t0 = time.perf_counter()
+        isam.update(graph, values, noRelinKeys=frozen)
+        latency.append(time.perf_counter() - t0)
+        if i > 0 and i % ESTIMATE_EVERY == 0:
+            current = isam.calculateEstimatePose2(X(i))
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for _ in range(problem.options.final_relinearizations):
+        isam.update(force_relinearize=True)
+    for lid, rows in held.items():
+        for r in rows:
+            problem.rejected[r.stream] = problem.rejected.get(r.stream, 0) + 1
+        fac.landmark_keys.pop(lid, None)
+    return isam, fac, latency

@@ -1,0 +1,265 @@
+"""Graph estimators on the datasets of the gtsam wheel, against GTSAM's own solutions (issue 12).
+
+References are plain GTSAM (``benchmarks/gtsam_reference.py``: ``gtsam.load2D`` /
+``gtsam.readG2o`` plus a prior on the first pose, ``LevenbergMarquardtOptimizer``, ``ISAM2``),
+and odofuse's solution is scored in GTSAM's own graph (``graph.error``), as GTSAM scores it.
+The large files (w10000, w20000, the full Victoria Park, GOATS SLAM) are in
+``benchmarks/bench_datasets.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+from odofuse.config import RunConfig  # noqa: E402
+from odofuse.errors import ConfigError  # noqa: E402
+from odofuse.estimators import graph, run_estimator  # noqa: E402
+from odofuse.estimators.graph.landmarks import from_sighting, multilaterate  # noqa: E402
+from odofuse.estimators.graph.marginals import batch_marginals  # noqa: E402
+from odofuse.io.loader import load_log  # noqa: E402
+from odofuse.io.log import SensorLog, Stream  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import gtsam_reference as ref  # noqa: E402
+
+DATA = os.path.dirname(gtsam.findExampleDataFile("w100.graph"))
+
+
+def _run(name, estimator="smoother", **options):
+    path = os.path.join(DATA, name)
+    log = load_log(path)
+    return log, run_estimator(estimator, log, ref.dataset_config(log, path, estimator, **options))
+
+
+# ------------------------------------------------------------------ pose graphs = GTSAM's LM
+@pytest.mark.parametrize(
+    ("name", "reader"),
+    [
+        ("w100.graph", "load2D"),
+        ("w100_30.g2o", "load2D"),  # VERTEX2/EDGE2 lines despite the extension
+        ("pose2example.txt", "readG2o"),
+        ("noisyToyGraph.txt", "readG2o"),
+        ("optimizedNoisyToyGraph.txt", "readG2o"),
+        ("orientationsNoisyToyGraph.txt", "readG2o"),
+    ],
+)
+def test_pose_graph_equals_gtsam_lm_optimum(name, reader):
+    _, res = _run(name)
+    g, v, keys = ref.load(os.path.join(DATA, name), reader)
+    best = ref.lm_optimum(g, v)
+    ours = ref.odofuse_values(res, keys)
+    assert res.used["loop_closures"] > 0 and res.rejected["loop_closures"] == 0
+    assert ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys)) < 0.05
+    assert g.error(ours) == pytest.approx(g.error(best), rel=1e-6, abs=1e-9)
+    assert res.extra["final_error"] == pytest.approx(g.error(best), rel=1e-6, abs=1e-9)
+    assert res.trajectory.covariances is not None and not res.findings
+
+
+def test_pose_graph_uses_the_file_covariances_and_config_sigma_overrides():
+    path = os.path.join(DATA, "w100.graph")
+    log = load_log(path)
+    cfg = ref.dataset_config(log, path)
+    base = graph.run_smoother(log, cfg)
+    loops = {"sigma": [0.5, 0.5, 0.1]}
+    loose = graph.run_smoother(log, replace(cfg, sensors={**cfg.sensors, "loop_closures": loops}))
+    # the same factors with loop sigmas 0.5 m / 0.1 rad instead of the file's 1 m / 1 rad
+    g, v, keys = ref.load(path)
+    assert base.extra["final_error"] == pytest.approx(g.error(ref.odofuse_values(base, keys)))
+    assert loose.extra["final_error"] > base.extra["final_error"]
+    for bad, key in (({"sigma": [1, 2]}, "sigma"), ({"sigmas": 1}, "sigmas")):
+        with pytest.raises(ConfigError) as exc:  # validated with the config
+            graph.run_smoother(log, replace(cfg, sensors={**cfg.sensors, "loop_closures": bad}))
+        assert exc.value.key == f"sensors.loop_closures.{key}"
+
+
+def test_robust_loop_closures_resist_a_false_loop():
+    path = os.path.join(DATA, "w100.graph")
+    log = load_log(path)
+    lc = log.streams["loop_closures"]
+    bad = lc.values.copy()
+    bad[5, 2:5] = [8.0, -6.0, 2.0]  # one wrong loop closure (place recognition failure)
+    streams = dict(log.streams, loop_closures=Stream("loop_closures", "x", lc.t, lc.columns, bad))
+    wrong = SensorLog(log.source, streams, {}, None, {}, log.initial_pose)
+    cfg = ref.dataset_config(log, path)
+    clean = graph.run_smoother(log, cfg).trajectory.poses
+    plain = graph.run_smoother(wrong, cfg).trajectory.poses
+    loops = {"robust": {"type": "cauchy", "k": 1.0}}
+    robust_cfg = replace(cfg, sensors={**cfg.sensors, "loop_closures": loops})
+    robust = graph.run_smoother(wrong, robust_cfg).trajectory.poses
+    err = {k: ref.position_rms(p, clean) for k, p in (("plain", plain), ("robust", robust))}
+    assert err["robust"] < 0.25 * err["plain"], err
+
+
+def test_isam2_and_fixed_lag_use_loop_closures():
+    g, v, keys = ref.load(os.path.join(DATA, "w100.graph"))
+    best = ref.poses_of(ref.lm_optimum(g, v), keys)
+    _, inc = _run("w100.graph", "isam2")
+    assert ref.position_rms(inc.trajectory.poses, best) < 0.05
+    log, lag = _run("w100.graph", "fixed_lag", lag=20.0)
+    # loops reaching more than 20 poses (20 s) back would need a marginalised pose
+    lc = log.streams["loop_closures"]
+    far = int(np.sum(np.abs(lc["t_to"] - lc["t_from"]) > 20.0))
+    assert lag.rejected["loop_closures"] == far > 0
+    assert lag.used["loop_closures"] == len(lc) - far
+
+
+def test_filters_say_they_ignore_loop_closures(tmp_path):
+    path = os.path.join(DATA, "w100.graph")
+    log = load_log(path)
+    cfg = ref.dataset_config(log, path, "dead_reckoning")
+    cfg.sensors.pop("loop_closures")
+    res = run_estimator("dead_reckoning", log, cfg)
+    (note,) = [f for f in res.findings if f.check == "loop_closures"]
+    assert not note.degrades and note.figure == len(log.streams["loop_closures"])
+    assert "201 loop closures" in note.line()
+
+
+# ------------------------------------------------------------------ SLAM
+def test_example_graph_equals_gtsam_optimum():
+    _, res = _run("example.graph")
+    g, v, keys = ref.load(os.path.join(DATA, "example.graph"))
+    best = ref.lm_optimum(g, v)
+    ours = ref.odofuse_values(res, keys)
+    assert g.error(best) == pytest.approx(279.52, abs=0.01)  # GTSAM's optimum (issue 12)
+    assert g.error(ours) == pytest.approx(g.error(best), rel=1e-6)
+    assert ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys)) < 0.05
+
+
+@pytest.fixture(scope="module")
+def victoria_head(tmp_path_factory):
+    """Victoria Park up to pose 1200 (its first 1,100 poses), lines unchanged: the judged
+    comparison on a graph small enough for a test (the whole file is in the benchmark)."""
+    src = gtsam.findExampleDataFile("victoria_park.txt")
+    path = tmp_path_factory.mktemp("vp") / "victoria_head.txt"
+    with open(src) as fh, open(path, "w") as out:
+        for line in fh:
+            ids = line.split()[1:3]
+            if max(int(ids[0]), int(ids[1]) if line.startswith("ODOMETRY") else 0) <= 1200:
+                out.write(line)
+    return path
+
+
+def test_victoria_park_slam_reaches_gtsams_best(victoria_head):
+    log = load_log(victoria_head)
+    res = graph.run_smoother(log, ref.dataset_config(log, victoria_head, covariances=False))
+    g, _, keys = ref.load(victoria_head)
+    best = ref.lm_optimum(g, ref.isam2_incremental(g, keys))  # GTSAM's best on this graph
+    ours = ref.odofuse_values(res, keys)
+    assert g.error(ours) <= 1.01 * g.error(best)
+    assert ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys)) < 1.0
+    assert len(res.extra["landmarks"]) == len(np.unique(log.streams["landmarks"]["id"]))
+
+
+def test_isam2_slam_victoria_head(victoria_head):
+    log = load_log(victoria_head)
+    res = graph.run_isam2(log, ref.dataset_config(log, victoria_head, "isam2"))
+    g, _, keys = ref.load(victoria_head)
+    best = ref.lm_optimum(g, ref.odofuse_values(res, keys))
+    ours = ref.poses_of(ref.odofuse_values(res, keys), keys)
+    assert ref.position_rms(ours, ref.poses_of(best, keys)) < 1.0
+    assert res.used["landmarks"] == len(log.streams["landmarks"])
+    cov = res.extra["landmark_covariances"]
+    assert set(cov) == set(res.extra["landmarks"])
+    assert all(c[0] > 0 and c[2] > 0 and c[0] * c[2] > c[1] ** 2 for c in cov.values())
+
+
+def test_first_sighting_and_multilateration_reference_values():
+    np.testing.assert_allclose(
+        from_sighting([1.0, 2.0, math.pi / 2], 3.0, -math.pi / 2), [4.0, 2.0], atol=1e-12
+    )
+    rng = np.random.default_rng(4)
+    P = rng.uniform(-20, 20, size=(30, 2))
+    lm = np.array([7.0, -3.0])
+    R = np.linalg.norm(P - lm, axis=1) + rng.normal(0, 0.1, 30)
+    R[:5] += 15.0  # multipath outliers
+    np.testing.assert_allclose(multilaterate(P, R, np.full(30, 0.1)), lm, atol=0.1)
+    line = np.column_stack([np.linspace(0, 30, 20), np.zeros(20)])  # mirror ambiguity
+    assert multilaterate(line, np.linalg.norm(line - lm, axis=1), np.full(20, 0.1)) is None
+
+
+def test_goats_range_only_localisation_and_slam():
+    log, slam = _run("goats_16.pyfg", "isam2", covariances=False, slam=True)
+    assert slam.used["ranges"] == len(log.streams["ranges"])
+    # the SLAM map is in the frame of the file's start pose: it matches the known beacons
+    # after a rigid alignment (ranges 10 m .. 700 m, sigma 0.75 m)
+    ids = sorted(log.landmarks)
+    T, start = ref.aligned_start(slam, log)
+    A = np.array([slam.extra["landmarks"][i] for i in ids])
+    B = np.array([log.landmarks[i] for i in ids])
+    assert np.max(np.linalg.norm(ref.apply_se2(T, A) - B, axis=1)) < 25.0
+    path = os.path.join(DATA, "goats_16.pyfg")
+    cfg = dataclasses.replace(
+        ref.dataset_config(log, path), initial={"pose": list(start), "sigma": [10.0, 10.0, 0.1]}
+    )
+    loc = run_estimator("smoother", log, cfg)
+    resid = ref.range_residuals(loc, log)
+    # measured 6.9 m (SLAM on its own map: 1.3 m): the known beacons and the ranges disagree
+    # by more than the file's 0.75 m sigma (bench_datasets.py reports both)
+    assert np.median(np.abs(resid)) < 10.0 and not loc.extra.get("landmarks")
+    assert loc.used["ranges"] == len(log.streams["ranges"])
+
+
+# ------------------------------------------------------------------ marginals, outputs
+def test_marginals_of_an_indeterminate_graph_are_regularised_not_thrown():
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    x0, lk = gtsam.symbol("x", 0), gtsam.symbol("l", 1)
+    g.add(gtsam.PriorFactorPose2(x0, gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    g.add(gtsam.RangeFactor2D(x0, lk, 5.0, gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+    v.insert(x0, gtsam.Pose2())
+    v.insert(lk, gtsam.Point2(5.0, 0.0))  # one range: the landmark's bearing is free
+    with pytest.raises(RuntimeError):
+        gtsam.Marginals(g, v)
+    cov_of, notes = batch_marginals(g, v)
+    (note,) = notes
+    assert note.check == "covariance" and "indeterminate" in note.message
+    np.testing.assert_allclose(cov_of(x0), np.eye(3) * 0.01, rtol=1e-4)
+    assert cov_of(lk)[1, 1] > 1e5  # the free direction shows the regulariser
+
+
+def test_cli_slam_writes_landmarks_csv(tmp_path):
+    from odofuse.cli import main
+
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(
+        f"log: {os.path.join(DATA, 'example.graph')}\nrobot: {{drive: increments}}\n"
+        "motion: {integrator: exact, k: [1.0e-3, 1.0e-4]}\nestimator: smoother\n"
+        "sensors: {landmarks: {}}\noptions: {smoother: {slam: true}}\noutput: out\n"
+    )
+    assert main(["run", str(cfg)]) == 0
+    out = tmp_path / "out"
+    lines = (out / "landmarks.csv").read_text().splitlines()
+    assert lines[0] == "id,x,y,var_x,cov_xy,var_y"
+    rows = np.array([[float(c) for c in r.split(",")] for r in lines[1:]])
+    res = json.loads((out / "metrics.json").read_text())
+    assert len(rows) == len(res["extra"]["landmarks"]) if "extra" in res else len(rows) > 0
+    assert np.all(rows[:, 3] > 0) and np.all(rows[:, 5] > 0)
+    assert (out / "trajectory.png").stat().st_size > 0
+
+
+def test_fixed_lag_refuses_slam_by_name():
+    path = os.path.join(DATA, "example.graph")
+    log = load_log(path)
+    with pytest.raises(ConfigError, match="smoother and isam2"):
+        graph.run_fixed_lag(log, ref.dataset_config(log, path, "fixed_lag"))
+
+
+def test_slam_init_option_is_validated():
+    cfg = RunConfig(
+        log="x", robot={"drive": "increments"}, options={"smoother": {"slam_init": "grid"}}
+    )
+    cfg = dataclasses.replace(cfg, source="f.yaml")
+    with pytest.raises(ConfigError) as exc:
+        graph.parse_options(cfg, "smoother")
+    assert exc.value.key == "options.smoother.slam_init"
