@@ -299,9 +299,9 @@ def run_fixed_lag(log, config) -> EstimateResult:
     est = smoother.calculateEstimate()
     for key in persistent:
         if est.exists(key):
-            final_values.insert(
-                key, est.atVector(key) if gtsam.Symbol(key).chr() == ord("c") else est.atPoint2(key)
-            )
+            # calibration vectors (c<n>, o0) and landmark / beacon points (l<id>, b<n>)
+            is_vector = gtsam.Symbol(key).chr() in (ord("c"), ord("o"))
+            final_values.insert(key, est.atVector(key) if is_vector else est.atPoint2(key))
     for i in range(K):
         final_values.insert(X(i), gtsam.Pose2(*poses[i]))
     extra = {"latency": _latency_summary(latency), "lag_s": lag}
