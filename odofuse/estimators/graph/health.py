@@ -123,10 +123,18 @@ def residual_summary(problem, residuals: dict) -> dict:
     return out
 
 
-def graph_findings(problem, values, residuals: dict, summary: dict) -> list[Finding]:
-    """Findings on residual scale, outlier fraction, calibration values and keyframe jumps."""
+def graph_findings(problem, values, residuals: dict, summary: dict, stitched=False) -> list:
+    """Findings on residual scale, outlier fraction, calibration values and keyframe jumps.
+
+    ``stitched``: the poses were taken from different solutions (the fixed-lag smoother's,
+    each as it left the window), so the residual scale and outlier checks of the factors
+    *between* poses (odometry, gyro) do not apply; the jump check does.
+    """
     out: list[Finding] = []
+    relative = {problem.odometry_stream, *problem.gyro}
     for stream, s in sorted(summary.items()):
+        if stitched and stream in relative:
+            continue
         t = residuals[stream]["t"]
         span = (float(t.min()), float(t.max()))
         if s["median_ratio"] > SCALE_RATIO:
@@ -195,7 +203,8 @@ def calibration_findings(problem, values) -> list[Finding]:
                 Finding(
                     "calibration",
                     f"{name} = {v:.4g} is {z:.1f} prior sigmas from its prior {prior:g} "
-                    f"(sigma {sigma:g}): implausible, the calibration absorbed another error",
+                    f"(sigma {sigma:g}): implausible under that prior (the prior is too tight or "
+                    "the calibration absorbed another error)",
                     figure=z,
                 )
             )
@@ -211,7 +220,7 @@ def solver_findings(solver: str, reason: str, iterations: int, detail: str = "")
         "without converging",
         "no_decrease": f"found no step that lowers the error after {iterations} iterations "
         "(the linear systems were indeterminate)",
-        "failed": "failed",
+        "non_finite": "has a non-finite error at the initial values (not solved)",
     }.get(reason, reason)
     msg = f"{solver} {text}" + (f": {detail}" if detail else "")
     return [Finding("solver", msg, figure=float(iterations))]

@@ -20,6 +20,7 @@ from odofuse.estimators.graph.keys import X, model_kind
 from odofuse.estimators.graph.options import GraphOptions
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.estimators.graph.solvers import finish, pose_array, world_covs
+from odofuse.health import Finding
 from odofuse.trajectory import EstimateResult
 
 
@@ -37,6 +38,43 @@ def _latency_summary(lat) -> dict:
         "quarters_median_ms": [float(np.median(q)) for q in quarters],
         "quarters_p99_ms": [float(np.percentile(q, 99)) for q in quarters],
     }
+
+
+def _failure(solver: str, problem: GraphProblem, i: int, exc: Exception) -> Finding:
+    detail = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:160]
+    return Finding(
+        "solver",
+        f"{solver} update failed at keyframe {i} ({detail}); the keyframes from there on are "
+        "dead-reckoned from the last estimate and no covariances are given",
+        t_start=float(problem.kt[i]),
+        t_end=float(problem.kt[-1]),
+        figure=float(i),
+    )
+
+
+def _dead_reckoned_from(problem: GraphProblem, poses: np.ndarray, i: int) -> None:
+    """Fill ``poses[i:]`` by composing the odometry from ``poses[i - 1]`` (in place)."""
+    if i == 0:
+        poses[0] = problem.pose0
+    for j in range(max(i, 1), len(problem.kt)):
+        poses[j] = se2.compose(poses[j - 1], problem.deltas[j - 1])
+    poses[:, 2] = se2.wrap(poses[:, 2])
+
+
+def _with_poses(est, poses: np.ndarray, keys):
+    """``gtsam.Values`` holding ``poses`` as ``X(i)`` and ``keys`` (calibration vectors,
+    landmark points) copied from ``est`` where it has them."""
+    import gtsam
+
+    out = gtsam.Values()
+    for key in keys:
+        if gtsam.Symbol(key).chr() != ord("x") and est.exists(key):
+            # calibration vectors (c<n>, o0) and landmark / beacon points (l<id>, b<n>)
+            is_vector = gtsam.Symbol(key).chr() in (ord("c"), ord("o"))
+            out.insert(key, est.atVector(key) if is_vector else est.atPoint2(key))
+    for i in range(len(poses)):
+        out.insert(X(i), gtsam.Pose2(*poses[i]))
+    return out
 
 
 def _isam2_params(options: GraphOptions):
@@ -184,6 +222,8 @@ def run_isam2(log, config) -> EstimateResult:
     history: dict[str, list] = {stream: [] for stream in groups}
     n_factors: dict[str, int] = {}
     current = gtsam.Pose2(*problem.pose0)
+    online = np.empty((len(problem.kt), 3))  # each keyframe's estimate right after its update
+    findings: list[Finding] = []
     for i in range(len(problem.kt)):
         t_step = time.perf_counter()
         if i > 0:
@@ -192,7 +232,11 @@ def run_isam2(log, config) -> EstimateResult:
         graph.push_back(g)
         values.insert(v)
         t0 = time.perf_counter()
-        isam.update(graph, values, noRelinKeys=frozen)
+        try:
+            isam.update(graph, values, noRelinKeys=frozen)
+        except RuntimeError as exc:  # indeterminate system: report, never a traceback
+            findings.append(_failure("iSAM2", problem, i, exc))
+            break
         latency.append(time.perf_counter() - t0)
         for meas in fac.by_kf.get(i, ()):
             n_factors[meas.stream] = n_factors.get(meas.stream, 0) + 1
@@ -226,19 +270,29 @@ def run_isam2(log, config) -> EstimateResult:
                     frozen_streams.add(stream)
         if i > 0:
             current = isam.calculateEstimatePose2(X(i))
+        online[i] = (current.x(), current.y(), current.theta())
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         step.append(time.perf_counter() - t_step)
-    for _ in range(problem.options.final_relinearizations):
-        isam.update(force_relinearize=True)
-    result = isam.calculateEstimate()
     covs = None
-    if problem.options.covariances:
-        poses = pose_array(result, len(problem.kt))
-        covs = world_covs(problem, poses, isam.marginalCovariance)
+    if not findings:
+        try:
+            for _ in range(problem.options.final_relinearizations):
+                isam.update(force_relinearize=True)
+            result = isam.calculateEstimate()
+            if problem.options.covariances:
+                poses = pose_array(result, len(problem.kt))
+                covs = world_covs(problem, poses, isam.marginalCovariance)
+        except RuntimeError as exc:
+            findings.append(_failure("iSAM2 (final relinearisation)", problem, len(online), exc))
+            covs, result = None, _with_poses(isam.calculateEstimate(), online, fac.dims)
+    else:
+        failed = int(findings[-1].figure)
+        _dead_reckoned_from(problem, online, failed)
+        result = _with_poses(isam.calculateEstimate(), online, fac.dims)
     extra = {"latency": _latency_summary(latency), "latency_step": _latency_summary(step)}
     if groups:
         extra["calibration_freeze"] = freeze_info
-    return finish(problem, fac, result, covs, "isam2", extra)
+    return finish(problem, fac, result, covs, "isam2", extra, findings)
 
 
 def run_fixed_lag(log, config) -> EstimateResult:
@@ -262,7 +316,7 @@ def run_fixed_lag(log, config) -> EstimateResult:
     covs = np.empty((K, 3, 3)) if problem.options.covariances else None
     done = 0  # keyframes [0, done) are final
     latency = []
-    final_values = gtsam.Values()
+    findings: list[Finding] = []
     current = gtsam.Pose2(*problem.pose0)
 
     def freeze(upto: int) -> None:
@@ -290,19 +344,25 @@ def run_fixed_lag(log, config) -> EstimateResult:
         for key in persistent:
             stamps.insert((key, t))
         t0 = time.perf_counter()
-        smoother.update(graph, values, stamps)
+        try:
+            smoother.update(graph, values, stamps)
+        except RuntimeError as exc:  # indeterminate system: report, never a traceback
+            findings.append(_failure("fixed-lag smoother", problem, i, exc))
+            break
         latency.append(time.perf_counter() - t0)
         current = smoother.calculateEstimatePose2(X(i))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    freeze(K)
+    if findings:
+        # the keyframes still in the window keep their last estimate, the rest dead-reckoned
+        est = smoother.calculateEstimate()
+        for j in range(done, int(findings[-1].figure)):
+            p = est.atPose2(X(j))
+            poses[j] = (p.x(), p.y(), p.theta())
+        _dead_reckoned_from(problem, poses, int(findings[-1].figure))
+        covs = None
+    else:
+        freeze(K)
     poses[:, 2] = se2.wrap(poses[:, 2])
-    est = smoother.calculateEstimate()
-    for key in persistent:
-        if est.exists(key):
-            # calibration vectors (c<n>, o0) and landmark / beacon points (l<id>, b<n>)
-            is_vector = gtsam.Symbol(key).chr() in (ord("c"), ord("o"))
-            final_values.insert(key, est.atVector(key) if is_vector else est.atPoint2(key))
-    for i in range(K):
-        final_values.insert(X(i), gtsam.Pose2(*poses[i]))
+    final_values = _with_poses(smoother.calculateEstimate(), poses, persistent)
     extra = {"latency": _latency_summary(latency), "lag_s": lag}
-    return finish(problem, fac, final_values, covs, "fixed_lag", extra)
+    return finish(problem, fac, final_values, covs, "fixed_lag", extra, findings, stitched=True)

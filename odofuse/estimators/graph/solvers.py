@@ -45,7 +45,8 @@ class LMOutcome:
     ``reason`` is ``"converged"`` (relative decrease below the tolerance, or no step lowers
     the error at any damping: a minimum), ``"max_iterations"`` (the cap was reached while the
     error still fell by more than the tolerance) or ``"no_decrease"`` (no step lowers the
-    error and some damped systems could not be eliminated); ``indeterminate`` counts the
+    error and some damped systems could not be eliminated) or ``"non_finite"`` (the error at
+    the initial values is not finite); ``indeterminate`` counts the
     eliminations that failed and were retried with ten times the damping.
     """
 
@@ -87,6 +88,8 @@ def levenberg_marquardt(
     import gtsam
 
     err = graph.error(values)
+    if not math.isfinite(err):
+        return LMOutcome(values, 0, float(err), "non_finite")
     lin = graph.linearize(values)
     ordering = gtsam.Ordering.Colamd(gtsam.VariableIndex(lin))
     units = {n: gtsam.noiseModel.Unit.Create(n) for n in set(dims.values())}
@@ -166,13 +169,16 @@ def world_covs(problem, poses, cov_of) -> np.ndarray:
     return 0.5 * (covs + np.swapaxes(covs, 1, 2))
 
 
-def finish(problem, fac, values, covs, estimator, extra, findings=()) -> EstimateResult:
+def finish(
+    problem, fac, values, covs, estimator, extra, findings=(), stitched=False
+) -> EstimateResult:
     """The :class:`EstimateResult` of a solution, with the graph's own findings.
 
     ``extra`` gains ``calibration``, ``landmarks`` (SLAM), ``keyframes``, ``python_factors``,
     ``outliers`` (per stream, factors beyond the model's gate) and ``residuals`` (per stream:
     factors, chi-square per dimension, median ratio, fraction beyond 0.999); ``findings``
-    (solver, covariance) are followed by :func:`~odofuse.estimators.graph.health.graph_findings`.
+    (solver, covariance) are followed by :func:`~odofuse.estimators.graph.health.graph_findings`
+    (``stitched``: poses from several solutions, the fixed-lag smoother's).
     """
     poses = pose_array(values, len(problem.kt))
     extra = {**_extra(problem, fac, values, estimator), **extra}
@@ -184,7 +190,8 @@ def finish(problem, fac, values, covs, estimator, extra, findings=()) -> Estimat
     extra["residuals"] = {
         s: {k: v for k, v in d.items() if k != "outliers"} for s, d in summary.items()
     }
-    findings = tuple(findings) + tuple(graph_findings(problem, values, residuals, summary))
+    found = graph_findings(problem, values, residuals, summary, stitched)
+    findings = tuple(findings) + tuple(found)
     traj = Trajectory(problem.kt.copy(), poses, covs)
     used = {k: int(v) for k, v in fac.used.items()}
     return EstimateResult(estimator, traj, used, dict(problem.rejected), extra, findings)
@@ -196,10 +203,11 @@ def marginal_covariances(graph, values, keys, dims) -> tuple[dict, list]:
     ``dims`` maps every variable's key to its tangent dimension.
 
     ``gtsam.Marginals`` is tried first; if the system is indeterminate, again on the graph
-    linearised at ``values`` with a prior of sigma 1e3 (m, rad, units of the variable) on
-    every variable: the directions the data determine are unchanged to ~1e-6 relative, those
-    they do not get the prior's size instead of an exception. If that fails too, no
-    covariances are returned.
+    linearised at ``values`` with a prior of sigma 100 (m, rad, units of the variable) on
+    every variable: a covariance the data determine to sigma ``s`` changes by the fraction
+    ``~(s / 100)^2`` (1e-8 for decimetres), the directions they do not determine get the
+    prior's size instead of an exception (a weaker prior trips GTSAM's own conditioning check).
+    If that fails too, no covariances are returned.
     """
     import gtsam
 
@@ -209,7 +217,7 @@ def marginal_covariances(graph, values, keys, dims) -> tuple[dict, list]:
     except RuntimeError as exc:
         detail = str(exc).strip().splitlines()[0][:160]
     lin = graph.linearize(values)
-    sig = 1e3
+    sig = 1e2
     for key, dim in dims.items():
         lin.add(
             gtsam.JacobianFactor(
@@ -263,9 +271,16 @@ def _solve(graph, values, fac, opts) -> LMOutcome:
         except RuntimeError:
             pass
         else:
-            it = optimizer.iterations()
+            it, err = optimizer.iterations(), float(graph.error(result))
             reason = "max_iterations" if it >= opts.max_iterations else "converged"
-            return LMOutcome(result, it, float(graph.error(result)), reason)
+            if reason == "max_iterations":  # at the cap: was it still decreasing? one probe
+                optimizer.iterate()
+                probe = float(optimizer.error())
+                if probe <= err and err - probe < opts.relative_tolerance * max(err, 1e-300):
+                    reason = "converged"
+                if probe < err:
+                    result, err = optimizer.values(), probe
+            return LMOutcome(result, it, err, reason)
     return levenberg_marquardt(
         graph, values, fac.dims, opts.max_iterations, opts.relative_tolerance
     )

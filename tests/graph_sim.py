@@ -1,0 +1,34 @@
+"""Simulated logs for the graph tests (the one place that imports the simulator).
+
+The simulator is moving from ``odofuse.simulate`` to ``odofuse.teaching``; this module is the
+only place the graph tests name its path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+try:  # before the move: one module
+    from odofuse.simulate import run_config, scenario_from_dict, simulate, to_sensor_log
+except ImportError:  # pragma: no cover - the simulator's new home
+    from odofuse.teaching.scenario import scenario_from_dict
+    from odofuse.teaching.simlog import run_config, to_sensor_log
+    from odofuse.teaching.simulate import simulate
+
+from odofuse.config import config_from_dict
+
+
+def simulated_run(scenario: dict, seed: int, estimator: str, options=None, sensors=None):
+    """``(log, config)`` of a scenario (``odofuse simulate`` format), seeded.
+
+    The config is the one the simulator writes for the log (nominal geometry and noise),
+    with ``options`` as ``options.<estimator>`` and ``sensors`` blocks merged over its own.
+    """
+    sim = simulate(scenario_from_dict(scenario, "<test scenario>"), seed=seed)
+    log = to_sensor_log(sim)
+    cfg = run_config(sim, estimator)
+    for name, block in (sensors or {}).items():
+        cfg["sensors"][name] = {**cfg["sensors"].get(name, {}), **block}
+    cfg["options"] = {estimator: dict(options or {})}
+    config = config_from_dict(cfg, source="<test config>")
+    return log, dataclasses.replace(config, log="<memory>")
