@@ -32,3 +32,19 @@ def simulated_run(scenario: dict, seed: int, estimator: str, options=None, senso
     cfg["options"] = {estimator: dict(options or {})}
     config = config_from_dict(cfg, source="<test config>")
     return log, dataclasses.replace(config, log="<memory>")
+
+
+def excerpt(log, seconds: float):
+    """The first ``seconds`` of a log (every stream and the ground truth cut alike)."""
+    from odofuse.io.log import Stream
+
+    t0 = min(float(s.t.min()) for s in log.streams.values() if len(s))
+    t1 = t0 + seconds
+
+    def cut(s):
+        keep = s.t <= t1
+        return Stream(s.name, s.source, s.t[keep], s.columns, s.values[keep])
+
+    gt = None if log.groundtruth is None else cut(log.groundtruth)
+    streams = {n: cut(s) for n, s in log.streams.items()}
+    return dataclasses.replace(log, streams=streams, groundtruth=gt)
