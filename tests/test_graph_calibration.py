@@ -3,7 +3,7 @@
 Every graph estimator runs with every calibration option (odometry calibration off / on,
 sensor calibration off / on, a robust odometry loss off / on) on a small simulated log and on
 a Plaza excerpt: none crashes, every result is finite, and a run far from the truth says
-``degraded``. The two-stage solve keeps the odometry calibration out of the robust loss.
+``degraded``. The staged solve keeps the odometry calibration out of the robust loss.
 """
 
 from __future__ import annotations
@@ -102,23 +102,24 @@ def test_every_estimator_with_every_calibration_option_plaza(
     assert ("ds_scale" in res.extra.get("calibration", {})) == odo_cal
 
 
-def test_two_stage_keeps_calibration_out_of_the_robust_loss():
-    # wheels with a 1 % radius and track error; a Cauchy loss on them
-    log, cfg = simulated_run(
-        SCENARIO,
-        2,
-        "smoother",
-        {"odometry_calibration": True, "robust": {"wheels": "cauchy"}},
-        {"gyro": {"calibrate": True}},
-    )
+def test_staged_solve_keeps_calibration_out_of_the_robust_loss():
+    # wheels with a 0.4 % radius and 1 % track error and a 1.5 s slip burst; a Cauchy loss
+    scenario = {
+        **SCENARIO,
+        "nonsystematic": {"k": 1.0e-5, "slip_bursts": [[30.0, 31.5, "left", 0.4]]},
+    }
+    options = {"odometry_calibration": True, "robust": {"wheels": "cauchy"}}
+    log, cfg = simulated_run(scenario, 2, "smoother", options, {"gyro": {"calibrate": True}})
     res = run_estimator("smoother", log, cfg)
-    assert len(res.extra["stages"]["iterations"]) == 2
+    stages = res.extra["stages"]
+    assert len(stages["iterations"]) == 3
+    assert stages["odometry_downweighted"] >= 1  # the slip burst
     gauss_cfg = dataclasses.replace(cfg, options={"smoother": {"odometry_calibration": True}})
     gauss = run_estimator("smoother", log, gauss_cfg)
-    # stage 1 is the Gaussian-odometry solve: the calibration is exactly that one's
-    for name in ("wheel_radius_ratio", "track_width_scale"):
-        assert np.isclose(res.extra["calibration"][name], gauss.extra["calibration"][name])
-    assert abs(res.extra["calibration"]["wheel_radius_ratio"] - 1.004) < 2e-3
-    m = metrics(res, log)
+    m, mg = metrics(res, log), metrics(gauss, log)
     assert m["status"] == "ok", m["warnings"]
-    assert m["ate_rmse_m"] < 1.2 * metrics(gauss, log)["ate_rmse_m"] + 0.01
+    assert not any(f["check"] == "jumps" for f in m["findings"])
+    # the robust loss helps: better than the Gaussian solve, calibration at least as close
+    assert m["ate_rmse_m"] < mg["ate_rmse_m"]
+    err = abs(res.extra["calibration"]["wheel_radius_ratio"] - 1.004)
+    assert err <= abs(gauss.extra["calibration"]["wheel_radius_ratio"] - 1.004) + 5e-4

@@ -69,16 +69,23 @@ class Factors:
     """Turns a :class:`GraphProblem` into GTSAM factors and initial values, keyframe by keyframe."""
 
     def __init__(
-        self, problem: GraphProblem, odometry_robust: bool = True, odometry_fixed=None
+        self,
+        problem: GraphProblem,
+        odometry_robust: bool = True,
+        odometry_fixed=None,
+        odometry_weights=None,
     ) -> None:
         """``odometry_robust=False`` drops the odometry stream's robust loss;
-        ``odometry_fixed`` (m,) holds the odometry calibration at these values (no variable):
-        the two stages of :func:`odofuse.estimators.graph.solvers.run_smoother`."""
+        ``odometry_fixed`` (m,) holds the odometry calibration at these values (no variable);
+        ``odometry_weights`` (K-1,) are frozen robust weights: each odometry factor is
+        Gaussian with its covariance divided by its weight (no loss). The stages of
+        :func:`odofuse.estimators.graph.solvers.run_smoother`."""
         import gtsam
 
         self.p = problem
-        self.odometry_robust = odometry_robust
+        self.odometry_robust = odometry_robust and odometry_weights is None
         self.odometry_fixed = None if odometry_fixed is None else np.asarray(odometry_fixed)
+        self.odometry_weights = odometry_weights
         self.gtsam = gtsam
         self.dims: dict[int, int] = {}
         self.python_factors = 0
@@ -177,9 +184,10 @@ class Factors:
         loss, k = self.p.robust.get(self.p.odometry_stream, ("none", 0.0))
         if not self.odometry_robust:
             loss = "none"
-        nm = robust_noise(
-            _odometry_noise(self.p.covs[i - 1], self.p.options.odometry_floor), loss, k
-        )
+        cov = self.p.covs[i - 1]
+        if self.odometry_weights is not None:
+            cov = cov / self.odometry_weights[i - 1]
+        nm = robust_noise(_odometry_noise(cov, self.p.options.odometry_floor), loss, k)
         oc = self.p.odometry_calibration
         if oc is not None and self.odometry_fixed is not None:
             # m(p) = delta0 Exp(G (p - p0)) at the fixed p (calibrated_between_factor's model)

@@ -48,6 +48,21 @@ def _chi2(f, values) -> tuple[float, int, np.ndarray]:
     return float(base.squaredMahalanobisDistance(e)), dof, e
 
 
+def robust_weights(factors, values, floor: float = 1e-6) -> np.ndarray:
+    """The IRLS weight ``rho'(r) / r`` of each robust factor at ``values`` (1 if not robust).
+
+    ``r`` is the whitened residual norm with the Gaussian part of the noise model; weights
+    are floored at ``floor`` so that a frozen weight keeps the factor's covariance finite.
+    """
+    out = np.ones(len(factors))
+    for j, f in enumerate(factors):
+        nm = f.noiseModel()
+        if hasattr(nm, "robust"):
+            chi2, _, _ = _chi2(f, values)
+            out[j] = max(float(nm.robust().weight(math.sqrt(chi2))), floor)
+    return out
+
+
 def gyro_error(problem, values, stream: str, n: int) -> float:
     """rad, ``wrap(theta_j - theta_i + b T - dtheta)`` of the ``n``-th gyro increment."""
     from odofuse.estimators.graph.keys import X

@@ -31,6 +31,7 @@ from odofuse.estimators.graph.health import (
     graph_findings,
     marginals_finding,
     residual_summary,
+    robust_weights,
     solver_findings,
 )
 from odofuse.estimators.graph.keys import X
@@ -286,8 +287,8 @@ def _solve(graph, values, fac, opts) -> LMOutcome:
     )
 
 
-def _two_stage(problem: GraphProblem) -> bool:
-    """Odometry calibration with a robust odometry loss: solved in two stages."""
+def _staged(problem: GraphProblem) -> bool:
+    """Odometry calibration with a robust odometry loss: solved in stages."""
     loss = problem.robust.get(problem.odometry_stream, ("none", 0.0))[0]
     return problem.odometry_calibration is not None and loss != "none"
 
@@ -295,16 +296,19 @@ def _two_stage(problem: GraphProblem) -> bool:
 def run_smoother(log, config) -> EstimateResult:
     """Batch Levenberg-Marquardt over the whole log (``estimator: smoother``).
 
-    With odometry calibration *and* a robust odometry loss the solve has two stages, so that
-    the calibration variables stay out of the loss: (1) the calibration is estimated with
-    Gaussian odometry factors (every other stream keeps its loss); (2) it is held at that
-    estimate, the odometry factors become built-in ``BetweenFactorPose2`` of the calibrated
-    relative poses under the robust loss, and the trajectory is re-solved from stage 1's.
-    A robust weight on the calibrated factor itself would let one shared variable turn
-    *every* odometry factor into a down-weighted outlier at once (a cheap minimum of a
-    redescending or log-growing loss), which is what drove keyframes tens of metres apart.
-    The reported calibration and its ``extra["stages"]`` figures are stage 1's; the pose
-    covariances (stage 2) do not include the calibration's uncertainty.
+    With odometry calibration *and* a robust odometry loss the calibration variables are
+    kept out of the loss, in three stages: (1) the calibration is estimated with Gaussian
+    odometry factors (every other stream keeps its loss); (2) it is held at that estimate,
+    the odometry factors become built-in ``BetweenFactorPose2`` of the calibrated relative
+    poses under the robust loss, and the trajectory is re-solved from stage 1's; (3) the
+    robust weights of stage 2's odometry factors are frozen (each factor Gaussian with its
+    covariance divided by its weight) and trajectory and calibration are solved together
+    again, the calibration Jacobian exact. A robust weight that responds to the calibration
+    inside a solve lets one shared variable turn *every* odometry factor into a down-weighted
+    outlier at once (a cheap minimum of a log-growing or redescending loss), which is what
+    drove keyframes tens of metres apart; frozen weights cannot, while stage 3 still removes
+    stage 1's contamination by the outlier steps. ``extra["stages"]`` gives each stage's
+    iterations and error and how many odometry factors stage 2 down-weighted below 0.5.
 
     Returns
     -------
@@ -323,19 +327,26 @@ def run_smoother(log, config) -> EstimateResult:
     findings: list = []
     extra: dict = {}
     t0 = time.perf_counter()
-    if _two_stage(problem):
+    if _staged(problem):
         fac1, graph, values = build_graph(problem, Factors(problem, odometry_robust=False))
         first = _solve(graph, values, fac1, opts)
         findings += solver_findings("stage 1 (calibration)", first.reason, first.iterations)
         p_hat = np.asarray(first.values.atVector(problem.odometry_key), dtype=float)
-        fac = Factors(problem, odometry_fixed=p_hat)
-        fac, graph, values = build_graph(problem, fac, first.values)
+        fac2, graph, values = build_graph(
+            problem, Factors(problem, odometry_fixed=p_hat), first.values
+        )
+        second = _solve(graph, values, fac2, opts)
+        findings += solver_findings("stage 2 (robust odometry)", second.reason, second.iterations)
+        weights = robust_weights([f for _, f in fac2.odometry_created], second.values)
+        start = gtsam.Values(second.values)
+        start.insert(problem.odometry_key, p_hat)
+        fac, graph, values = build_graph(problem, Factors(problem, odometry_weights=weights), start)
         out = _solve(graph, values, fac, opts)
-        result = gtsam.Values(out.values)
-        result.insert(problem.odometry_key, p_hat)
+        result = out.values
         extra["stages"] = {
-            "iterations": [int(first.iterations), int(out.iterations)],
-            "final_error": [float(first.error), float(out.error)],
+            "iterations": [int(first.iterations), int(second.iterations), int(out.iterations)],
+            "final_error": [float(first.error), float(second.error), float(out.error)],
+            "odometry_downweighted": int(np.count_nonzero(weights < 0.5)),
         }
     else:
         fac, graph, values = build_graph(problem)
