@@ -178,7 +178,7 @@ def graph_findings(problem, values, residuals: dict, summary: dict, stitched=Fal
                     figure=s["beyond_999"],
                 )
             )
-    out += calibration_findings(problem, values)
+    out += calibration_findings(problem, values) + gauge_findings(problem)
     odo = residuals.get(problem.odometry_stream)
     if odo is not None and odo["chi2"].size:
         bad = (odo["chi2"] > _chi2_ppf(JUMP_PROBABILITY, odo["dof"])) & (odo["jump"] > JUMP_M)
@@ -196,6 +196,28 @@ def graph_findings(problem, values, residuals: dict, summary: dict, stitched=Fal
                 )
             )
     return out
+
+
+def gauge_findings(problem) -> list[Finding]:
+    """A finding when the configuration leaves the map's scale to the priors alone.
+
+    With unknown landmarks (``slam``), an estimated range scale and an estimated odometry
+    distance scale (``ds_scale``), scaling the map, the trajectory and ``ds_scale`` by
+    ``lambda`` and the range scale by ``1 / lambda`` leaves every range and odometry factor
+    unchanged: only the two priors hold the scale.
+    """
+    oc = problem.odometry_calibration
+    if not (problem.options.slam and "range_scale" in problem.calib and oc is not None):
+        return []
+    if "ds_scale" not in oc.names:
+        return []
+    return [
+        Finding(
+            "calibration",
+            "range SLAM estimating both range_scale and ds_scale: the map's scale is fixed by "
+            "their priors only (estimate one of them, or give the map)",
+        )
+    ]
 
 
 def calibration_findings(problem, values) -> list[Finding]:

@@ -1,7 +1,8 @@
 """Incremental graph solvers: iSAM2 with the calibration freeze, and the fixed-lag smoother.
 
 Owns :func:`run_isam2` (one ``ISAM2.update`` per keyframe, its latency figures and the
-``calibration_freeze`` of converged sensor calibration states) and :func:`run_fixed_lag`
+``calibration_freeze`` of converged sensor and odometry calibration states) and
+:func:`run_fixed_lag`
 (GTSAM's ``IncrementalFixedLagSmoother``, each keyframe's pose taken just before it leaves
 the window), with the iSAM2 parameters both use.
 """
@@ -105,14 +106,19 @@ def _freeze_groups(problem: GraphProblem, fac: Factors, source: str) -> dict[str
     spec = problem.options.calibration_freeze
     if not spec:
         return {}
+    oc = problem.odometry_calibration
+    odometry = {problem.odometry_stream: tuple(oc.names)} if oc is not None else {}
     if "rel_change" in spec:
         return {
-            stream: tuple(fac.model_calib(m))
-            for stream, m in problem.models.items()
-            if fac.model_calib(m) and model_kind(m) != "GyroYawRate"
+            **{
+                stream: tuple(fac.model_calib(m))
+                for stream, m in problem.models.items()
+                if fac.model_calib(m) and model_kind(m) != "GyroYawRate"
+            },
+            **odometry,
         }
     key = "options.isam2.calibration_freeze.sigma"
-    known = set(problem.calib)
+    known = set(problem.calib) | {n for names in odometry.values() for n in names}
     bad = sorted(set(spec["sigma"]) - known)
     if bad:
         raise ConfigError(
@@ -140,6 +146,17 @@ def _freeze_groups(problem: GraphProblem, fac: Factors, source: str) -> dict[str
                 f"{key}.{missing[0]}",
             )
         groups[stream] = states
+    for stream, states in odometry.items():
+        if set(states) & set(spec["sigma"]):
+            missing = [s for s in states if s not in spec["sigma"]]
+            if missing:
+                raise ConfigError(
+                    f"odometry calibration estimates {', '.join(states)}: give a threshold "
+                    "for each",
+                    source,
+                    f"{key}.{missing[0]}",
+                )
+            groups[stream] = states
     return groups
 
 
@@ -195,7 +212,10 @@ def run_isam2(log, config) -> EstimateResult:
     involve the variable. The
     variable stays in the graph, still estimated from the factors added before the freeze;
     what is given up is the information of the later measurements about the calibration
-    (and its correlation with the later poses). ``extra["calibration_freeze"]`` gives, per
+    (and its correlation with the later poses). The odometry calibration vector
+    (``odometry_calibration``) is one more group: once frozen, later odometry factors are
+    built-in ``BetweenFactorPose2`` of the calibrated relative poses instead of Python
+    calibrated between factors. ``extra["calibration_freeze"]`` gives, per
     frozen state, the constant, its sigma, the keyframe index and time of the freeze (and,
     for the ``rel_change`` form, ``sigma_window_ago``: its sigma one window earlier).
     """
@@ -221,6 +241,19 @@ def run_isam2(log, config) -> EstimateResult:
     frozen_streams: set[str] = set()
     history: dict[str, list] = {stream: [] for stream in groups}
     n_factors: dict[str, int] = {}
+    oc_index = {n: j for j, n in enumerate(getattr(problem.odometry_calibration, "names", ()))}
+
+    def state_key(s):  # (key, component) of a sensor or odometry calibration state
+        return (problem.odometry_key, oc_index[s]) if s in oc_index else (problem.calib[s][0], 0)
+
+    def state_sigma(s) -> float:
+        key, j = state_key(s)
+        return float(np.sqrt(isam.marginalCovariance(key)[j, j]))
+
+    def state_value(s) -> float:
+        key, j = state_key(s)
+        return float(isam.calculateEstimateVector(key)[j])
+
     current = gtsam.Pose2(*problem.pose0)
     online = np.empty((len(problem.kt), 3))  # each keyframe's estimate right after its update
     findings: list[Finding] = []
@@ -240,13 +273,11 @@ def run_isam2(log, config) -> EstimateResult:
         latency.append(time.perf_counter() - t0)
         for meas in fac.by_kf.get(i, ()):
             n_factors[meas.stream] = n_factors.get(meas.stream, 0) + 1
+        n_factors[problem.odometry_stream] = i  # odometry factors so far
         if groups and i % spec["check_every"] == 0:
             t_i = float(problem.kt[i])
             for stream in [s for s in groups if s not in frozen_streams]:
-                sig = {
-                    s: float(np.sqrt(isam.marginalCovariance(problem.calib[s][0])[0, 0]))
-                    for s in groups[stream]
-                }
+                sig = {s: state_sigma(s) for s in groups[stream]}
                 before: dict = {}
                 if "sigma" in spec:
                     ok = all(sig[s] < spec["sigma"][s] for s in groups[stream])
@@ -257,7 +288,7 @@ def run_isam2(log, config) -> EstimateResult:
                     history[stream].append((t_i, n, sig))
                 if ok:
                     for s in groups[stream]:
-                        value = float(isam.calculateEstimateVector(problem.calib[s][0])[0])
+                        value = state_value(s)
                         fac.frozen[s] = value
                         freeze_info[s] = {
                             "value": value,
@@ -268,6 +299,9 @@ def run_isam2(log, config) -> EstimateResult:
                         if before:
                             freeze_info[s]["sigma_window_ago"] = before[s]
                     frozen_streams.add(stream)
+                    if stream == problem.odometry_stream:  # later odometry: built-in factors
+                        names = problem.odometry_calibration.names
+                        fac.odometry_fixed = np.array([fac.frozen[s] for s in names])
         if i > 0:
             current = isam.calculateEstimatePose2(X(i))
         online[i] = (current.x(), current.y(), current.theta())
