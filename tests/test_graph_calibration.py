@@ -123,3 +123,16 @@ def test_staged_solve_keeps_calibration_out_of_the_robust_loss():
     assert m["ate_rmse_m"] < mg["ate_rmse_m"]
     err = abs(res.extra["calibration"]["wheel_radius_ratio"] - 1.004)
     assert err <= abs(gauss.extra["calibration"]["wheel_radius_ratio"] - 1.004) + 5e-4
+
+
+def test_isam2_freezes_the_odometry_calibration():
+    # generous absolute thresholds: frozen at an early check, later odometry factors built-in
+    freeze = {"sigma": {"wheel_radius_ratio": 0.05, "track_width_scale": 0.05}, "check_every": 5}
+    options = {"odometry_calibration": True, "calibration_freeze": freeze}
+    log, cfg = simulated_run(SCENARIO, 2, "isam2", options, {"gyro": {"calibrate": True}})
+    res = run_estimator("isam2", log, cfg)
+    info = res.extra["calibration_freeze"]
+    assert set(info) == {"wheel_radius_ratio", "track_width_scale"}
+    k = info["wheel_radius_ratio"]["keyframe"]
+    assert res.extra["python_factors"] == k  # calibrated (Python) odometry factors up to it
+    assert metrics(res, log)["ate_rmse_m"] < 0.5
