@@ -1,6 +1,7 @@
 """Benchmarks of the factor-graph back end (prints figures and ratios; asserts nothing).
 
-Run: ``python benchmarks/bench_graph.py [plaza|isam2|hour|all] [--custom]``
+Run: ``python benchmarks/bench_graph.py [plaza|isam2|hour|gyro|all] [--custom]
+[--seconds S]``
 
 * ``plaza``: Plaza1 batch smoothing with odofuse (``run_smoother``, no covariances) against a
   minimal hand-written GTSAM script that builds the same graph from the same arrays
@@ -16,6 +17,11 @@ Run: ``python benchmarks/bench_graph.py [plaza|isam2|hour|all] [--custom]``
   freeze.
 * ``hour``: a one-hour 100 Hz simulated log (360 000 odometry steps, 1 Hz GPS) smoothed in
   batch; wall time (target <= 60 s) and peak resident memory (target <= 2 GiB).
+* ``gyro``: iSAM2 and the fixed-lag smoother on a simulated 100 Hz odometry log (``--seconds``,
+  default 300) with 1 Hz GPS and a biased gyro at 0 (none), 100 and 200 Hz (pre-integrated
+  between 1 s keyframes): wall time, keyframes, per-update latency of ``ISAM2.update`` /
+  ``FixedLagSmoother.update`` (median, p99, max, per quarter) and the ratio of odofuse's whole
+  per-keyframe step to GTSAM's own update inside it.
 """
 
 from __future__ import annotations
@@ -270,6 +276,71 @@ def bench_hour():
     )
 
 
+def simulate_gyro(gyro_rate: float, duration=300.0, rate=100.0, seed=0):
+    """A 100 Hz increments log with 1 Hz GPS and a gyro (bias 0.01 rad/s) at ``gyro_rate``."""
+    import dataclasses
+
+    from odofuse.io.log import Stream
+
+    log = simulate_hour(rate, duration, seed)
+    if gyro_rate <= 0:
+        return log
+    rng = np.random.default_rng(seed + 1)
+    gt = log.groundtruth
+    tw = np.arange(1.0 / gyro_rate, gt.t[-1], 1.0 / gyro_rate)
+    heading = np.interp(tw, gt.t, np.unwrap(gt["theta"]))
+    wz = np.gradient(heading, tw) + 0.01 + rng.normal(0.0, 0.005, tw.size)
+    streams = {**log.streams, "gyro": Stream("gyro", "sim", tw, ("wz",), wz[:, None])}
+    return dataclasses.replace(log, streams=streams)
+
+
+def bench_gyro(duration=300.0):
+    from odofuse.config import RunConfig
+    from odofuse.estimators.graph import run_fixed_lag, run_isam2
+    from odofuse.evaluation import ate, trajectory_from_stream
+
+    for gyro_rate in (0.0, 100.0, 200.0):
+        log = simulate_gyro(gyro_rate, duration)
+        sensors = {"gps": {"sigma": 0.5}}
+        if gyro_rate:
+            sensors["gyro"] = {"sigma": 0.005, "calibrate": True}
+        for name, run in (("isam2", run_isam2), ("fixed_lag", run_fixed_lag)):
+            cfg = RunConfig(
+                log="sim",
+                robot={"drive": "increments"},
+                motion={"integrator": "exact", "k": [1e-4, 1e-4], "var_floor": [1e-8, 1e-8]},
+                estimator=name,
+                initial={"pose": [0, 0, 0], "sigma": [0.1, 0.1, 0.05]},
+                sensors=sensors,
+                options={name: {"keyframe_dt": 1.0}},
+            )
+            t0 = time.perf_counter()
+            res = run(log, cfg)
+            wall = time.perf_counter() - t0
+            e = ate(res.trajectory, trajectory_from_stream(log.groundtruth)).rmse_m
+            n_gyro = len(log.streams["gyro"]) if gyro_rate else 0
+            bias = res.extra.get("calibration", {}).get("gyro_bias")
+            print(
+                f"{name} {duration:.0f} s, gyro {gyro_rate:.0f} Hz ({n_gyro} samples): "
+                f"{wall:.2f} s, {res.extra['keyframes']} keyframes, RMSE {e:.3f} m"
+                + (f", bias {bias:.4f} rad/s (true 0.01)" if bias is not None else "")
+            )
+            lat = res.extra["latency"]
+            print(
+                f"  update ({lat['updates']}): median {lat['median_ms']:.2f} ms, p99 "
+                f"{lat['p99_ms']:.2f} ms, max {lat['max_ms']:.1f} ms; p99 per quarter",
+                " ".join(f"{m:.2f}" for m in lat["quarters_p99_ms"]),
+                "ms",
+            )
+            step = res.extra.get("latency_step")
+            if step:
+                ratio = step["median_ms"] / max(lat["median_ms"], 1e-9)
+                print(
+                    f"  whole step: median {step['median_ms']:.2f} ms, p99 "
+                    f"{step['p99_ms']:.2f} ms; step / ISAM2.update (median) {ratio:.2f}"
+                )
+
+
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 and not sys.argv[1].startswith("-") else "all"
     if what in ("plaza", "all"):
@@ -278,3 +349,8 @@ if __name__ == "__main__":
         bench_isam2()
     if what in ("hour", "all"):
         bench_hour()
+    if what in ("gyro", "all"):
+        seconds = (
+            float(sys.argv[sys.argv.index("--seconds") + 1]) if "--seconds" in sys.argv else 300
+        )
+        bench_gyro(seconds)

@@ -12,6 +12,9 @@ The graph is built from the run's single :class:`odofuse.motion.MotionModel` and
   ``MotionModel.relative`` (Siegwart error model, ``004_f4547100a083f338.txt`` ch. 5; head-to-tail
   composition, ``002_88fc37db58155723.txt``) into a ``BetweenFactorPose2`` whose covariance is
   already in GTSAM's body (tangent) convention.
+* **Gyro factors**: the gyro samples between two keyframes are pre-integrated into one
+  heading increment (:func:`~odofuse.estimators.graph.keyframes.preintegrate_gyro`) with the
+  bias as a variable; gyro times are not keyframes.
 * **Sensor factors** come from each model's ``factor`` (built-in ``PoseTranslationPrior2D``,
   ``RangeFactor2D``, ``BearingRangeFactor2D``, ... where GTSAM has one), wrapped in a
   Huber / Cauchy / Tukey loss per stream. Calibration states of the models (range scale and
@@ -32,7 +35,8 @@ The package is split by role, each module importing only those above it:
 ``keys``
     GTSAM keys of the variables and the sensor kinds the graph dispatches on.
 ``keyframes``
-    :func:`keyframe_times`, :func:`preintegrate` (odometry between keyframes).
+    :func:`keyframe_times`, :func:`preintegrate` (odometry between keyframes),
+    ``preintegrate_gyro`` (gyro samples between keyframes).
 ``calibration``
     :class:`OdometryCalibration` (systematic odometry parameters per drive).
 ``slam``
@@ -43,8 +47,11 @@ The package is split by role, each module importing only those above it:
     ``gtsam.CustomFactor`` factors for what GTSAM has no built-in factor for.
 ``factors``
     ``Factors``: a problem as GTSAM factors and values, keyframe by keyframe.
+``health``
+    The graph's self-checks (residuals, outliers, calibration, jumps, solver): findings.
 ``solvers``
-    :func:`build_graph`, :func:`run_smoother` (batch LM) and the shared results.
+    :func:`build_graph`, :func:`run_smoother` (batch LM, in stages for robust odometry with
+    odometry calibration) and the shared results.
 ``isam2``
     :func:`run_isam2` (with the calibration freeze), :func:`run_fixed_lag`.
 """

@@ -10,7 +10,10 @@ this module adds
   constants (iSAM2's ``calibration_freeze``: once converged, new factors stop touching the
   global calibration variables);
 * :func:`calibrated_between_factor`: odometry between factor corrected to first order in
-  odometry calibration parameters (wheel radius ratio, track scale, ds/dtheta scale, bias).
+  odometry calibration parameters (wheel radius ratio, track scale, ds/dtheta scale, bias);
+* :func:`gyro_increment_factor`: a pre-integrated gyro heading increment with a bias
+  variable under a robust loss (without a robust loss the graph uses an exact built-in
+  ``LinearContainerFactor``, :meth:`odofuse.estimators.graph.factors.Factors.gyro`).
 
 They are placed in the graph by :class:`odofuse.estimators.graph.factors.Factors`; a graph
 holding any of them is solved by :func:`odofuse.estimators.graph.solvers.levenberg_marquardt`.
@@ -169,3 +172,31 @@ def frozen_calibration_factor(model, key, row, constants, noise=None):
         return err
 
     return gtsam.CustomFactor(model.noise(row, noise), gtsam.KeyVector([key]), error)
+
+
+def gyro_increment_factor(key_i, key_j, bias_key, dtheta, T, noise):
+    """Pre-integrated gyro heading increment between two poses with a bias variable.
+
+    ``e = wrap(theta_j - theta_i + b T - dtheta)`` (rad): the measured heading change
+    ``dtheta`` over ``T`` s of gyro data, corrected by the bias ``b`` (rad/s, a 1-vector).
+    Jacobians w.r.t. the Pose2 body tangents ``[0, 0, -1]``, ``[0, 0, 1]`` and ``T``.
+
+    Returns
+    -------
+    gtsam.CustomFactor
+    """
+    import gtsam
+
+    from odofuse.se2 import wrap
+
+    dtheta, T = float(dtheta), float(T)
+    Hi, Hj, Hb = np.array([[0.0, 0.0, -1.0]]), np.array([[0.0, 0.0, 1.0]]), np.array([[T]])
+
+    def error(this, values, H):
+        a, b = values.atPose2(key_i).theta(), values.atPose2(key_j).theta()
+        bias = float(values.atVector(bias_key)[0])
+        if H is not None:
+            H[0], H[1], H[2] = Hi, Hj, Hb
+        return np.array([float(wrap(b - a + bias * T - dtheta))])
+
+    return gtsam.CustomFactor(noise, gtsam.KeyVector([key_i, key_j, bias_key]), error)

@@ -17,6 +17,7 @@ from odofuse import se2
 from odofuse.estimators.graph.custom_factors import (
     calibrated_between_factor,
     frozen_calibration_factor,
+    gyro_increment_factor,
     range_landmark_factor,
 )
 from odofuse.estimators.graph.keys import B, L, X, model_kind
@@ -68,10 +69,24 @@ def _odometry_noise(cov, floor: float = _COV_FLOOR):
 class Factors:
     """Turns a :class:`GraphProblem` into GTSAM factors and initial values, keyframe by keyframe."""
 
-    def __init__(self, problem: GraphProblem) -> None:
+    def __init__(
+        self,
+        problem: GraphProblem,
+        odometry_robust: bool = True,
+        odometry_fixed=None,
+        odometry_weights=None,
+    ) -> None:
+        """``odometry_robust=False`` drops the odometry stream's robust loss;
+        ``odometry_fixed`` (m,) holds the odometry calibration at these values (no variable);
+        ``odometry_weights`` (K-1,) are frozen robust weights: each odometry factor is
+        Gaussian with its covariance divided by its weight (no loss). The stages of
+        :func:`odofuse.estimators.graph.solvers.run_smoother`."""
         import gtsam
 
         self.p = problem
+        self.odometry_robust = odometry_robust and odometry_weights is None
+        self.odometry_fixed = None if odometry_fixed is None else np.asarray(odometry_fixed)
+        self.odometry_weights = odometry_weights
         self.gtsam = gtsam
         self.dims: dict[int, int] = {}
         self.python_factors = 0
@@ -99,6 +114,15 @@ class Factors:
         # the next keyframe, and the factor -> range scale its unwhitened error is divided by
         self._pending: list = []
         self.error_scale: dict[int, float] = {}
+        # keyframe interval -> [(gyro stream, n)] of its pre-integrated gyro increments, and
+        # the factors made of them: (stream, n, factor)
+        self.gyro_by_interval: dict[int, list[tuple[str, int]]] = {}
+        for stream, inc in problem.gyro.items():
+            for n, i in enumerate(inc.interval):
+                self.gyro_by_interval.setdefault(int(i), []).append((stream, n))
+        self.gyro_created: list = []
+        self.odometry_created: list = []  # (keyframe i, factor from i-1 to i)
+        self._theta_guess: dict[int, float] = {}
 
     def _landmark_variable_needed(self, lid) -> bool:
         if self.p.options.slam:
@@ -140,7 +164,7 @@ class Factors:
                 )
             )
             self.dims[key] = 1
-        if p.odometry_calibration is not None:
+        if p.odometry_calibration is not None and self.odometry_fixed is None:
             oc = p.odometry_calibration
             v.insert(p.odometry_key, np.array(oc.nominal))
             prior = gtsam.noiseModel.Diagonal.Sigmas(np.array(oc.sigma))
@@ -164,9 +188,19 @@ class Factors:
         """``BetweenFactorPose2`` from keyframe ``i-1`` to ``i``."""
         d = self.p.deltas[i - 1]
         loss, k = self.p.robust.get(self.p.odometry_stream, ("none", 0.0))
+        if not self.odometry_robust:
+            loss = "none"
+        cov = self.p.covs[i - 1]
+        if self.odometry_weights is not None:
+            cov = cov / self.odometry_weights[i - 1]
         floor = 0.0 if self.p.pose_graph else self.p.options.odometry_floor  # the file's noise
-        nm = robust_noise(_odometry_noise(self.p.covs[i - 1], floor), loss, k)
+        nm = robust_noise(_odometry_noise(cov, floor), loss, k)
         oc = self.p.odometry_calibration
+        if oc is not None and self.odometry_fixed is not None:
+            # m(p) = delta0 Exp(G (p - p0)) at the fixed p (calibrated_between_factor's model)
+            xi = self.p.G[i - 1] @ (self.odometry_fixed - np.asarray(oc.nominal))
+            m = self.gtsam.Pose2(*d).compose(self.gtsam.Pose2.Expmap(xi))
+            return self.gtsam.BetweenFactorPose2(X(i - 1), X(i), m, nm)
         if oc is not None:
             self.python_factors += 1
             return calibrated_between_factor(
@@ -191,12 +225,6 @@ class Factors:
         calib = self.model_calib(m)
         loss, k = self.p.robust.get(meas.stream, ("none", 0.0))
         key = X(meas.keyframe)
-        if kind == "GyroYawRate":
-            dt = float(meas.row["dt"])
-            base = gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(m.R(meas.row)[0, 0]) * dt)
-            f = m.factor((X(meas.prev_keyframe), key), meas.row, calib, robust_noise(base, loss, k))
-            self.python_factors += 1
-            return f
         if kind == "LandmarkRangeBearing" and meas.landmark in self.landmark_keys:
             # GTSAM's BearingRange measurement is ordered (bearing, range).
             R = m.R(meas.row)
@@ -236,6 +264,54 @@ class Factors:
             self.python_factors += 1
         return f
 
+    def gyro(self, stream: str, n: int, i: int):
+        """The heading-increment factor of the ``n``-th gyro increment, keyframes ``i-1, i``.
+
+        Without a bias variable a ``BetweenFactorPose2`` whose noise has zero precision on
+        the translation: its error is exactly ``wrap(theta_i - theta_{i-1} - dtheta)`` (the
+        rotation part of Pose2's ``Logmap``) and it takes the stream's robust loss. With the
+        ``gyro_bias`` variable the error ``theta_i - theta_{i-1} + b T - dtheta`` is linear in
+        the tangent coordinates of the three variables, so a ``LinearContainerFactor``
+        (linearised at the keyframes' initial headings) is that factor exactly, in C++, as
+        long as no heading moves by more than pi from its initial value; with a robust loss
+        it is :func:`gyro_increment_factor` (Python).
+        """
+        gtsam = self.gtsam
+        inc = self.p.gyro[stream]
+        dtheta, var, T = float(inc.dtheta[n]), float(inc.var[n]), float(inc.T[n])
+        bias_key = self.model_calib(self.p.models[stream]).get("gyro_bias")
+        loss, k = self.p.robust.get(stream, ("none", 0.0))
+        if bias_key is None:
+            nm = gtsam.noiseModel.Diagonal.Precisions(np.array([0.0, 0.0, 1.0 / var]))
+            return gtsam.BetweenFactorPose2(
+                X(i - 1), X(i), gtsam.Pose2(0.0, 0.0, dtheta), robust_noise(nm, loss, k)
+            )
+        sigma = math.sqrt(var)
+        nm = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
+        if loss != "none":
+            self.python_factors += 1
+            return gyro_increment_factor(
+                X(i - 1), X(i), bias_key, dtheta, T, robust_noise(nm, loss, k)
+            )
+        b0 = float(self.p.calib["gyro_bias"][1])
+        th0, th1 = self._theta_guess[i - 1], self._theta_guess[i]
+        e0 = float(se2.wrap(th1 - th0 + b0 * T - dtheta))
+        jf = gtsam.JacobianFactor(
+            X(i - 1),
+            np.array([[0.0, 0.0, -1.0]]),
+            X(i),
+            np.array([[0.0, 0.0, 1.0]]),
+            bias_key,
+            np.array([[T]]),
+            np.array([-e0]),
+            nm,
+        )
+        lin = gtsam.Values()
+        lin.insert(X(i - 1), gtsam.Pose2(0.0, 0.0, th0))
+        lin.insert(X(i), gtsam.Pose2(0.0, 0.0, th1))
+        lin.insert(bias_key, np.array([b0]))
+        return gtsam.LinearContainerFactor(jf, lin)
+
     def _frozen_beacon_range(self, m, meas, loss, k):
         """A frozen ``s ||p - b|| + o = z`` range as built-in GTSAM factors.
 
@@ -267,10 +343,18 @@ class Factors:
         gtsam = self.gtsam
         if g is None:
             g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        self._theta_guess[i] = float(values_guess.theta())
         if i > 0:
-            g.add(self.odometry(i))
+            f = self.odometry(i)
+            g.add(f)
+            self.odometry_created.append((i, f))
             v.insert(X(i), values_guess)
             self.dims[X(i)] = 3
+            for stream, n in self.gyro_by_interval.get(i - 1, ()):
+                f = self.gyro(stream, n, i)
+                g.add(f)
+                self.gyro_created.append((stream, n, f))
+                self.used[stream] = self.used.get(stream, 0) + int(self.p.gyro[stream].samples[n])
         for loop in self.loops_by_kf.get(i, ()):
             g.add(self.loop(loop))
             self.used[STREAM] += 1

@@ -1,7 +1,8 @@
 """Incremental graph solvers: iSAM2 with the calibration freeze, and the fixed-lag smoother.
 
 Owns :func:`run_isam2` (one ``ISAM2.update`` per keyframe, its latency figures and the
-``calibration_freeze`` of converged sensor calibration states) and :func:`run_fixed_lag`
+``calibration_freeze`` of converged sensor and odometry calibration states) and
+:func:`run_fixed_lag`
 (GTSAM's ``IncrementalFixedLagSmoother``, each keyframe's pose taken just before it leaves
 the window), with the iSAM2 parameters both use.
 """
@@ -26,6 +27,7 @@ from odofuse.estimators.graph.solvers import (
     pose_array,
     world_covs,
 )
+from odofuse.health import Finding
 from odofuse.trajectory import EstimateResult
 
 
@@ -43,6 +45,43 @@ def _latency_summary(lat) -> dict:
         "quarters_median_ms": [float(np.median(q)) for q in quarters],
         "quarters_p99_ms": [float(np.percentile(q, 99)) for q in quarters],
     }
+
+
+def _failure(solver: str, problem: GraphProblem, i: int, exc: Exception) -> Finding:
+    detail = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:160]
+    return Finding(
+        "solver",
+        f"{solver} update failed at keyframe {i} ({detail}); the keyframes from there on are "
+        "dead-reckoned from the last estimate and no covariances are given",
+        t_start=float(problem.kt[i]),
+        t_end=float(problem.kt[-1]),
+        figure=float(i),
+    )
+
+
+def _dead_reckoned_from(problem: GraphProblem, poses: np.ndarray, i: int) -> None:
+    """Fill ``poses[i:]`` by composing the odometry from ``poses[i - 1]`` (in place)."""
+    if i == 0:
+        poses[0] = problem.pose0
+    for j in range(max(i, 1), len(problem.kt)):
+        poses[j] = se2.compose(poses[j - 1], problem.deltas[j - 1])
+    poses[:, 2] = se2.wrap(poses[:, 2])
+
+
+def _with_poses(est, poses: np.ndarray, keys):
+    """``gtsam.Values`` holding ``poses`` as ``X(i)`` and ``keys`` (calibration vectors,
+    landmark points) copied from ``est`` where it has them."""
+    import gtsam
+
+    out = gtsam.Values()
+    for key in keys:
+        if gtsam.Symbol(key).chr() != ord("x") and est.exists(key):
+            # calibration vectors (c<n>, o0) and landmark / beacon points (l<id>, b<n>)
+            is_vector = gtsam.Symbol(key).chr() in (ord("c"), ord("o"))
+            out.insert(key, est.atVector(key) if is_vector else est.atPoint2(key))
+    for i in range(len(poses)):
+        out.insert(X(i), gtsam.Pose2(*poses[i]))
+    return out
 
 
 def _isam2_params(options: GraphOptions):
@@ -73,14 +112,19 @@ def _freeze_groups(problem: GraphProblem, fac: Factors, source: str) -> dict[str
     spec = problem.options.calibration_freeze
     if not spec:
         return {}
+    oc = problem.odometry_calibration
+    odometry = {problem.odometry_stream: tuple(oc.names)} if oc is not None else {}
     if "rel_change" in spec:
         return {
-            stream: tuple(fac.model_calib(m))
-            for stream, m in problem.models.items()
-            if fac.model_calib(m) and model_kind(m) != "GyroYawRate"
+            **{
+                stream: tuple(fac.model_calib(m))
+                for stream, m in problem.models.items()
+                if fac.model_calib(m) and model_kind(m) != "GyroYawRate"
+            },
+            **odometry,
         }
     key = "options.isam2.calibration_freeze.sigma"
-    known = set(problem.calib)
+    known = set(problem.calib) | {n for names in odometry.values() for n in names}
     bad = sorted(set(spec["sigma"]) - known)
     if bad:
         raise ConfigError(
@@ -108,6 +152,17 @@ def _freeze_groups(problem: GraphProblem, fac: Factors, source: str) -> dict[str
                 f"{key}.{missing[0]}",
             )
         groups[stream] = states
+    for stream, states in odometry.items():
+        if set(states) & set(spec["sigma"]):
+            missing = [s for s in states if s not in spec["sigma"]]
+            if missing:
+                raise ConfigError(
+                    f"odometry calibration estimates {', '.join(states)}: give a threshold "
+                    "for each",
+                    source,
+                    f"{key}.{missing[0]}",
+                )
+            groups[stream] = states
     return groups
 
 
@@ -163,7 +218,10 @@ def run_isam2(log, config) -> EstimateResult:
     involve the variable. The
     variable stays in the graph, still estimated from the factors added before the freeze;
     what is given up is the information of the later measurements about the calibration
-    (and its correlation with the later poses). ``extra["calibration_freeze"]`` gives, per
+    (and its correlation with the later poses). The odometry calibration vector
+    (``odometry_calibration``) is one more group: once frozen, later odometry factors are
+    built-in ``BetweenFactorPose2`` of the calibrated relative poses instead of Python
+    calibrated between factors. ``extra["calibration_freeze"]`` gives, per
     frozen state, the constant, its sigma, the keyframe index and time of the freeze (and,
     for the ``rel_change`` form, ``sigma_window_ago``: its sigma one window earlier).
     """
@@ -193,7 +251,22 @@ def run_isam2(log, config) -> EstimateResult:
     frozen_streams: set[str] = set()
     history: dict[str, list] = {stream: [] for stream in groups}
     n_factors: dict[str, int] = {}
+    oc_index = {n: j for j, n in enumerate(getattr(problem.odometry_calibration, "names", ()))}
+
+    def state_key(s):  # (key, component) of a sensor or odometry calibration state
+        return (problem.odometry_key, oc_index[s]) if s in oc_index else (problem.calib[s][0], 0)
+
+    def state_sigma(s) -> float:
+        key, j = state_key(s)
+        return float(np.sqrt(isam.marginalCovariance(key)[j, j]))
+
+    def state_value(s) -> float:
+        key, j = state_key(s)
+        return float(isam.calculateEstimateVector(key)[j])
+
     current = gtsam.Pose2(*problem.pose0)
+    online = np.empty((len(problem.kt), 3))  # each keyframe's estimate right after its update
+    findings: list[Finding] = []
     for i in range(len(problem.kt)):
         t_step = time.perf_counter()
         if i > 0:
@@ -202,17 +275,19 @@ def run_isam2(log, config) -> EstimateResult:
         graph.push_back(g)
         values.insert(v)
         t0 = time.perf_counter()
-        isam.update(graph, values, noRelinKeys=frozen)
+        try:
+            isam.update(graph, values, noRelinKeys=frozen)
+        except RuntimeError as exc:  # indeterminate system: report, never a traceback
+            findings.append(_failure("iSAM2", problem, i, exc))
+            break
         latency.append(time.perf_counter() - t0)
         for meas in fac.by_kf.get(i, ()):
             n_factors[meas.stream] = n_factors.get(meas.stream, 0) + 1
+        n_factors[problem.odometry_stream] = i  # odometry factors so far
         if groups and i % spec["check_every"] == 0:
             t_i = float(problem.kt[i])
             for stream in [s for s in groups if s not in frozen_streams]:
-                sig = {
-                    s: float(np.sqrt(isam.marginalCovariance(problem.calib[s][0])[0, 0]))
-                    for s in groups[stream]
-                }
+                sig = {s: state_sigma(s) for s in groups[stream]}
                 before: dict = {}
                 if "sigma" in spec:
                     ok = all(sig[s] < spec["sigma"][s] for s in groups[stream])
@@ -223,7 +298,7 @@ def run_isam2(log, config) -> EstimateResult:
                     history[stream].append((t_i, n, sig))
                 if ok:
                     for s in groups[stream]:
-                        value = float(isam.calculateEstimateVector(problem.calib[s][0])[0])
+                        value = state_value(s)
                         fac.frozen[s] = value
                         freeze_info[s] = {
                             "value": value,
@@ -234,21 +309,34 @@ def run_isam2(log, config) -> EstimateResult:
                         if before:
                             freeze_info[s]["sigma_window_ago"] = before[s]
                     frozen_streams.add(stream)
+                    if stream == problem.odometry_stream:  # later odometry: built-in factors
+                        names = problem.odometry_calibration.names
+                        fac.odometry_fixed = np.array([fac.frozen[s] for s in names])
         if i > 0:
             current = isam.calculateEstimatePose2(X(i))
+        online[i] = (current.x(), current.y(), current.theta())
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         step.append(time.perf_counter() - t_step)
-    for _ in range(problem.options.final_relinearizations):
-        isam.update(force_relinearize=True)
-    result = isam.calculateEstimate()
     covs = None
-    if problem.options.covariances:
-        poses = pose_array(result, len(problem.kt))
-        covs = world_covs(problem, poses, isam.marginalCovariance)
+    if not findings:
+        try:
+            for _ in range(problem.options.final_relinearizations):
+                isam.update(force_relinearize=True)
+            result = isam.calculateEstimate()
+            if problem.options.covariances:
+                poses = pose_array(result, len(problem.kt))
+                covs = world_covs(problem, poses, isam.marginalCovariance)
+        except RuntimeError as exc:
+            findings.append(_failure("iSAM2 (final relinearisation)", problem, len(online), exc))
+            covs, result = None, _with_poses(isam.calculateEstimate(), online, fac.dims)
+    else:
+        failed = int(findings[-1].figure)
+        _dead_reckoned_from(problem, online, failed)
+        result = _with_poses(isam.calculateEstimate(), online, fac.dims)
     extra = {"latency": _latency_summary(latency), "latency_step": _latency_summary(step)}
     if groups:
         extra["calibration_freeze"] = freeze_info
-    return finish(problem, fac, result, covs, "isam2", extra)
+    return finish(problem, fac, result, covs, "isam2", extra, findings)
 
 
 def _slam_result(problem, isam, fac, extra) -> EstimateResult:
@@ -282,7 +370,7 @@ def run_fixed_lag(log, config) -> EstimateResult:
     covs = np.empty((K, 3, 3)) if problem.options.covariances else None
     done = 0  # keyframes [0, done) are final
     latency = []
-    final_values = gtsam.Values()
+    findings: list[Finding] = []
     current = gtsam.Pose2(*problem.pose0)
 
     def freeze(upto: int) -> None:
@@ -310,19 +398,25 @@ def run_fixed_lag(log, config) -> EstimateResult:
         for key in persistent:
             stamps.insert((key, t))
         t0 = time.perf_counter()
-        smoother.update(graph, values, stamps)
+        try:
+            smoother.update(graph, values, stamps)
+        except RuntimeError as exc:  # indeterminate system: report, never a traceback
+            findings.append(_failure("fixed-lag smoother", problem, i, exc))
+            break
         latency.append(time.perf_counter() - t0)
         current = smoother.calculateEstimatePose2(X(i))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    freeze(K)
+    if findings:
+        # the keyframes still in the window keep their last estimate, the rest dead-reckoned
+        est = smoother.calculateEstimate()
+        for j in range(done, int(findings[-1].figure)):
+            p = est.atPose2(X(j))
+            poses[j] = (p.x(), p.y(), p.theta())
+        _dead_reckoned_from(problem, poses, int(findings[-1].figure))
+        covs = None
+    else:
+        freeze(K)
     poses[:, 2] = se2.wrap(poses[:, 2])
-    est = smoother.calculateEstimate()
-    for key in persistent:
-        if est.exists(key):
-            final_values.insert(
-                key, est.atVector(key) if gtsam.Symbol(key).chr() == ord("c") else est.atPoint2(key)
-            )
-    for i in range(K):
-        final_values.insert(X(i), gtsam.Pose2(*poses[i]))
+    final_values = _with_poses(smoother.calculateEstimate(), poses, persistent)
     extra = {"latency": _latency_summary(latency), "lag_s": lag}
-    return finish(problem, fac, final_values, covs, "fixed_lag", extra)
+    return finish(problem, fac, final_values, covs, "fixed_lag", extra, findings, stitched=True)

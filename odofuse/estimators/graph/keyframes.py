@@ -129,3 +129,69 @@ def _preintegrate_pieces(model, pieces, owner, n_intervals, D=None):
             G[live] = Ai @ G[live] + TJD[idx]
     covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
     return (deltas, covs) if G is None else (deltas, covs, G)
+
+
+def preintegrate_gyro(t_prev, t, wz, var_rate, kt):
+    """Gyro samples between keyframes summed into one heading increment per interval.
+
+    Sample ``k`` measures the mean yaw rate ``wz[k]`` over ``(t_prev[k], t[k]]`` with rate
+    variance ``var_rate[k]`` (rad^2/s^2), i.e. a heading change ``wz dt`` of variance
+    ``var_rate dt^2`` (the per-sample model of :class:`odofuse.measurements.GyroYawRate`).
+    A sample cut by a keyframe is split: a piece of duration ``tau`` gets ``wz tau`` and
+    variance ``var_rate dt tau`` (white rate noise of density ``var_rate dt``), so the pieces
+    of one sample add up to the sample's own variance. With a constant bias ``b`` the true
+    heading change of interval ``i`` is ``dtheta[i] - b T[i]``.
+
+    Parameters
+    ----------
+    t_prev, t : ndarray (S,)
+        s, start and end of each sample's interval (consecutive: ``t_prev[k] = t[k-1]``).
+    wz : ndarray (S,)
+        rad/s, measured yaw rates.
+    var_rate : ndarray (S,)
+        rad^2/s^2, their variances.
+    kt : ndarray (K,)
+        s, keyframe times; the samples must lie inside ``[kt[0], kt[-1]]``.
+
+    Returns
+    -------
+    interval : ndarray (I,) int
+        Keyframe intervals ``(kt[i], kt[i+1])`` with gyro data, increasing.
+    dtheta : ndarray (I,)
+        rad, integrated measured heading change.
+    var : ndarray (I,)
+        rad^2, its variance.
+    T : ndarray (I,)
+        s, duration covered (the bias coefficient).
+    samples : ndarray (I,) int
+        Samples ending inside each interval (each sample is counted once).
+    """
+    t_prev, t = np.asarray(t_prev, dtype=float), np.asarray(t, dtype=float)
+    wz, var_rate = np.asarray(wz, dtype=float), np.asarray(var_rate, dtype=float)
+    kt = np.asarray(kt, dtype=float)
+    empty = np.zeros(0)
+    if t.size == 0:
+        return np.zeros(0, dtype=int), empty, empty, empty, np.zeros(0, dtype=int)
+    # pieces: every sample cut at the keyframes inside it
+    first = np.searchsorted(kt, t_prev, side="right")  # first keyframe after t_prev
+    last = np.searchsorted(kt, t, side="left")  # first keyframe at or after t
+    n_cuts = np.maximum(last - first, 0)
+    reps = n_cuts + 1
+    owner = np.repeat(np.arange(t.size), reps)
+    j = np.arange(owner.size) - np.repeat(np.cumsum(reps) - reps, reps)
+    cut_idx = np.repeat(first, reps) + j  # keyframe index that ends piece j (if a cut)
+    is_last = j == np.repeat(n_cuts, reps)
+    a = np.where(j == 0, t_prev[owner], kt[np.clip(cut_idx - 1, 0, kt.size - 1)])
+    b = np.where(is_last, t[owner], kt[np.clip(cut_idx, 0, kt.size - 1)])
+    tau = b - a
+    dt = t[owner] - t_prev[owner]
+    piece_interval = np.searchsorted(kt, b, side="left") - 1
+    piece_interval = np.clip(piece_interval, 0, kt.size - 2)
+    n_int = kt.size - 1
+    dtheta = np.bincount(piece_interval, wz[owner] * tau, n_int)
+    var = np.bincount(piece_interval, var_rate[owner] * dt * tau, n_int)
+    T = np.bincount(piece_interval, tau, n_int)
+    end_interval = np.clip(np.searchsorted(kt, t, side="left") - 1, 0, n_int - 1)
+    samples = np.bincount(end_interval, minlength=n_int)
+    keep = np.flatnonzero(T > 0)
+    return keep, dtheta[keep], var[keep], T[keep], samples[keep]

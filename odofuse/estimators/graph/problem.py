@@ -18,7 +18,7 @@ from odofuse import se2
 from odofuse.errors import ConfigError
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.graph.calibration import OdometryCalibration, odometry_calibration_for
-from odofuse.estimators.graph.keyframes import keyframe_times, preintegrate
+from odofuse.estimators.graph.keyframes import keyframe_times, preintegrate, preintegrate_gyro
 from odofuse.estimators.graph.keys import C, model_kind
 from odofuse.estimators.graph.loops import (
     STREAM,
@@ -40,10 +40,25 @@ class Measurement:
 
     stream: str
     index: int  # row in the stream
-    keyframe: int  # keyframe index (the previous one too for the gyro: prev_keyframe)
+    keyframe: int  # keyframe index
     row: dict
-    prev_keyframe: int | None = None
     landmark: int | None = None
+
+
+@dataclass(frozen=True)
+class GyroIncrements:
+    """A gyro stream pre-integrated between keyframes (:func:`preintegrate_gyro`).
+
+    ``interval[n]`` is the keyframe interval ``(kt[i], kt[i+1])`` of the ``n``-th heading
+    increment ``dtheta`` (rad) with variance ``var`` (rad^2) over ``T`` s of gyro data, summing
+    ``samples`` gyro rows.
+    """
+
+    interval: np.ndarray
+    dtheta: np.ndarray
+    var: np.ndarray
+    T: np.ndarray
+    samples: np.ndarray
 
 
 @dataclass
@@ -68,6 +83,9 @@ class GraphProblem:
         Landmark id -> (2,) position: the map, or the SLAM initial guess.
     rejected : dict
         Stream -> rows that got no factor (outside the odometry span, unknown landmark, ...).
+    gyro : dict
+        Gyro stream -> :class:`GyroIncrements` (one heading-increment factor per keyframe
+        interval; gyro times are not keyframes).
     """
 
     kt: np.ndarray
@@ -88,6 +106,7 @@ class GraphProblem:
     G: np.ndarray | None = None
     loops: list = field(default_factory=list)  # graph.loops.Loop records
     pose_graph: bool = False  # odometry edges as stored in a pose-graph file (graph.loops)
+    gyro: dict = field(default_factory=dict)
 
     @property
     def odometry_key(self) -> int:
@@ -138,6 +157,7 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
 
     rejected: dict[str, int] = {}
     pending: list[tuple[float, Measurement]] = []
+    gyro_rows: dict[str, list] = {}  # stream -> (t_prev, t, wz, var) of accepted samples
     for name, m in models.items():
         if not log.has(name):
             continue
@@ -162,9 +182,11 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
                     n_rej += 1
                     continue
                 row["dt"] = t - prev_t
-                meas.prev_keyframe = -1
-                meas.row["t_prev"] = prev_t
+                gyro_rows.setdefault(name, []).append(
+                    (prev_t, t, float(m.z(row)[0]), float(m.R(row)[0, 0]))
+                )
                 prev_t = t
+                continue
             if kind in LANDMARK_SENSORS:
                 lid = int(row["id"])
                 if not options.slam and lid not in log.landmarks:
@@ -174,15 +196,20 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
             pending.append((t, meas))
         rejected[name] = n_rej
 
-    sensor_times = np.array([t for t, _ in pending])
+    # gyro samples are pre-integrated between keyframes: only the ends of each gyro stream
+    # are keyframes, so that every interval in between is covered completely
+    gyro_ends = [t for rows in gyro_rows.values() for t in (rows[0][0], rows[-1][1])]
+    sensor_times = np.array([t for t, _ in pending] + gyro_ends)
     if loops_cfg is not None:
         sensor_times = np.concatenate([sensor_times, loop_times(log)])
         sensor_times = sensor_times[(sensor_times >= t_lo) & (sensor_times <= t_hi)]
     kt = t_odo if pose_graph else keyframe_times(t_odo, U, model, sensor_times, options)
     for t, meas in pending:
         meas.keyframe = int(np.searchsorted(kt, t))
-        if meas.prev_keyframe is not None:
-            meas.prev_keyframe = int(np.searchsorted(kt, meas.row["t_prev"]))
+    gyro = {
+        name: GyroIncrements(*preintegrate_gyro(*np.array(rows).T, kt))
+        for name, rows in gyro_rows.items()
+    }
     pending.sort(key=lambda tm: (tm[1].keyframe, tm[1].stream))
     odo_cal = odometry_calibration_for(
         model,
@@ -236,8 +263,9 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         robust,
         odo_cal,
         G,
+        gyro=gyro,
+        pose_graph=pose_graph,
     )
-    problem.pose_graph = pose_graph
     if loops_cfg is not None:
         lag = options.lag if estimator == "fixed_lag" else None
         problem.loops, rejected[STREAM] = loop_closures(log, loops_cfg, kt, lag)

@@ -18,30 +18,58 @@ factors use GTSAM's own LM.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from odofuse import se2
 from odofuse.estimators.graph.factors import Factors
+from odofuse.estimators.graph.health import (
+    factor_residuals,
+    graph_findings,
+    marginals_finding,
+    residual_summary,
+    robust_weights,
+    solver_findings,
+)
 from odofuse.estimators.graph.isam2_slam import incremental_slam
-from odofuse.estimators.graph.keys import X, model_kind
-from odofuse.estimators.graph.marginals import batch_marginals
+from odofuse.estimators.graph.keys import X
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
+@dataclass(frozen=True)
+class LMOutcome:
+    """What :func:`levenberg_marquardt` returns.
+
+    ``reason`` is ``"converged"`` (relative decrease below the tolerance, or no step lowers
+    the error at any damping: a minimum), ``"max_iterations"`` (the cap was reached while the
+    error still fell by more than the tolerance) or ``"no_decrease"`` (no step lowers the
+    error and some damped systems could not be eliminated) or ``"non_finite"`` (the error at
+    the initial values is not finite); ``indeterminate`` counts the
+    eliminations that failed and were retried with ten times the damping.
+    """
+
+    values: object
+    iterations: int
+    error: float
+    reason: str
+    indeterminate: int = 0
+
+
 def levenberg_marquardt(
     graph, values, dims, max_iterations=100, relative_tolerance=1e-6, lambda_initial=1e-5
-):
+) -> LMOutcome:
     """Minimise ``graph.error`` from ``values`` by Levenberg-Marquardt (Python driven).
 
     Each iteration linearises once, then solves ``(J^T J + lambda I) dx = -J^T r`` (the
     damping added as unit-weight prior rows on every variable) by sparse QR/Cholesky
     elimination in a COLAMD ordering fixed at the start, retracts, and accepts the step if
-    the error decreases (lambda / 10), else retries with lambda * 10.
+    the error decreases (lambda / 10), else retries with lambda * 10. An elimination that
+    fails (GTSAM's indeterminate linear system, e.g. a numerically singular block) is
+    retried with lambda * 10 too, and counted.
 
     Parameters
     ----------
@@ -57,15 +85,13 @@ def levenberg_marquardt(
 
     Returns
     -------
-    values : gtsam.Values
-        The optimum.
-    iterations : int
-    error : float
-        ``graph.error`` at the optimum.
+    LMOutcome
     """
     import gtsam
 
     err = graph.error(values)
+    if not math.isfinite(err):
+        return LMOutcome(values, 0, float(err), "non_finite")
     lin = graph.linearize(values)
     ordering = gtsam.Ordering.Colamd(gtsam.VariableIndex(lin))
     units = {n: gtsam.noiseModel.Unit.Create(n) for n in set(dims.values())}
@@ -73,6 +99,8 @@ def levenberg_marquardt(
     zeros = {n: np.zeros(n) for n in units}
     lam = float(lambda_initial)
     iterations = 0
+    failed = 0
+    reason = "max_iterations"
     for iterations in range(1, int(max_iterations) + 1):
         if iterations > 1:
             lin = graph.linearize(values)
@@ -82,7 +110,12 @@ def levenberg_marquardt(
             sq = math.sqrt(lam)
             for key, n in dims.items():
                 damped.add(gtsam.JacobianFactor(key, sq * eyes[n], zeros[n], units[n]))
-            delta = damped.optimize(ordering)
+            try:
+                delta = damped.optimize(ordering)
+            except RuntimeError:  # gtsam.IndeterminateLinearSystemException
+                failed += 1
+                lam *= 10.0
+                continue
             trial = values.retract(delta)
             trial_err = graph.error(trial)
             if trial_err <= err:
@@ -92,9 +125,13 @@ def levenberg_marquardt(
                 improved = True
                 break
             lam *= 10.0
-        if not improved or decrease < relative_tolerance:
+        if not improved:
+            reason = "no_decrease" if failed else "converged"
             break
-    return values, iterations, float(err)
+        if decrease < relative_tolerance:
+            reason = "converged"
+            break
+    return LMOutcome(values, iterations, float(err), reason, failed)
 
 
 def pose_array(values, K) -> np.ndarray:
@@ -127,32 +164,6 @@ def _extra(problem: GraphProblem, fac: Factors, values, estimator: str) -> dict:
     return extra
 
 
-def _outliers(problem: GraphProblem, fac: Factors, values) -> dict[str, int]:
-    """Per stream: factors whose whitened residual exceeds the model's chi-square gate."""
-    from odofuse.measurements import gate_threshold
-
-    out: dict[str, int] = {}
-    thresholds: dict[tuple, float] = {}
-    for meas, f in fac.created:
-        m = problem.models[meas.stream]
-        if getattr(m, "gate", None) is None:
-            continue
-        e = np.atleast_1d(f.unwhitenedError(values)) / fac.error_scale.get(id(f), 1.0)
-        R = m.R(meas.row)
-        kind = model_kind(m)
-        if kind == "GyroYawRate":  # the factor's error is a heading change (rad), R a rate
-            e = e / float(meas.row["dt"])
-        elif e.size == 2 and kind == "LandmarkRangeBearing":  # GTSAM: (bearing, range)
-            e = e[::-1]
-        nis = float(e[0] * e[0] / R[0, 0]) if e.size == 1 else float(e @ np.linalg.solve(R, e))
-        key = (m.gate, e.size)
-        if key not in thresholds:
-            thresholds[key] = gate_threshold(m.gate, e.size)
-        if nis > thresholds[key]:
-            out[meas.stream] = out.get(meas.stream, 0) + 1
-    return out
-
-
 def world_covs(problem, poses, cov_of) -> np.ndarray:
     covs = np.empty((len(poses), 3, 3))
     for i in range(len(poses)):
@@ -170,26 +181,90 @@ def landmark_covariances(fac: Factors, values, cov_of) -> dict:
     return out
 
 
-def finish(problem, fac, values, covs, estimator, extra) -> EstimateResult:
+def finish(
+    problem, fac, values, covs, estimator, extra, findings=(), stitched=False
+) -> EstimateResult:
+    """The :class:`EstimateResult` of a solution, with the graph's own findings.
+
+    ``extra`` gains ``calibration``, ``landmarks`` (SLAM), ``keyframes``, ``python_factors``,
+    ``outliers`` (per stream, factors beyond the model's gate) and ``residuals`` (per stream:
+    factors, chi-square per dimension, median ratio, fraction beyond 0.999); ``findings``
+    (solver, covariance) are followed by :func:`~odofuse.estimators.graph.health.graph_findings`
+    (``stitched``: poses from several solutions, the fixed-lag smoother's).
+    """
     poses = pose_array(values, len(problem.kt))
     extra = {**_extra(problem, fac, values, estimator), **extra}
-    outliers = _outliers(problem, fac, values)
+    residuals = factor_residuals(problem, fac, values)
+    summary = residual_summary(problem, residuals)
+    outliers = {s: v["outliers"] for s, v in summary.items() if v.get("outliers")}
     if outliers:
         extra["outliers"] = outliers
+    extra["residuals"] = {
+        s: {k: v for k, v in d.items() if k != "outliers"} for s, d in summary.items()
+    }
+    found = graph_findings(problem, values, residuals, summary, stitched)
+    findings = tuple(findings) + tuple(found)
     traj = Trajectory(problem.kt.copy(), poses, covs)
     used = {k: int(v) for k, v in fac.used.items()}
-    return EstimateResult(estimator, traj, used, dict(problem.rejected), extra)
+    return EstimateResult(estimator, traj, used, dict(problem.rejected), extra, findings)
 
 
-def build_graph(problem: GraphProblem):
-    """The whole graph and its dead-reckoned / SLAM-initialised values (batch form)."""
-    fac = Factors(problem)
-    graph, values = fac.static()
-    guess = problem.dead_reckoning()
+def marginal_covariances(graph, values, keys, dims) -> tuple[dict, list]:
+    """Marginal covariances (GTSAM tangent) of ``keys``, and the findings of a failure.
+
+    ``dims`` maps every variable's key to its tangent dimension.
+
+    ``gtsam.Marginals`` is tried first; if the system is indeterminate, again on the graph
+    linearised at ``values`` with a prior of sigma 100 (m, rad, units of the variable) on
+    every variable: a covariance the data determine to sigma ``s`` changes by the fraction
+    ``~(s / 100)^2`` (1e-8 for decimetres), the directions they do not determine get the
+    prior's size instead of an exception (a weaker prior trips GTSAM's own conditioning check).
+    If that fails too, no covariances are returned.
+    """
     import gtsam
 
+    try:
+        marginals = gtsam.Marginals(graph, values)
+        return {k: marginals.marginalCovariance(k) for k in keys}, []
+    except RuntimeError as exc:
+        detail = str(exc).strip().splitlines()[0][:160]
+    lin = graph.linearize(values)
+    sig = 1e2
+    for key, dim in dims.items():
+        lin.add(
+            gtsam.JacobianFactor(
+                key, np.eye(dim) / sig, np.zeros(dim), gtsam.noiseModel.Unit.Create(dim)
+            )
+        )
+    try:
+        marginals = gtsam.Marginals(lin, values)
+        return {k: marginals.marginalCovariance(k) for k in keys}, [marginals_finding(detail, True)]
+    except RuntimeError:
+        return {}, [marginals_finding(detail, False)]
+
+
+def build_graph(problem: GraphProblem, fac: Factors | None = None, initial=None):
+    """The whole graph and its initial values (batch form).
+
+    ``fac`` defaults to ``Factors(problem)``; ``initial`` (``gtsam.Values``) supplies the
+    keyframe poses, else they are dead-reckoned.
+    """
+    import gtsam
+
+    fac = fac or Factors(problem)
+    graph, values = fac.static()
+    if initial is None:
+        guess = [gtsam.Pose2(*p) for p in problem.dead_reckoning()]
+    else:
+        guess = [initial.atPose2(X(i)) for i in range(len(problem.kt))]
+    if initial is not None:  # calibration vectors and landmarks too, where ``initial`` has them
+        for key in list(values.keys()):
+            kind = chr(gtsam.Symbol(key).chr())
+            if kind != "x" and initial.exists(key):
+                vector = kind in ("c", "o")
+                values.update(key, initial.atVector(key) if vector else initial.atPoint2(key))
     for i in range(len(problem.kt)):
-        fac.keyframe(i, gtsam.Pose2(*guess[i]), graph, values)
+        fac.keyframe(i, guess[i], graph, values)
     return fac, graph, values
 
 
@@ -214,53 +289,131 @@ def incremental_initial_values(problem: GraphProblem, values):
     return out, {"init_s": time.perf_counter() - t0}
 
 
+def _solve(graph, values, fac, opts) -> LMOutcome:
+    """Batch LM: GTSAM's optimiser for built-in factors, :func:`levenberg_marquardt` for
+    graphs with Python factors or when GTSAM's optimiser raises (indeterminate system)."""
+    import gtsam
+
+    if not fac.python_factors:
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(opts.max_iterations)
+        params.setRelativeErrorTol(opts.relative_tolerance)
+        try:
+            optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+            result = optimizer.optimize()
+        except RuntimeError:
+            pass
+        else:
+            it, err = optimizer.iterations(), float(graph.error(result))
+            reason = "max_iterations" if it >= opts.max_iterations else "converged"
+            if reason == "max_iterations":  # at the cap: was it still decreasing? one probe
+                optimizer.iterate()
+                probe = float(optimizer.error())
+                if probe <= err and err - probe < opts.relative_tolerance * max(err, 1e-300):
+                    reason = "converged"
+                if probe < err:
+                    result, err = optimizer.values(), probe
+            return LMOutcome(result, it, err, reason)
+    return levenberg_marquardt(
+        graph, values, fac.dims, opts.max_iterations, opts.relative_tolerance
+    )
+
+
+def _staged(problem: GraphProblem) -> bool:
+    """Odometry calibration with a robust odometry loss: solved in stages."""
+    loss = problem.robust.get(problem.odometry_stream, ("none", 0.0))[0]
+    return problem.odometry_calibration is not None and loss != "none"
+
+
 def run_smoother(log, config) -> EstimateResult:
     """Batch Levenberg-Marquardt over the whole log (``estimator: smoother``).
+
+    With odometry calibration *and* a robust odometry loss the calibration variables are
+    kept out of the loss, in three stages: (1) the calibration is estimated with Gaussian
+    odometry factors (every other stream keeps its loss); (2) it is held at that estimate,
+    the odometry factors become built-in ``BetweenFactorPose2`` of the calibrated relative
+    poses under the robust loss, and the trajectory is re-solved from stage 1's; (3) the
+    robust weights of stage 2's odometry factors are frozen (each factor Gaussian with its
+    covariance divided by its weight) and trajectory and calibration are solved together
+    again, the calibration Jacobian exact. A robust weight that responds to the calibration
+    inside a solve lets one shared variable turn *every* odometry factor into a down-weighted
+    outlier at once (a cheap minimum of a log-growing or redescending loss), which is what
+    drove keyframes tens of metres apart; frozen weights cannot, while stage 3 still removes
+    stage 1's contamination by the outlier steps. ``extra["stages"]`` gives each stage's
+    iterations and error and how many odometry factors stage 2 down-weighted below 0.5.
 
     Returns
     -------
     EstimateResult
         Keyframe poses with world-frame marginal covariances; ``used``/``rejected`` per
         stream; ``extra``: ``calibration`` (state -> value), ``landmarks`` (SLAM: id -> [x, y]),
-        ``outliers`` (per stream, beyond the model's gate at the optimum), ``keyframes``,
-        ``iterations``, ``final_error``, ``solve_s``.
+        ``outliers`` (per stream, beyond the model's gate at the optimum), ``residuals``,
+        ``keyframes``, ``iterations``, ``final_error``, ``solve_s``; ``findings`` for a solver
+        that did not converge, covariances that could not be computed, and the checks of
+        :mod:`odofuse.estimators.graph.health`.
     """
     import gtsam
 
     problem = build_problem(log, config, "smoother")
-    fac, graph, values = build_graph(problem)
     opts = problem.options
+    findings: list = []
     extra: dict = {}
     calibrated = bool(problem.calib) or problem.odometry_calibration is not None
-    if opts.slam and (
+    incremental = opts.slam and (
         opts.slam_init == "incremental" or (opts.slam_init == "auto" and not calibrated)
-    ):
-        values, extra = incremental_initial_values(problem, values)
+    )
     t0 = time.perf_counter()
-    if fac.python_factors:
-        result, iterations, err = levenberg_marquardt(
-            graph, values, fac.dims, opts.max_iterations, opts.relative_tolerance
+    if _staged(problem):
+        fac1, graph, values = build_graph(problem, Factors(problem, odometry_robust=False))
+        if incremental:
+            values, init = incremental_initial_values(problem, values)
+            extra.update(init)
+        first = _solve(graph, values, fac1, opts)
+        findings += solver_findings("stage 1 (calibration)", first.reason, first.iterations)
+        p_hat = np.asarray(first.values.atVector(problem.odometry_key), dtype=float)
+        fac2, graph, values = build_graph(
+            problem, Factors(problem, odometry_fixed=p_hat), first.values
         )
-    else:
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(opts.max_iterations)
-        params.setRelativeErrorTol(opts.relative_tolerance)
-        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-        result = optimizer.optimize()
-        iterations, err = optimizer.iterations(), graph.error(result)
-    solve_s = time.perf_counter() - t0
-    covs, notes, cov_of = None, [], None
-    if opts.covariances:
-        cov_of, notes = batch_marginals(graph, result)
-    if cov_of is not None:
-        poses = pose_array(result, len(problem.kt))
-        covs = world_covs(problem, poses, cov_of)
-    extra.update(iterations=int(iterations), final_error=float(err), solve_s=solve_s)
-    if cov_of is not None and problem.calib:
-        extra["calibration_sigma"] = {
-            name: float(np.sqrt(cov_of(key)[0, 0])) for name, (key, _, _) in problem.calib.items()
+        second = _solve(graph, values, fac2, opts)
+        findings += solver_findings("stage 2 (robust odometry)", second.reason, second.iterations)
+        weights = robust_weights([f for _, f in fac2.odometry_created], second.values)
+        start = gtsam.Values(second.values)
+        start.insert(problem.odometry_key, p_hat)
+        fac, graph, values = build_graph(problem, Factors(problem, odometry_weights=weights), start)
+        out = _solve(graph, values, fac, opts)
+        result = out.values
+        extra["stages"] = {
+            "iterations": [int(first.iterations), int(second.iterations), int(out.iterations)],
+            "final_error": [float(first.error), float(second.error), float(out.error)],
+            "odometry_downweighted": int(np.count_nonzero(weights < 0.5)),
         }
-    if cov_of is not None and problem.options.slam:
-        extra["landmark_covariances"] = landmark_covariances(fac, result, cov_of)
-    res = finish(problem, fac, result, covs, "smoother", extra)
-    return dataclasses.replace(res, findings=tuple(res.findings) + tuple(notes))
+    else:
+        fac, graph, values = build_graph(problem)
+        if incremental:
+            values, init = incremental_initial_values(problem, values)
+            extra.update(init)
+        out = _solve(graph, values, fac, opts)
+        result = out.values
+    findings += solver_findings("Levenberg-Marquardt", out.reason, out.iterations)
+    solve_s = time.perf_counter() - t0
+    covs = None
+    if opts.covariances:
+        keys = [X(i) for i in range(len(problem.kt))]
+        keys += [key for key, _, _ in problem.calib.values()]
+        landmark_keys = [key for key in fac.landmark_keys.values() if result.exists(key)]
+        cov, bad = marginal_covariances(graph, out.values, keys + landmark_keys, fac.dims)
+        findings += bad
+        if cov:
+            poses = pose_array(out.values, len(problem.kt))
+            covs = world_covs(problem, poses, cov.__getitem__)
+            if problem.calib:
+                extra["calibration_sigma"] = {
+                    name: float(np.sqrt(cov[key][0, 0]))
+                    for name, (key, _, _) in problem.calib.items()
+                }
+            if opts.slam:
+                extra["landmark_covariances"] = landmark_covariances(fac, result, cov.__getitem__)
+    extra.update(
+        {"iterations": int(out.iterations), "final_error": float(out.error), "solve_s": solve_s}
+    )
+    return finish(problem, fac, result, covs, "smoother", extra, findings)

@@ -1,0 +1,281 @@
+"""The graph's self-checks without ground truth: residuals, calibration, jumps, solver.
+
+Owns the per-factor residuals of a solution (:func:`factor_residuals`: whitened chi-square
+of every sensor, gyro and odometry factor with the *Gaussian* part of its noise model, so a
+robust loss does not hide a residual), the per-stream summary and outlier counts
+(:func:`residual_summary`), and the :class:`~odofuse.health.Finding` records of a graph run
+(:func:`graph_findings`, :func:`solver_findings`, :func:`marginals_finding`).
+
+Every threshold is fixed a priori from the chi-square distribution, never from a ground
+truth:
+
+* residual scale: the median whitened chi-square of a stream's factors over the median of
+  the chi-square distribution of their dimension above :data:`SCALE_RATIO` (4: the residuals
+  are more than twice the sigma the config claims; the median is blind to a robust loss's
+  outliers);
+* outliers: more than :data:`OUTLIER_FRACTION` of a stream's factors beyond its 0.999
+  chi-square bound (100 times the 0.1 % expected of a right noise model);
+* calibration: a calibration variable more than :data:`CALIBRATION_SIGMAS` prior sigmas from
+  its prior (probability 6e-7 under the prior the config gave);
+* keyframe jumps: an odometry factor beyond the ``1 - 1e-6`` chi-square bound over which
+  the estimate moved more than :data:`JUMP_M` farther than the odometry says (an estimate
+  that stays put where the odometry reports a spurious step is the robust loss working,
+  not a jump).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from odofuse import se2
+from odofuse.estimators.graph.keys import X
+from odofuse.health import Finding
+
+SCALE_RATIO = 4.0
+OUTLIER_FRACTION = 0.10
+OUTLIER_PROBABILITY = 0.999
+CALIBRATION_SIGMAS = 5.0
+JUMP_M = 1.0
+JUMP_PROBABILITY = 1.0 - 1e-6
+
+
+def _chi2(f, values) -> tuple[float, int, np.ndarray]:
+    """Whitened chi-square of a noise-model factor with its Gaussian (non-robust) part."""
+    e = np.atleast_1d(np.asarray(f.unwhitenedError(values), dtype=float))
+    nm = f.noiseModel()
+    base = nm.noise() if hasattr(nm, "robust") else nm
+    sig = np.asarray(base.sigmas(), dtype=float)
+    dof = int(np.count_nonzero(np.isfinite(sig)))
+    return float(base.squaredMahalanobisDistance(e)), dof, e
+
+
+def robust_weights(factors, values, floor: float = 1e-6) -> np.ndarray:
+    """The IRLS weight ``rho'(r) / r`` of each robust factor at ``values`` (1 if not robust).
+
+    ``r`` is the whitened residual norm with the Gaussian part of the noise model; weights
+    are floored at ``floor`` so that a frozen weight keeps the factor's covariance finite.
+    """
+    out = np.ones(len(factors))
+    for j, f in enumerate(factors):
+        nm = f.noiseModel()
+        if hasattr(nm, "robust"):
+            chi2, _, _ = _chi2(f, values)
+            out[j] = max(float(nm.robust().weight(math.sqrt(chi2))), floor)
+    return out
+
+
+def gyro_error(problem, values, stream: str, n: int) -> float:
+    """rad, ``wrap(theta_j - theta_i + b T - dtheta)`` of the ``n``-th gyro increment."""
+    inc = problem.gyro[stream]
+    i = int(inc.interval[n])
+    b = 0.0
+    if "gyro_bias" in problem.calib and values.exists(problem.calib["gyro_bias"][0]):
+        m = problem.models[stream]
+        if "gyro_bias" in getattr(m, "calib_states", ()):
+            b = float(values.atVector(problem.calib["gyro_bias"][0])[0])
+    th0, th1 = values.atPose2(X(i)).theta(), values.atPose2(X(i + 1)).theta()
+    return float(se2.wrap(th1 - th0 + b * float(inc.T[n]) - float(inc.dtheta[n])))
+
+
+def factor_residuals(problem, fac, values) -> dict[str, dict]:
+    """Per stream: time (s), whitened chi-square and dimension of each of its factors.
+
+    Returns
+    -------
+    dict
+        stream -> ``{"t": (F,), "chi2": (F,), "dof": (F,) int}``; the odometry stream also
+        has ``"jump"`` (F,): how much farther (m) the estimate moved over each odometry
+        interval than the odometry says (negative when it moved less, e.g. when it rejected
+        a spurious odometry step).
+    """
+    rows: dict[str, list] = {}
+    kt = problem.kt
+    for meas, f in fac.created:
+        chi2, dof, _ = _chi2(f, values)
+        rows.setdefault(meas.stream, []).append((kt[meas.keyframe], chi2, dof, 0.0))
+    for stream, n, _f in fac.gyro_created:
+        e = gyro_error(problem, values, stream, n)
+        i = int(problem.gyro[stream].interval[n])
+        rows.setdefault(stream, []).append((kt[i + 1], e * e / problem.gyro[stream].var[n], 1, 0.0))
+    for i, f in fac.odometry_created:
+        chi2, dof, _ = _chi2(f, values)
+        a, b = values.atPose2(X(i - 1)), values.atPose2(X(i))
+        moved = math.hypot(b.x() - a.x(), b.y() - a.y())
+        jump = moved - math.hypot(*problem.deltas[i - 1, :2])  # beyond what odometry says
+        rows.setdefault(problem.odometry_stream, []).append((kt[i], chi2, dof, jump))
+    out = {}
+    for stream, r in rows.items():
+        a = np.array(r, dtype=float).reshape(-1, 4)
+        out[stream] = {"t": a[:, 0], "chi2": a[:, 1], "dof": a[:, 2].astype(int), "jump": a[:, 3]}
+    return out
+
+
+def _chi2_ppf(p: float, dof) -> np.ndarray:
+    from scipy.stats import chi2
+
+    return chi2.ppf(p, np.maximum(np.asarray(dof), 1))
+
+
+def residual_summary(problem, residuals: dict) -> dict:
+    """Per stream: factors, mean chi-square per dimension, median ratio, beyond-0.999 fraction
+    and the count beyond the model's own gate (``outliers``, the sensors' ``gate``)."""
+    from odofuse.measurements import gate_threshold
+
+    out = {}
+    for stream, r in residuals.items():
+        chi2, dof = r["chi2"], r["dof"]
+        if chi2.size == 0:
+            continue
+        ratio = float(np.median(chi2) / np.median(_chi2_ppf(0.5, dof)))
+        beyond = float(np.mean(chi2 > _chi2_ppf(OUTLIER_PROBABILITY, dof)))
+        s = {
+            "factors": int(chi2.size),
+            "chi2_per_dof": float(chi2.sum() / max(int(dof.sum()), 1)),
+            "median_ratio": ratio,
+            "beyond_999": beyond,
+        }
+        m = problem.models.get(stream)
+        if m is not None and getattr(m, "gate", None) is not None:
+            thr = np.array([gate_threshold(m.gate, int(d)) for d in dof])
+            s["outliers"] = int(np.count_nonzero(chi2 > thr))
+        out[stream] = s
+    return out
+
+
+def graph_findings(problem, values, residuals: dict, summary: dict, stitched=False) -> list:
+    """Findings on residual scale, outlier fraction, calibration values and keyframe jumps.
+
+    ``stitched``: the poses were taken from different solutions (the fixed-lag smoother's,
+    each as it left the window), so the residual scale and outlier checks of the factors
+    *between* poses (odometry, gyro) do not apply; the jump check does.
+    """
+    out: list[Finding] = []
+    relative = {problem.odometry_stream, *problem.gyro}
+    for stream, s in sorted(summary.items()):
+        if stitched and stream in relative:
+            continue
+        t = residuals[stream]["t"]
+        span = (float(t.min()), float(t.max()))
+        if s["median_ratio"] > SCALE_RATIO:
+            out.append(
+                Finding(
+                    "residuals",
+                    f"median whitened residual {math.sqrt(s['median_ratio']):.1f}x the "
+                    "sigma of its noise model (median chi-square "
+                    f"{s['median_ratio']:.1f}x the expected): the noise model is too "
+                    "optimistic or the estimate is wrong",
+                    sensor=stream,
+                    t_start=span[0],
+                    t_end=span[1],
+                    figure=s["median_ratio"],
+                )
+            )
+        if s["beyond_999"] > OUTLIER_FRACTION:
+            out.append(
+                Finding(
+                    "outliers",
+                    f"{100 * s['beyond_999']:.0f} % of {s['factors']} factors beyond their "
+                    "0.999 chi-square bound (0.1 % expected)",
+                    sensor=stream,
+                    t_start=span[0],
+                    t_end=span[1],
+                    figure=s["beyond_999"],
+                )
+            )
+    out += calibration_findings(problem, values) + gauge_findings(problem)
+    odo = residuals.get(problem.odometry_stream)
+    if odo is not None and odo["chi2"].size:
+        bad = (odo["chi2"] > _chi2_ppf(JUMP_PROBABILITY, odo["dof"])) & (odo["jump"] > JUMP_M)
+        if bad.any():
+            idx = np.flatnonzero(bad)
+            out.append(
+                Finding(
+                    "jumps",
+                    f"{idx.size} keyframe intervals where the estimate moves more than "
+                    f"{JUMP_M:g} m farther than the odometry says (largest "
+                    f"{odo['jump'][idx].max():.1f} m)",
+                    sensor=problem.odometry_stream,
+                    t_start=float(odo["t"][idx[0]]),
+                    t_end=float(odo["t"][idx[-1]]),
+                    figure=float(odo["jump"][idx].max()),
+                )
+            )
+    return out
+
+
+def gauge_findings(problem) -> list[Finding]:
+    """A finding when the configuration leaves the map's scale to the priors alone.
+
+    With unknown landmarks (``slam``), an estimated range scale and an estimated odometry
+    distance scale (``ds_scale``), scaling the map, the trajectory and ``ds_scale`` by
+    ``lambda`` and the range scale by ``1 / lambda`` leaves every range and odometry factor
+    unchanged: only the two priors hold the scale.
+    """
+    oc = problem.odometry_calibration
+    if not (problem.options.slam and "range_scale" in problem.calib and oc is not None):
+        return []
+    if "ds_scale" not in oc.names:
+        return []
+    return [
+        Finding(
+            "calibration",
+            "range SLAM estimating both range_scale and ds_scale: the map's scale is fixed by "
+            "their priors only (estimate one of them, or give the map)",
+        )
+    ]
+
+
+def calibration_findings(problem, values) -> list[Finding]:
+    """A finding per calibration variable more than :data:`CALIBRATION_SIGMAS` from its prior."""
+    states = [(name, key, 0, value, sigma) for name, (key, value, sigma) in problem.calib.items()]
+    oc = problem.odometry_calibration
+    if oc is not None:
+        states += [
+            (name, problem.odometry_key, j, oc.nominal[j], oc.sigma[j])
+            for j, name in enumerate(oc.names)
+        ]
+    out = []
+    for name, key, j, prior, sigma in states:
+        if not values.exists(key) or not sigma > 0:
+            continue
+        v = float(values.atVector(key)[j])
+        z = abs(v - prior) / sigma
+        if z > CALIBRATION_SIGMAS:
+            out.append(
+                Finding(
+                    "calibration",
+                    f"{name} = {v:.4g} is {z:.1f} prior sigmas from its prior {prior:g} "
+                    f"(sigma {sigma:g}): implausible under that prior (the prior is too tight or "
+                    "the calibration absorbed another error)",
+                    figure=z,
+                )
+            )
+    return out
+
+
+def solver_findings(solver: str, reason: str, iterations: int, detail: str = "") -> list[Finding]:
+    """Findings for a solver that stopped without converging (``reason`` not ``converged``)."""
+    if reason == "converged":
+        return []
+    text = {
+        "max_iterations": f"stopped at its iteration cap ({iterations} iterations) "
+        "without converging",
+        "no_decrease": f"found no step that lowers the error after {iterations} iterations "
+        "(the linear systems were indeterminate)",
+        "non_finite": "has a non-finite error at the initial values (not solved)",
+    }.get(reason, reason)
+    msg = f"{solver} {text}" + (f": {detail}" if detail else "")
+    return [Finding("solver", msg, figure=float(iterations))]
+
+
+def marginals_finding(detail: str, regularised: bool) -> Finding:
+    """The finding of a marginal-covariance computation that failed."""
+    what = (
+        "regularised with a weak prior on every variable; the covariance of the directions "
+        "the data do not determine is that prior's"
+        if regularised
+        else "covariances omitted"
+    )
+    return Finding("covariance", f"marginal covariances: indeterminate system ({detail}); {what}")

@@ -1,0 +1,118 @@
+"""High-rate gyros in the graph back ends (issue 14 item 4).
+
+Gyro samples between keyframes are pre-integrated into one heading-increment factor per
+keyframe interval with the bias as a variable, so the keyframes follow the keyframe policy,
+not the gyro rate, and the factors are built-in GTSAM ones.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+from graph_sim import simulated_run  # noqa: E402
+
+from odofuse.estimators import run_estimator  # noqa: E402
+from odofuse.estimators.graph.custom_factors import gyro_increment_factor  # noqa: E402
+from odofuse.estimators.graph.keyframes import preintegrate_gyro  # noqa: E402
+from odofuse.evaluation import metrics  # noqa: E402
+from odofuse.testing import numerical_jacobian  # noqa: E402
+
+X, C = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.C
+
+SCENARIO = {
+    "seed": 9,
+    "dt": 0.01,
+    "robot": {"drive": "differential", "wheel_radius": 0.04, "track_width": 0.235},
+    "path": {"kind": "figure_eight", "radius": 3.0, "speed": 0.4, "laps": 1},
+    "systematic": {"E_d": 1.002, "E_b": 1.01},
+    "nonsystematic": {"k": 1.0e-5},
+    "sensors": {
+        "gyro": {"sigma": 0.005, "bias": 0.01, "rate": 100.0},  # Hz
+        "gps": {"sigma": 0.5, "rate": 1.0},
+    },
+}
+
+
+def test_preintegration_matches_piecewise_sums():
+    rng = np.random.default_rng(4)
+    t = np.cumsum(rng.uniform(0.005, 0.02, 400))
+    t_prev = np.r_[0.0, t[:-1]]
+    wz, var = rng.normal(0.0, 0.5, t.size), rng.uniform(1e-6, 1e-4, t.size)
+    kt = np.unique(np.r_[0.0, rng.uniform(0.0, t[-1], 30), t[-1]])
+    interval, dtheta, v, T, samples = preintegrate_gyro(t_prev, t, wz, var, kt)
+    # reference: overlap of every sample with every keyframe interval, one by one
+    ref = np.zeros((kt.size - 1, 3))
+    for k in range(t.size):
+        for i in range(kt.size - 1):
+            tau = min(t[k], kt[i + 1]) - max(t_prev[k], kt[i])
+            if tau > 0:
+                dt = t[k] - t_prev[k]
+                ref[i] += (wz[k] * tau, var[k] * dt * tau, tau)
+    np.testing.assert_array_equal(interval, np.flatnonzero(ref[:, 2] > 0))
+    np.testing.assert_allclose(dtheta, ref[interval, 0], atol=1e-12)
+    np.testing.assert_allclose(v, ref[interval, 1], rtol=1e-12)
+    np.testing.assert_allclose(T, ref[interval, 2], rtol=1e-12)
+    assert samples.sum() == t.size
+    # the whole log: the sum of the increments is the sum of the samples, variance too
+    assert np.isclose(dtheta.sum(), np.sum(wz * (t - t_prev)))
+    assert np.isclose(v.sum(), np.sum(var * (t - t_prev) ** 2))
+
+
+def test_gyro_increment_factor_jacobians_and_linear_form_agree():
+    noise = gtsam.noiseModel.Isotropic.Sigma(1, 0.01)
+    f = gyro_increment_factor(X(0), X(1), C(0), 0.8, 2.0, noise)
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose2(1.0, 2.0, 0.3))
+    values.insert(X(1), gtsam.Pose2(1.5, 2.2, 1.05))
+    values.insert(C(0), np.array([0.02]))
+    e = f.unwhitenedError(values)
+    assert np.isclose(e[0], 1.05 - 0.3 + 0.02 * 2.0 - 0.8)
+    lin = f.linearize(values)
+    A = lin.jacobian()[0] * 0.01  # un-whiten
+    keys = [X(0), X(1), C(0)]
+
+    def err(d):
+        v = gtsam.Values()
+        v.insert(X(0), values.atPose2(X(0)).retract(d[0:3]))
+        v.insert(X(1), values.atPose2(X(1)).retract(d[3:6]))
+        v.insert(C(0), values.atVector(C(0)) + d[6:7])
+        return f.unwhitenedError(v)
+
+    np.testing.assert_allclose(A, numerical_jacobian(err, np.zeros(7)), atol=1e-8)
+    assert [lin.keys()[i] for i in range(3)] == keys
+
+
+@pytest.mark.parametrize("estimator", ["smoother", "isam2", "fixed_lag"])
+def test_keyframes_follow_the_policy_not_the_gyro_rate(estimator):
+    log, cfg = simulated_run(SCENARIO, 9, estimator, sensors={"gyro": {"calibrate": True}})
+    res = run_estimator(estimator, log, cfg)
+    m = metrics(res, log)
+    gyro = log.streams["gyro"]
+    span = log.streams["wheels"].t[-1] - log.streams["wheels"].t[0]
+    # 1 s keyframes plus the GPS times and the gyro stream's two ends
+    assert res.extra["keyframes"] <= span + len(log.streams["gps"]) + 4
+    assert len(gyro) > 80 * res.extra["keyframes"]  # 100 Hz against ~1 Hz
+    assert res.extra["python_factors"] == 0  # built-in factors only
+    assert res.used["gyro"] == len(gyro) - 1 and res.rejected["gyro"] == 1
+    assert abs(res.extra["calibration"]["gyro_bias"] - 0.01) < 1e-3
+    assert m["ate_rmse_m"] < 0.15
+    assert m["status"] == "ok", m["warnings"]
+    if estimator != "fixed_lag":  # (fixed-lag poses come from different windows)
+        # the gyro alone fixes the relative headings: its residuals are small, never large
+        assert res.extra["residuals"]["gyro"]["median_ratio"] < 4.0
+
+
+def test_robust_gyro_with_bias_uses_the_python_factor():
+    log, cfg = simulated_run(
+        SCENARIO,
+        9,
+        "smoother",
+        options={"robust": {"gyro": "huber"}},
+        sensors={"gyro": {"calibrate": True}},
+    )
+    res = run_estimator("smoother", log, cfg)
+    assert 0 < res.extra["python_factors"] < res.extra["keyframes"] + 5
+    assert abs(res.extra["calibration"]["gyro_bias"] - 0.01) < 1e-3
