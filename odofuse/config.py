@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from odofuse.declarations import (
+    ESTIMATOR_OPTIONS,
     EncoderOptions,
     InitialOptions,
     LogOptions,
@@ -28,6 +29,7 @@ from odofuse.declarations import (
 )
 from odofuse.errors import ConfigError
 from odofuse.options import coerce, from_mapping
+from odofuse.plugins import check_allowed, check_module_name, load_function
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,7 @@ class RunConfig:
     options: dict = field(default_factory=dict)
     source: str = "<config>"
     log_options: dict = field(default_factory=dict)
+    plugins: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         src, put = self.source, functools.partial(object.__setattr__, self)
@@ -92,6 +95,7 @@ TOP_KEYS = (
     "output",
     "options",
     "description",
+    "plugins",
 )
 
 
@@ -173,6 +177,60 @@ def _validate_robot(v, src: str) -> dict:
         out["encoder"] = from_mapping(EncoderOptions, robot["encoder"], "robot.encoder", src)
     _check_drive(drive, geometry, src)
     return out
+
+
+def _plugins(v, src: str) -> tuple[str, ...]:
+    """The top-level ``plugins:`` list: the modules whose classes/functions may be named."""
+    if v is None:
+        return ()
+    if not isinstance(v, list):
+        raise ConfigError(f"must be a list of module names, got {type(v).__name__}", src, "plugins")
+    out = []
+    for i, name in enumerate(v):
+        try:
+            out.append(check_module_name(name))
+        except ConfigError as exc:
+            raise ConfigError(str(exc), src, f"plugins[{i}]") from None
+    return tuple(out)
+
+
+def _gate_plugins(top: dict, allowed: tuple[str, ...], src: str) -> None:
+    """Refuse every ``package.module:Name`` the config names unless ``plugins:`` allows it.
+
+    Runs before anything is validated, so that no module is imported for a config that did not
+    opt in (shared spec section 5).
+    """
+    named = []
+    robot = top.get("robot")
+    if isinstance(robot, dict) and isinstance(robot.get("drive"), str):
+        named.append(("robot.drive", robot["drive"], "drive"))
+    if isinstance(top.get("estimator"), str):
+        named.append(("estimator", top["estimator"], "estimator"))
+    sensors = top.get("sensors") if isinstance(top.get("sensors"), dict) else {}
+    for stream, block in sensors.items():
+        if isinstance(block, dict) and "class" in block:
+            named.append((f"sensors.{stream}.class", block["class"], "measurement model"))
+    options = top.get("options") if isinstance(top.get("options"), dict) else {}
+    named += [(f"options.{k}", k, "estimator") for k in options if ":" in str(k)]
+    for key, spec, what in named:
+        if ":" in str(spec):
+            try:
+                check_allowed(spec, allowed, what)
+            except ConfigError as exc:
+                raise ConfigError(str(exc), src, key) from None
+
+
+def _check_estimator(name: str, src: str) -> None:
+    """A built-in estimator name, or an allowed plug-in checked to be a ``run(log, config)``."""
+    if ":" in name:
+        try:
+            load_function(name, "estimator")
+        except ConfigError as exc:
+            raise ConfigError(str(exc), src, "estimator") from None
+    elif name not in ESTIMATOR_OPTIONS:
+        raise ConfigError(
+            f"unknown estimator '{name}'; known: {', '.join(ESTIMATOR_OPTIONS)}", src, "estimator"
+        )
 
 
 def _check_drive(drive: str, geometry: dict, src: str) -> None:
@@ -263,6 +321,8 @@ def config_from_dict(
         raise ConfigError("missing required value (a log folder, bag or builtin:NAME)", src, "log")
     if "robot" not in top:
         raise ConfigError("missing required value (a mapping with at least 'drive')", src, "robot")
+    plugins = _plugins(top.get("plugins"), src)
+    _gate_plugins(top, plugins, src)
     base = Path(base_dir) if base_dir is not None else None
     log, log_options = _resolve_log(top["log"], src, base)
     estimator = (
@@ -270,6 +330,7 @@ def config_from_dict(
         if top.get("estimator") is not None
         else "dead_reckoning"
     )
+    _check_estimator(estimator, src)
     output = None
     if top.get("output") is not None:
         out = Path(_string(top["output"], "output", src)).expanduser()
@@ -290,6 +351,7 @@ def config_from_dict(
         options=_mapping(top.get("options"), "options", src),
         source=src,
         log_options=log_options,
+        plugins=plugins,
     )
 
 

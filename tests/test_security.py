@@ -1,0 +1,143 @@
+"""A config is data, inputs are bounded, outputs never mix (issue 16, shared spec section 5).
+
+Each case is one reproduction from the issue: it must end in a one-line odofuse error (or a
+result), never run code the config names, never a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+import textwrap
+
+import pytest
+
+from odofuse.cli import main
+from odofuse.config import load_config
+from odofuse.drives import make_drive
+from odofuse.errors import ConfigError
+
+GEOMETRY = "{drive: differential, wheel_radius: 0.1, track_width: 0.5}"
+
+
+def _config(tmp_path, text: str):
+    path = tmp_path / "run.yaml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def _one_line_error(capsys, *needles):
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in err, err
+    return err
+
+
+# ------------------------------------------------------------------- 1. configs are data
+@pytest.mark.parametrize(
+    "text,key",
+    [
+        ('robot: {drive: "os:system", command: "touch pwned"}', "robot.drive"),
+        ('robot: {drive: "subprocess:getoutput", cmd: "touch pwned"}', "robot.drive"),
+        (f'robot: {GEOMETRY}\nestimator: "os:system"', "estimator"),
+        (f'robot: {GEOMETRY}\nestimator: "builtins:print"', "estimator"),
+        (f'robot: {GEOMETRY}\nsensors: {{g: {{class: "os:system"}}}}', "sensors.g.class"),
+        (f'robot: {GEOMETRY}\noptions: {{"subprocess:getoutput": {{}}}}', "options.subprocess"),
+        ('plugins: [os]\nrobot: {drive: "os:system", command: "touch pwned"}', "plugins[0]"),
+        (f"robot: {GEOMETRY}\nplugins: os", "plugins"),
+        (f'robot: {GEOMETRY}\nestimator: "kalman"', "estimator"),
+    ],
+)
+def test_config_naming_code_is_refused_and_nothing_runs(tmp_path, monkeypatch, capsys, text, key):
+    monkeypatch.chdir(tmp_path)
+    cfg = _config(tmp_path, f"log: builtin:plaza1\n{text}\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(cfg)
+    assert info.value.key.startswith(key) and info.value.file == str(cfg)
+    assert main(["run", str(cfg), "-o", str(tmp_path / "o")]) == 2
+    _one_line_error(capsys, str(cfg), key)
+    assert not (tmp_path / "pwned").exists()
+    assert not (tmp_path / "o").exists()
+
+
+def _plugin_module(tmp_path, monkeypatch, name: str, body: str):
+    (tmp_path / f"{name}.py").write_text(textwrap.dedent(body))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, name, raising=False)
+
+
+def test_plugin_module_is_not_imported_without_opt_in(tmp_path, monkeypatch):
+    _plugin_module(
+        tmp_path,
+        monkeypatch,
+        "odofuse_sec_marker",
+        """
+        from pathlib import Path
+        Path(__file__).with_name("imported").write_text("yes")
+        from odofuse.drives import Differential as Drive
+        """,
+    )
+    cfg = _config(
+        tmp_path,
+        "log: builtin:plaza1\n"
+        "robot: {drive: 'odofuse_sec_marker:Drive', wheel_radius: 0.1, track_width: 0.5}\n",
+    )
+    with pytest.raises(ConfigError, match="'plugins:'") as info:
+        load_config(cfg)
+    assert info.value.key == "robot.drive"
+    assert not (tmp_path / "imported").exists() and "odofuse_sec_marker" not in sys.modules
+    opted = _config(tmp_path, "plugins: [odofuse_sec_marker]\n" + cfg.read_text())
+    assert load_config(opted).plugins == ("odofuse_sec_marker",)
+    assert (tmp_path / "imported").exists()
+
+
+def test_opted_in_plugin_is_shape_checked_before_it_is_called(tmp_path, monkeypatch):
+    _plugin_module(
+        tmp_path,
+        monkeypatch,
+        "odofuse_sec_shapes",
+        """
+        from pathlib import Path
+        CALLED = Path(__file__).with_name("called")
+
+        def run(log):  # one argument: not an estimator
+            CALLED.write_text("run")
+
+        class NotADrive:
+            def __init__(self, **kw):
+                CALLED.write_text("init")
+
+        class NotAModel:
+            def __init__(self, **kw):
+                CALLED.write_text("init")
+        """,
+    )
+    head = "log: builtin:plaza1\nplugins: [odofuse_sec_shapes]\n"
+    cases = [
+        (f"robot: {GEOMETRY}\nestimator: odofuse_sec_shapes:run", "estimator", "2 positional"),
+        ("robot: {drive: 'odofuse_sec_shapes:NotADrive'}", "robot.drive", "twist"),
+        (
+            f"robot: {GEOMETRY}\nsensors: {{s: {{class: 'odofuse_sec_shapes:NotAModel'}}}}",
+            "sensors.s.class",
+            "residual",
+        ),
+        (f"robot: {GEOMETRY}\nestimator: odofuse_sec_shapes:CALLED", "estimator", "PosixPath"),
+    ]
+    for text, key, needle in cases:
+        with pytest.raises(ConfigError, match=needle) as info:
+            load_config(_config(tmp_path, head + text + "\n"))
+        assert info.value.key == key
+    assert not (tmp_path / "called").exists()
+
+
+def test_make_drive_refuses_a_function_without_calling_it(tmp_path):
+    with pytest.raises(ConfigError, match="not a class"):
+        make_drive("os:system", command=f"touch {tmp_path / 'pwned'}")
+    assert not (tmp_path / "pwned").exists()
+
+
+def test_docs_say_a_config_naming_plugins_is_code():
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
+    assert "`plugins`" in text and "is code" in text
