@@ -141,3 +141,57 @@ def test_docs_say_a_config_naming_plugins_is_code():
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
     assert "`plugins`" in text and "is code" in text
+
+
+# ------------------------------------------------------------------- 2. bounded YAML
+def _alias_bomb(levels: int = 9) -> str:
+    text = "log: builtin:plaza1\nrobot: {drive: increments}\nsensors:\n  ranges:\n"
+    text += '    a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]\n'
+    prev = "a"
+    for name in "bcdefghijk"[: levels - 1]:
+        text += f"    {name}: &{name} [" + ",".join([f"*{prev}"] * 9) + "]\n"
+        prev = name
+    return text
+
+
+@pytest.mark.parametrize(
+    "content,needles",
+    [
+        (_alias_bomb().encode(), ["aliases expand", "line 9"]),
+        (b"log: x\nrobot: " + b"[" * 10000 + b"]" * 10000 + b"\n", ["nested deeper", "line 2"]),
+        (b"log: x\nrobot: " + b"{a: " * 5000 + b"1" + b"}" * 5000 + b"\n", ["nested deeper"]),
+        (
+            b"log: x\nrobot: {drive: increments}\nestimator: ekf\nestimator: ukf\n",
+            ["duplicate key 'estimator'", "line 4", "first on line 3"],
+        ),
+        (b"log: x\nrobot: {drive: increments, drive: twist}\n", ["duplicate key 'drive'"]),
+        (b"log: x\nrobot: {drive: incr\xc5ments}\n", ["not UTF-8", "0xc5", "offset 26", "line 2"]),
+        (b"log: x\n#" + b"x" * (2 << 20) + b"\n", ["larger than"]),
+    ],
+)
+def test_hostile_yaml_ends_in_one_line_error(tmp_path, capsys, content, needles):
+    cfg = tmp_path / "run.yaml"
+    cfg.write_bytes(content)
+    with pytest.raises(ConfigError) as info:
+        load_config(cfg)
+    message = str(info.value)
+    assert "\n" not in message and len(message) < 300 and str(cfg) in message
+    for needle in needles:
+        assert needle in message
+    assert main(["run", str(cfg)]) == 2
+    _one_line_error(capsys, str(cfg), needles[0])
+
+
+def test_a_few_aliases_and_merge_keys_still_work(tmp_path):
+    cfg = _config(
+        tmp_path,
+        """\
+        log: builtin:plaza1
+        robot: {drive: increments}
+        sensors:
+          gps: &base {sigma: 1.5, gate: 0.99}
+          compass: {<<: *base, sigma: 0.05}
+        """,
+    )
+    config = load_config(cfg)
+    assert config.sensors["compass"].sigma == 0.05 and config.sensors["compass"].gate == 0.99
