@@ -10,6 +10,7 @@ import sys
 import textwrap
 
 import pytest
+from test_cli import make_run, outputs_left
 
 from odofuse.cli import main
 from odofuse.config import load_config
@@ -195,3 +196,53 @@ def test_a_few_aliases_and_merge_keys_still_work(tmp_path):
     )
     config = load_config(cfg)
     assert config.sensors["compass"].sigma == 0.05 and config.sensors["compass"].gate == 0.99
+
+
+# ------------------------------------------------------------------- 3. bounded CSV logs
+def _csv_run(tmp_path):
+    cfg = make_run(tmp_path)
+    return cfg, tmp_path / "log" / "odometry.csv"
+
+
+def _set_row(path, index: int, row: bytes) -> None:
+    lines = path.read_bytes().splitlines()
+    lines[index] = row
+    path.write_bytes(b"\n".join(lines) + b"\n")
+
+
+def test_sparse_two_gigabyte_csv_ends_in_a_short_error(tmp_path, capsys):
+    cfg, odo = _csv_run(tmp_path)
+    with open(odo, "r+b") as fh:  # a hole of 2 GiB: no line breaks, no disk space used
+        fh.seek(2 << 30)
+        fh.write(b"\n30.0,0.1,0.05\n")
+    assert main(["run", str(cfg)]) == 2
+    err = _one_line_error(capsys, str(odo), "row 202", "line longer than")
+    assert len(err) < 300
+    assert outputs_left(tmp_path) == []
+
+
+@pytest.mark.parametrize(
+    "row,needles",
+    [
+        (b"1.5,0.1," + b"9" * (100 << 20), ["row 6", "line longer than"]),
+        (b"1.5,0.1,0.\xc55", ["row 6", "column 'dtheta'", "not UTF-8", "0xc5"]),
+        (b"1.5,1e308,0.05", ["row 6", "column 'ds'", "out of range"]),
+        (b"1.5e18,0.1,0.05", ["row 6", "column 't'", "seconds"]),
+        (b"1.5,1_0,0.05", ["row 6", "column 'ds'", "not a number: '1_0'"]),
+        (b"1.5,0.1," + b"x" * 5000, ["row 6", "column 'dtheta'", "not a number"]),
+    ],
+)
+def test_bad_csv_row_names_file_row_and_column_with_a_short_excerpt(tmp_path, capsys, row, needles):
+    cfg, odo = _csv_run(tmp_path)
+    _set_row(odo, 5, row)
+    assert main(["run", str(cfg)]) == 2
+    err = _one_line_error(capsys, str(odo), *needles)
+    assert len(err) < 300, len(err)
+    assert outputs_left(tmp_path) == []
+
+
+def test_non_utf8_header_names_the_file_and_row(tmp_path, capsys):
+    cfg, odo = _csv_run(tmp_path)
+    _set_row(odo, 0, b"t,d\xc5s,dtheta")
+    assert main(["run", str(cfg)]) == 2
+    _one_line_error(capsys, str(odo), "row 1", "not UTF-8")
