@@ -5,14 +5,18 @@
 
 It combines the file writers of :mod:`odofuse.outputs` with the picture of
 :mod:`odofuse.plotting` (which do not know each other); ``metrics.json`` comes last and marks a
-complete run.
+complete run. The folder is written whole: claimed by one run, written beside it and swapped
+in (:func:`write_outputs`).
 """
 
 from __future__ import annotations
 
+import shutil
 import time
 from pathlib import Path
 
+from odofuse.errors import OdofuseError
+from odofuse.io.atomic import claim_folder, clean_stale, publish, temp_folder
 from odofuse.outputs import write_metrics, write_trajectory_csv, write_tum
 from odofuse.trajectory import EstimateResult
 
@@ -42,38 +46,60 @@ def write_outputs(
     dict
         ``{"csv": path, "tum": path, "metrics": path, "png": path}``.
 
-    If any writer fails, files written by this call are removed again and the error propagates.
+    The outputs are written into a temporary folder beside ``out_dir`` and swapped in whole
+    (:mod:`odofuse.io.atomic`), with ``out_dir`` claimed for this run: a failed or killed run
+    leaves the previous complete outputs, a second run into the same folder is an error, and
+    temporary folders a killed run left are removed first.
+
+    Raises
+    ------
+    OdofuseError
+        ``out_dir`` is claimed by another live run, or holds files that are not run outputs.
     """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    # Outputs of an earlier run in this folder go first, so that a run failing half-way
-    # cannot leave a mix of old and new files.
-    for name in OUTPUT_NAMES:
-        (out / name).unlink(missing_ok=True)
-    written: dict[str, Path] = {}
-    try:
-        written["csv"] = write_trajectory_csv(out / "trajectory.csv", result.trajectory)
-        written["tum"] = write_tum(out / "trajectory.tum", result.trajectory)
-        if plot:
-            from odofuse.plotting import plot_run  # matplotlib only when a picture is wanted
+    with claim_folder(out):
+        _check_replaceable(out)
+        clean_stale(out.parent, out.name)  # what a killed run into this folder left behind
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = temp_folder(out.parent, out.name)
+        written: dict[str, Path] = {}
+        try:
+            written["csv"] = write_trajectory_csv(tmp / "trajectory.csv", result.trajectory)
+            written["tum"] = write_tum(tmp / "trajectory.tum", result.trajectory)
+            if plot:
+                from odofuse.plotting import plot_run  # matplotlib only when a picture is wanted
 
-            written["png"] = plot_run(out / "trajectory.png", result, log)
-        # metrics.json last: its presence marks a complete run.
-        written["metrics"] = write_metrics(out / "metrics.json", metrics)
-    except BaseException:
-        for p in written.values():
-            Path(p).unlink(missing_ok=True)
-        raise
-    return written
+                written["png"] = plot_run(tmp / "trajectory.png", result, log)
+            # metrics.json last: its presence marks a complete run.
+            written["metrics"] = write_metrics(tmp / "metrics.json", metrics)
+            publish(tmp, out)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    return {k: out / Path(p).name for k, p in written.items()}
+
+
+def _check_replaceable(out: Path) -> None:
+    """Refuse to replace a folder that holds anything but a run's outputs."""
+    if out.exists() and not out.is_dir():
+        raise OdofuseError(f"output folder {out} is a file")
+    if out.is_dir():
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in OUTPUT_NAMES)
+        if foreign:
+            raise OdofuseError(
+                f"output folder {out} holds other files ({', '.join(foreign[:3])}); a run "
+                "replaces its folder whole, so choose an empty or new folder"
+            )
 
 
 def run_one(config, log, out_dir: Path) -> dict:
     """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics."""
     from odofuse.estimators import run_estimator
 
-    t0 = time.perf_counter()
-    result = run_estimator(config.estimator, log, config)
-    return finish_run(config, log, result, time.perf_counter() - t0, out_dir)
+    with claim_folder(out_dir):  # a second run into out_dir fails now, not after its estimate
+        t0 = time.perf_counter()
+        result = run_estimator(config.estimator, log, config)
+        return finish_run(config, log, result, time.perf_counter() - t0, out_dir)
 
 
 def finish_run(config, log, result, runtime: float, out_dir: Path) -> dict:

@@ -6,11 +6,14 @@ result), never run code the config names, never a traceback.
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
 import sys
 import textwrap
 
 import pytest
-from test_cli import make_run, outputs_left
+from test_cli import CONFIG, make_run, outputs_left, square_log
 
 from odofuse.cli import main
 from odofuse.config import load_config
@@ -246,3 +249,96 @@ def test_non_utf8_header_names_the_file_and_row(tmp_path, capsys):
     _set_row(odo, 0, b"t,d\xc5s,dtheta")
     assert main(["run", str(cfg)]) == 2
     _one_line_error(capsys, str(odo), "row 1", "not UTF-8")
+
+
+# ------------------------------------------------------------------- 4. output integrity
+def _snapshot(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def _leftovers(parent):
+    return sorted(p.name for p in parent.iterdir() if p.name.startswith("."))
+
+
+KILL_DURING_WRITE = """
+import os, signal, sys
+import odofuse.rundir as rundir
+real = rundir.write_tum
+def dying(path, traj):
+    real(path, traj)
+    os.kill(os.getpid(), signal.{sig})
+rundir.write_tum = dying
+from odofuse.cli import main
+sys.argv = ["odofuse", "run", {cfg!r}]
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_killed_run_keeps_the_previous_result_and_the_next_run_cleans_up(tmp_path, sig):
+    cfg = make_run(tmp_path)
+    assert main(["run", str(cfg)]) == 0
+    out = tmp_path / "out"
+    before = _snapshot(out)
+    script = KILL_DURING_WRITE.format(sig=sig, cfg=str(cfg))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    assert _snapshot(out) == before  # the previous complete result, untouched
+    if sig == "SIGTERM":  # cleanup ran: no temporary folder, no lock
+        assert _leftovers(tmp_path) == []
+    else:  # SIGKILL: nothing can run, the next run cleans up
+        assert any(".out.tmp-" in n for n in _leftovers(tmp_path))
+        assert ".out.lock" in _leftovers(tmp_path)
+    assert main(["run", str(cfg)]) == 0
+    assert _leftovers(tmp_path) == []
+    assert _snapshot(out).keys() == before.keys()
+
+
+def test_second_run_into_a_claimed_folder_is_a_clear_error(tmp_path, capsys):
+    cfg = make_run(tmp_path)
+    assert main(["run", str(cfg)]) == 0
+    before = _snapshot(tmp_path / "out")
+    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (tmp_path / ".out.lock").write_text(f"{holder.pid}\n")
+        capsys.readouterr()
+        assert main(["run", str(cfg)]) == 2
+        _one_line_error(capsys, "in use by another run", f"pid {holder.pid}")
+        assert _snapshot(tmp_path / "out") == before
+    finally:
+        holder.kill()
+        holder.wait()
+    # the holder is gone: its lock is stale and taken over
+    assert main(["run", str(cfg)]) == 0
+    assert _leftovers(tmp_path) == []
+
+
+def test_two_concurrent_runs_never_leave_a_mixed_folder(tmp_path):
+    short = make_run(tmp_path / "a")
+    long_dir = tmp_path / "b"
+    square_log(long_dir / "log", n=3000)
+    long = long_dir / "run.yaml"
+    long.write_text(CONFIG.format(log="log", out="out"))
+    out = tmp_path / "shared"
+    cmd = [sys.executable, "-m", "odofuse", "run"]
+    procs = [
+        subprocess.Popen([*cmd, str(c), "-o", str(out)], stderr=subprocess.PIPE)
+        for c in (long, short)
+    ]
+    codes = [(p.wait(), p.stderr.read().decode()) for p in procs]
+    for rc, err in codes:
+        assert rc == 0 or (rc == 2 and "in use by another run" in err), err
+    metrics = json.loads((out / "metrics.json").read_text())
+    rows = len((out / "trajectory.csv").read_text().splitlines()) - 1
+    assert metrics["poses"] == rows
+    assert _leftovers(tmp_path) == []
+
+
+def test_output_folder_with_other_files_is_not_replaced(tmp_path, capsys):
+    cfg = make_run(tmp_path)
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "notes.txt").write_text("mine")
+    assert main(["run", str(cfg)]) == 2
+    _one_line_error(capsys, "holds other files (notes.txt)")
+    assert sorted(os.listdir(tmp_path / "out")) == ["notes.txt"]
