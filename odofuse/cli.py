@@ -350,6 +350,18 @@ def _register_plugins() -> None:
     mod.register(COMMANDS)
 
 
+def _exit_on_sigterm() -> None:
+    """SIGTERM ends the command like Ctrl-C: cleanup runs (temporary outputs, the folder lock)."""
+    import signal
+    import threading
+
+    def stop(signum, frame):
+        raise SystemExit(128 + signum)
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, stop)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand of :data:`COMMANDS`."""
     from odofuse import __version__
@@ -371,6 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``odofuse`` console script; returns the exit status."""
+    if argv is None:  # the console script (not a caller's own process): SIGTERM cleans up
+        _exit_on_sigterm()
     _register_plugins()
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from odofuse.declarations import (
+    ESTIMATOR_OPTIONS,
     EncoderOptions,
     InitialOptions,
     LogOptions,
@@ -28,6 +29,7 @@ from odofuse.declarations import (
 )
 from odofuse.errors import ConfigError
 from odofuse.options import coerce, from_mapping
+from odofuse.plugins import check_allowed, check_module_name, load_function
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,7 @@ class RunConfig:
     options: dict = field(default_factory=dict)
     source: str = "<config>"
     log_options: dict = field(default_factory=dict)
+    plugins: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         src, put = self.source, functools.partial(object.__setattr__, self)
@@ -92,6 +95,7 @@ TOP_KEYS = (
     "output",
     "options",
     "description",
+    "plugins",
 )
 
 
@@ -177,6 +181,60 @@ def _validate_robot(v, src: str) -> dict:
         out["encoder"] = from_mapping(EncoderOptions, robot["encoder"], "robot.encoder", src)
     _check_drive(drive, geometry, src)
     return out
+
+
+def _plugins(v, src: str) -> tuple[str, ...]:
+    """The top-level ``plugins:`` list: the modules whose classes/functions may be named."""
+    if v is None:
+        return ()
+    if not isinstance(v, list):
+        raise ConfigError(f"must be a list of module names, got {type(v).__name__}", src, "plugins")
+    out = []
+    for i, name in enumerate(v):
+        try:
+            out.append(check_module_name(name))
+        except ConfigError as exc:
+            raise ConfigError(str(exc), src, f"plugins[{i}]") from None
+    return tuple(out)
+
+
+def _gate_plugins(top: dict, allowed: tuple[str, ...], src: str) -> None:
+    """Refuse every ``package.module:Name`` the config names unless ``plugins:`` allows it.
+
+    Runs before anything is validated, so that no module is imported for a config that did not
+    opt in (shared spec section 5).
+    """
+    named = []
+    robot = top.get("robot")
+    if isinstance(robot, dict) and isinstance(robot.get("drive"), str):
+        named.append(("robot.drive", robot["drive"], "drive"))
+    if isinstance(top.get("estimator"), str):
+        named.append(("estimator", top["estimator"], "estimator"))
+    sensors = top.get("sensors") if isinstance(top.get("sensors"), dict) else {}
+    for stream, block in sensors.items():
+        if isinstance(block, dict) and "class" in block:
+            named.append((f"sensors.{stream}.class", block["class"], "measurement model"))
+    options = top.get("options") if isinstance(top.get("options"), dict) else {}
+    named += [(f"options.{k}", k, "estimator") for k in options if ":" in str(k)]
+    for key, spec, what in named:
+        if ":" in str(spec):
+            try:
+                check_allowed(spec, allowed, what)
+            except ConfigError as exc:
+                raise ConfigError(str(exc), src, key) from None
+
+
+def _check_estimator(name: str, src: str) -> None:
+    """A built-in estimator name, or an allowed plug-in checked to be a ``run(log, config)``."""
+    if ":" in name:
+        try:
+            load_function(name, "estimator")
+        except ConfigError as exc:
+            raise ConfigError(str(exc), src, "estimator") from None
+    elif name not in ESTIMATOR_OPTIONS:
+        raise ConfigError(
+            f"unknown estimator '{name}'; known: {', '.join(ESTIMATOR_OPTIONS)}", src, "estimator"
+        )
 
 
 def _check_drive(drive: str, geometry: dict, src: str) -> None:
@@ -267,6 +325,8 @@ def config_from_dict(
         raise ConfigError("missing required value (a log folder, bag or builtin:NAME)", src, "log")
     if "robot" not in top:
         raise ConfigError("missing required value (a mapping with at least 'drive')", src, "robot")
+    plugins = _plugins(top.get("plugins"), src)
+    _gate_plugins(top, plugins, src)
     base = Path(base_dir) if base_dir is not None else None
     log, log_options = _resolve_log(top["log"], src, base)
     estimator = (
@@ -274,6 +334,7 @@ def config_from_dict(
         if top.get("estimator") is not None
         else "dead_reckoning"
     )
+    _check_estimator(estimator, src)
     output = None
     if top.get("output") is not None:
         out = Path(_string(top["output"], "output", src)).expanduser()
@@ -294,15 +355,100 @@ def config_from_dict(
         options=_mapping(top.get("options"), "options", src),
         source=src,
         log_options=log_options,
+        plugins=plugins,
     )
 
 
+#: Bounds of a config file (shared spec section 5): size, nesting depth, and how many nodes
+#: aliases may add when expanded (a config needs a handful; an alias bomb needs billions).
+MAX_CONFIG_BYTES = 1 << 20
+MAX_YAML_DEPTH = 50
+MAX_ALIAS_EXPANSION = 10_000
+
+
 def _yaml_loader():
-    """PyYAML's SafeLoader with YAML 1.2 floats: ``1e-4`` is a number, not the string "1e-4"."""
+    """PyYAML's SafeLoader, bounded, with YAML 1.2 floats (``1e-4`` is a number).
+
+    Refuses nesting deeper than :data:`MAX_YAML_DEPTH`, aliases that expand to more than
+    :data:`MAX_ALIAS_EXPANSION` extra nodes, and duplicate keys (each a ``MarkedYAMLError``
+    naming the line).
+    """
     import yaml
+    from yaml.constructor import ConstructorError
+    from yaml.nodes import MappingNode, SequenceNode
 
     class Loader(yaml.SafeLoader):
-        pass
+        def __init__(self, stream):
+            super().__init__(stream)
+            self._depth = 0
+
+        def compose_node(self, parent, index):
+            self._depth += 1
+            if self._depth > MAX_YAML_DEPTH:
+                mark = self.peek_event().start_mark
+                raise yaml.MarkedYAMLError(
+                    problem=f"nested deeper than {MAX_YAML_DEPTH} levels", problem_mark=mark
+                )
+            try:
+                return super().compose_node(parent, index)
+            finally:
+                self._depth -= 1
+
+        def compose_document(self):
+            node = super().compose_document()
+            _check_expansion(node)
+            return node
+
+        def construct_mapping(self, node, deep=False):
+            if isinstance(node, MappingNode):
+                seen: dict = {}
+                for key_node, _ in node.value:
+                    if key_node.tag == "tag:yaml.org,2002:merge":
+                        continue
+                    key = self.construct_object(key_node, deep=True)
+                    try:
+                        first = seen.setdefault(key, key_node.start_mark)
+                    except TypeError:
+                        continue  # unhashable key: SafeConstructor reports it
+                    if first is not key_node.start_mark:
+                        raise ConstructorError(
+                            None,
+                            None,
+                            f"duplicate key {str(key)[:40]!r} (first on line {first.line + 1})",
+                            key_node.start_mark,
+                        )
+            return super().construct_mapping(node, deep=deep)
+
+    def _check_expansion(root) -> None:
+        """Count the nodes of the document with aliases expanded; refuse an alias bomb."""
+        if root is None:
+            return
+        size: dict[int, int] = {}
+        order, stack, distinct = [], [root], 0
+        while stack:  # iterative post-order over the node graph (aliases share nodes)
+            node = stack.pop()
+            if id(node) in size:
+                continue
+            size[id(node)] = 0
+            distinct += 1
+            order.append(node)
+            if isinstance(node, SequenceNode):
+                stack.extend(node.value)
+            elif isinstance(node, MappingNode):
+                stack.extend(x for pair in node.value for x in pair)
+        for node in reversed(order):
+            if isinstance(node, SequenceNode):
+                children = node.value
+            elif isinstance(node, MappingNode):
+                children = [x for pair in node.value for x in pair]
+            else:
+                children = ()
+            size[id(node)] = 1 + sum(size[id(c)] for c in children)
+            if size[id(node)] - distinct > MAX_ALIAS_EXPANSION:
+                raise yaml.MarkedYAMLError(
+                    problem=f"aliases expand to more than {MAX_ALIAS_EXPANSION} extra nodes",
+                    problem_mark=node.start_mark,
+                )
 
     float_re = re.compile(
         r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
@@ -337,6 +483,20 @@ def parse_yaml(text: str, source: str):
         raise ConfigError(f"malformed YAML: {where}{problem}", source) from None
 
 
+def decode_utf8(raw: bytes, source: str) -> str:
+    """Decode ``raw`` as UTF-8; a bad byte raises ConfigError naming its offset and line."""
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise ConfigError(
+            f"not UTF-8: byte 0x{raw[exc.start]:02x} at offset {exc.start} "
+            f"(line {line}, column {col})",
+            source,
+        ) from None
+
+
 def load_config(path: str | Path) -> RunConfig:
     """Read and validate a YAML run config; a relative ``log``/``output`` is relative to it.
 
@@ -348,8 +508,11 @@ def load_config(path: str | Path) -> RunConfig:
         The file cannot be read.
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
-    data = parse_yaml(text, str(path))
+    with path.open("rb") as fh:
+        raw = fh.read(MAX_CONFIG_BYTES + 1)
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"larger than {MAX_CONFIG_BYTES} bytes; not a run config", str(path))
+    data = parse_yaml(decode_utf8(raw, str(path)), str(path))
     if data is None:
         raise ConfigError("empty configuration file", str(path))
     if not isinstance(data, dict):

@@ -401,12 +401,12 @@ def sensor_options(stream: str, block, source: str = "<config>"):
 
 
 def _plugin_sensor(stream: str, block: dict, source: str) -> PluginSensorOptions:
-    from odofuse.plugins import load_object
+    from odofuse.plugins import SENSOR_METHODS, load_class
 
     prefix = f"sensors.{stream}"
     spec = block.pop("class")
     try:
-        cls = load_object(str(spec), f"measurement model of {prefix}")
+        cls = load_class(str(spec), f"measurement model of {prefix}", SENSOR_METHODS)
     except ConfigError as exc:
         raise ConfigError(str(exc), source, f"{prefix}.class") from None
     gate = gate_probability(block.pop("gate", 0.999), f"{prefix}.gate", source)
@@ -627,10 +627,10 @@ def estimator_options_class(name: str, source: str = "<config>") -> type:
             source,
             f"options.{name}",
         )
-    from odofuse.plugins import load_object
+    from odofuse.plugins import load_function
 
     try:
-        run = load_object(name, "estimator")
+        run = load_function(name, "estimator")
     except ConfigError as exc:
         raise ConfigError(str(exc), source, f"options.{name}") from None
     return getattr(run, "Options", UncheckedOptions)

@@ -5,16 +5,20 @@
 
 It combines the file writers of :mod:`odofuse.outputs` with the picture of
 :mod:`odofuse.plotting` (which do not know each other); ``metrics.json`` comes last and marks a
-complete run.
+complete run. The folder is written whole: claimed by one run, written beside it and swapped
+in (:func:`write_outputs`).
 """
 
 from __future__ import annotations
 
+import shutil
 import time
 from pathlib import Path
 
 import numpy as np
 
+from odofuse.errors import OdofuseError
+from odofuse.io.atomic import claim_folder, clean_stale, publish, temp_folder
 from odofuse.outputs import (
     evo_t_max_diff,
     tum_name,
@@ -71,49 +75,74 @@ def write_outputs(
         written, and ``"landmarks"`` (``landmarks.csv``) when ``result.extra`` holds estimated
         landmarks.
 
-    If any writer fails, files written by this call are removed again and the error propagates.
+    The outputs are written into a temporary folder beside ``out_dir`` and swapped in whole
+    (:mod:`odofuse.io.atomic`), with ``out_dir`` claimed for this run: a failed or killed run
+    leaves the previous complete outputs, a second run into the same folder is an error, and
+    temporary folders a killed run left are removed first.
+
+    Raises
+    ------
+    OdofuseError
+        ``out_dir`` is claimed by another live run, or holds files that are not run outputs.
     """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    # Outputs of an earlier run in this folder go first, so that a run failing half-way
-    # cannot leave a mix of old and new files.
-    named_tum = tum_name(result.estimator)
-    for name in (*OUTPUT_NAMES, LANDMARKS_NAME, named_tum):
-        (out / name).unlink(missing_ok=True)
-    written: dict[str, Path] = {}
-    gt = getattr(log, "groundtruth", None)
-    try:
-        written["csv"] = write_trajectory_csv(out / "trajectory.csv", result.trajectory)
-        written["tum"] = write_tum(out / "trajectory.tum", result.trajectory)
-        if named_tum != "trajectory.tum":
-            written["tum_estimator"] = write_tum(out / named_tum, result.trajectory)
-        if result.extra.get("landmarks"):
-            written["landmarks"] = write_landmarks_csv(
-                out / LANDMARKS_NAME,
-                result.extra["landmarks"],
-                result.extra.get("landmark_covariances"),
-            )
-        if gt is not None and len(gt):
-            gt_traj = Trajectory(gt.t, np.column_stack([gt["x"], gt["y"], gt["theta"]]))
-            written["groundtruth"] = write_tum(out / "groundtruth.tum", gt_traj)
-            metrics = {**metrics, "evo_t_max_diff_s": evo_t_max_diff(result.trajectory.t, gt.t)}
-        if ros is not None:
-            from odofuse.outputs_ros import write_trajectory_mcap
+    with claim_folder(out):
+        _check_replaceable(out, result.estimator)
+        clean_stale(out.parent, out.name)  # what a killed run into this folder left behind
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = temp_folder(out.parent, out.name)
+        named_tum = tum_name(result.estimator)
+        gt = getattr(log, "groundtruth", None)
+        written: dict[str, Path] = {}
+        try:
+            written["csv"] = write_trajectory_csv(tmp / "trajectory.csv", result.trajectory)
+            written["tum"] = write_tum(tmp / "trajectory.tum", result.trajectory)
+            if named_tum != "trajectory.tum":
+                written["tum_estimator"] = write_tum(tmp / named_tum, result.trajectory)
+            if result.extra.get("landmarks"):
+                written["landmarks"] = write_landmarks_csv(
+                    tmp / LANDMARKS_NAME,
+                    result.extra["landmarks"],
+                    result.extra.get("landmark_covariances"),
+                )
+            if gt is not None and len(gt):
+                gt_traj = Trajectory(gt.t, np.column_stack([gt["x"], gt["y"], gt["theta"]]))
+                written["groundtruth"] = write_tum(tmp / "groundtruth.tum", gt_traj)
+                t_max = evo_t_max_diff(result.trajectory.t, gt.t)
+                metrics = {**metrics, "evo_t_max_diff_s": t_max}
+            if ros is not None:
+                from odofuse.outputs_ros import write_trajectory_mcap
 
-            written["mcap"] = write_trajectory_mcap(
-                out / "trajectory.mcap", result.trajectory, **ros
-            )
-        if plot:
-            from odofuse.plotting import plot_run
+                written["mcap"] = write_trajectory_mcap(
+                    tmp / "trajectory.mcap", result.trajectory, **ros
+                )
+            if plot:
+                from odofuse.plotting import plot_run  # matplotlib only when a picture is wanted
 
-            written["png"] = plot_run(out / "trajectory.png", result, log)
-        # metrics.json last: its presence marks a complete run.
-        written["metrics"] = write_metrics(out / "metrics.json", metrics)
-    except BaseException:
-        for p in written.values():
-            Path(p).unlink(missing_ok=True)
-        raise
-    return written
+                written["png"] = plot_run(tmp / "trajectory.png", result, log)
+            # metrics.json last: its presence marks a complete run.
+            written["metrics"] = write_metrics(tmp / "metrics.json", metrics)
+            publish(tmp, out)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    return {k: out / Path(p).name for k, p in written.items()}
+
+
+def _check_replaceable(out: Path, estimator: str) -> None:
+    """Refuse to replace a folder that holds anything but a run's outputs."""
+    if out.exists() and not out.is_dir():
+        raise OdofuseError(f"output folder {out} is a file")
+    if out.is_dir():
+        ours = (*OUTPUT_NAMES, LANDMARKS_NAME, tum_name(estimator))
+        foreign = sorted(
+            p.name for p in out.iterdir() if p.name not in ours and not p.name.endswith(".tum")
+        )
+        if foreign:
+            raise OdofuseError(
+                f"output folder {out} holds other files ({', '.join(foreign[:3])}); a run "
+                "replaces its folder whole, so choose an empty or new folder"
+            )
 
 
 def run_one(config, log, out_dir: Path) -> dict:
@@ -122,9 +151,10 @@ def run_one(config, log, out_dir: Path) -> dict:
     from odofuse.log_defaults import apply_log_defaults
 
     config, log = apply_log_defaults(config, log)  # what a bag says where the config is silent
-    t0 = time.perf_counter()
-    result = run_estimator(config.estimator, log, config)
-    return finish_run(config, log, result, time.perf_counter() - t0, out_dir)
+    with claim_folder(out_dir):  # a second run into out_dir fails now, not after its estimate
+        t0 = time.perf_counter()
+        result = run_estimator(config.estimator, log, config)
+        return finish_run(config, log, result, time.perf_counter() - t0, out_dir)
 
 
 def finish_run(config, log, result, runtime: float, out_dir: Path) -> dict:

@@ -6,10 +6,7 @@ from the cluster with a progress bar.
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import sys
-import uuid
 from pathlib import Path
 
 #: Columns of ``summary.csv`` (and keys of each record), in order.
@@ -29,8 +26,6 @@ SUMMARY_COLUMNS = (
 COMPLETE_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json")
 #: Times the scheduler reschedules a log whose worker died while running it.
 DEFAULT_RETRIES = 3
-_TMP_MARK = ".tmp-"
-_OLD_MARK = ".old-"
 
 
 # ------------------------------------------------------------------------------- the records
@@ -88,39 +83,6 @@ def is_complete(folder: Path) -> bool:
     except (OSError, ValueError):
         return False
     return True
-
-
-def clean_stale(out: Path) -> list[Path]:
-    """Remove temporary folders that a killed batch left in ``out``; returns them."""
-    removed = []
-    if out.is_dir():
-        for p in out.iterdir():
-            if p.name.startswith(".") and (_TMP_MARK in p.name or _OLD_MARK in p.name):
-                shutil.rmtree(p, ignore_errors=True)
-                removed.append(p)
-    return removed
-
-
-def publish(tmp: Path, final: Path) -> None:
-    """Rename the complete folder ``tmp`` to ``final``, replacing an earlier run's folder.
-
-    An earlier ``final`` is first renamed aside (``.<name>.old-<id>``) and removed after; at
-    every instant ``final`` is either absent, the old complete run or the new one.
-    """
-    old = None
-    if final.exists():
-        old = final.with_name(f".{final.name}{_OLD_MARK}{uuid.uuid4().hex[:8]}")
-        os.replace(final, old)
-    os.replace(tmp, final)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-
-
-def temp_folder(out: Path, name: str) -> Path:
-    """A fresh temporary folder for log ``name`` inside ``out`` (same file system)."""
-    tmp = out / f".{name}{_TMP_MARK}{uuid.uuid4().hex[:8]}"
-    tmp.mkdir(parents=True)
-    return tmp
 
 
 def _progress(total: int, desc: str, show: bool | None):

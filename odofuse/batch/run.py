@@ -35,7 +35,6 @@ import json
 import logging
 import math
 import os
-import shutil
 import sys
 import time
 import uuid
@@ -45,15 +44,13 @@ from odofuse.batch.common import (
     DEFAULT_RETRIES,
     SUMMARY_COLUMNS,
     BatchSummary,
-    clean_stale,
     gather_records,
     is_complete,
     one_line,
-    publish,
     record,
-    temp_folder,
 )
 from odofuse.errors import ConfigError, InputError
+from odofuse.io.atomic import clean_stale
 
 _GLOB_CHARS = set("*?[")
 
@@ -129,17 +126,11 @@ def run_log_task(config, spec: str, name: str, out: str, force: bool = False) ->
     if not force and is_complete(final):
         metrics = json.loads((final / "metrics.json").read_text(encoding="utf-8"))
         return record(spec, name, metrics, resumed=True)
-    tmp = temp_folder(root, name)
-    try:
+    try:  # run_one writes out/name whole (claimed, beside it, swapped in: odofuse.io.atomic)
         cfg = dataclasses.replace(config, log=spec, output=str(final))
-        metrics = run_one(cfg, load_log_for(cfg), tmp)
-        publish(tmp, final)
+        metrics = run_one(cfg, load_log_for(cfg), final)
     except Exception as exc:  # one bad log is one failed row, never a stopped batch
-        shutil.rmtree(tmp, ignore_errors=True)
         return record(spec, name, None, error=one_line(exc))
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return record(spec, name, metrics)
 
 

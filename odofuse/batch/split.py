@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import shutil
 import time
 import uuid
 from dataclasses import dataclass
@@ -291,9 +290,7 @@ def run_split_logs(client, config, specs, names, root: Path, split, overlap, for
         gather_records,
         is_complete,
         one_line,
-        publish,
         record,
-        temp_folder,
     )
     from odofuse.rundir import finish_run
 
@@ -341,14 +338,11 @@ def run_split_logs(client, config, specs, names, root: Path, split, overlap, for
         if bad:
             records[i] = record(spec, name, None, error=f"window {bad[0][0]}: {bad[0][1]}")
             continue
-        tmp = temp_folder(root, name)
-        try:
+        try:  # finish_run writes root/name whole (odofuse.io.atomic)
             result = _stitched_result([g[0] for g in got], windows, anchored, [g[1] for g in got])
             cfg_out = dataclasses.replace(cfg, output=str(root / name))
-            metrics = finish_run(cfg_out, log, result, max(g[1] for g in got), tmp)
-            publish(tmp, root / name)
+            metrics = finish_run(cfg_out, log, result, max(g[1] for g in got), root / name)
         except Exception as exc:
-            shutil.rmtree(tmp, ignore_errors=True)
             records[i] = record(spec, name, None, error=one_line(exc))
             continue
         records[i] = record(spec, name, metrics)

@@ -6,7 +6,6 @@ A user plug-in is named ``"package.module:Class"``; nothing else is needed to ad
 from __future__ import annotations
 
 import dataclasses
-import importlib
 
 from odofuse.drives.car import Car, CarAckermann
 from odofuse.drives.differential import Differential, SkidSteer
@@ -16,6 +15,7 @@ from odofuse.drives.steered import Ackermann, Bicycle, Synchro, Tricycle
 from odofuse.drives.swerve import Swerve
 from odofuse.drives.twist import Increments, Twist
 from odofuse.errors import ConfigError
+from odofuse.plugins import DRIVE_METHODS, load_class
 
 DRIVES: dict[str, type] = {
     cls.name: cls
@@ -39,21 +39,11 @@ DRIVES: dict[str, type] = {
 
 
 def _load_class(spec: str) -> type:
-    module_name, _, attr = spec.partition(":")
-    if not module_name or not attr:
-        raise ConfigError(f"drive '{spec}': expected 'package.module:Class'", key="drive")
+    """The plug-in drive class ``spec``, checked to be a class with the drive methods."""
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise ConfigError(
-            f"drive '{spec}': cannot import module '{module_name}' ({exc})", key="drive"
-        ) from None
-    try:
-        return getattr(module, attr)
-    except AttributeError:
-        raise ConfigError(
-            f"drive '{spec}': module '{module_name}' has no '{attr}'", key="drive"
-        ) from None
+        return load_class(spec, "drive", DRIVE_METHODS)
+    except ConfigError as exc:
+        raise ConfigError(str(exc), key="drive") from None
 
 
 def make_drive(name: str, **geometry):

@@ -8,7 +8,7 @@ as ``"package.module:function"``.
 from __future__ import annotations
 
 from odofuse.errors import ConfigError
-from odofuse.plugins import load_object
+from odofuse.plugins import load_function
 
 ESTIMATORS: dict[str, str] = {
     "dead_reckoning": "odofuse.estimators.dead_reckoning:run",
@@ -28,7 +28,7 @@ def get_estimator(name: str):
         raise ConfigError(
             f"unknown estimator '{name}'; known: {', '.join(ESTIMATORS)}", key="estimator"
         )
-    return load_object(spec, "estimator")
+    return load_function(spec, "estimator")
 
 
 def run_estimator(name: str, log, config):

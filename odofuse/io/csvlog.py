@@ -67,6 +67,15 @@ KEYED_STREAMS = ("ranges", "landmarks")
 #: (``<stream>.conflicting_dropped``), since the log does not say which one is right.
 REPAIR: dict = {"sort": False, "duplicates": "drop_exact"}
 REPAIR_DUPLICATES = ("error", "drop_exact", "keep_first", "drop_conflicting")
+#: Bounds of a CSV file (shared spec section 5): a line longer than this many bytes is an
+#: error (read in chunks of ``_CHUNK`` bytes, so memory stays bounded for a file without line
+#: breaks), and a cell beyond this magnitude is out of range (no physical value in SI units
+#: comes near; a time stamp in nanoseconds since 1970 does).
+MAX_LINE_BYTES = 8192
+MAX_MAGNITUDE = 1e15
+#: Input quoted in a message is cut to this many characters.
+EXCERPT_CHARS = 40
+_CHUNK = 1 << 24
 #: A time gap counts when it exceeds this many median sample intervals.
 GAP_FACTOR = 10.0
 
@@ -102,9 +111,12 @@ def read_table(
     """
     path = Path(path)
     name = str(path)
-    with open(path, encoding="utf-8-sig") as fh:
-        text = fh.read()
-    all_lines = text.splitlines()
+    raw = _read_bounded(path, name)
+    first = raw.split(b"\n", 1)[0]
+    head_text = _decode(first, name, 1, None).removeprefix("\ufeff")
+    text = _decode(raw, name, None, tuple(c.strip() for c in head_text.split(",")))
+    del raw
+    all_lines = text.removeprefix("\ufeff").splitlines()
     if not all_lines or not all_lines[0].strip():
         raise InputError("empty file: expected a header line", name, 1)
     header = tuple(c.strip() for c in all_lines[0].split(","))
@@ -131,31 +143,102 @@ def read_table(
         what = "too few" if n < ncol else "too many"
         col = header[n] if n < ncol else None
         raise InputError(
-            f"{what} cells: {n} instead of {ncol} ({', '.join(header)})", name, int(lines[i]), col
+            f"{what} cells: {n} instead of {ncol} ({excerpt(', '.join(header))})",
+            name,
+            int(lines[i]),
+            col,
         )
     if not body:
         return header, np.empty((0, ncol)), lines
+    joined = ",".join(body)
     try:
-        data = np.array(",".join(body).split(","), dtype=float).reshape(len(body), ncol)
+        if "_" in joined:  # Python's float() reads "1_0" as 10; a CSV number has no "_"
+            raise ValueError("underscore in a number")
+        data = np.array(joined.split(","), dtype=float).reshape(len(body), ncol)
     except ValueError:
         _raise_bad_cell(name, header, body, lines)
         raise  # pragma: no cover - _raise_bad_cell always raises
     finite = np.isfinite(data)
     if not finite.all():
         i, j = np.argwhere(~finite)[0]
+        cell = excerpt(body[i].split(",")[j].strip())
+        raise InputError(f"value {cell!r} is not finite", name, int(lines[i]), header[j])
+    huge = np.abs(data) > MAX_MAGNITUDE
+    if huge.any():
+        i, j = np.argwhere(huge)[0]
+        cell = excerpt(body[i].split(",")[j].strip())
+        hint = " (time stamps must be in seconds)" if j == 0 and first_column == "t" else ""
         raise InputError(
-            f"value {body[i].split(',')[j].strip()!r} is not finite", name, int(lines[i]), header[j]
+            f"value {cell} is out of range (|value| > {MAX_MAGNITUDE:g}){hint}",
+            name,
+            int(lines[i]),
+            header[j],
         )
     return header, data, lines
+
+
+def excerpt(text: str, limit: int = EXCERPT_CHARS) -> str:
+    """``text`` cut to ``limit`` characters (with ``...``), for quoting input in a message."""
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _read_bounded(path: Path, name: str) -> bytes:
+    """The file's bytes, refusing a line longer than :data:`MAX_LINE_BYTES` while reading.
+
+    Reads in chunks, so a multi-gigabyte file without line breaks (a sparse file, a binary
+    file) ends after the first chunk instead of being read into memory.
+    """
+    chunks, line, tail = [], 1, 0  # tail: bytes since the last newline
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_CHUNK):
+            arr = np.frombuffer(chunk, dtype=np.uint8)
+            nl = np.flatnonzero(arr == 10)
+            starts = np.concatenate(([-tail - 1], nl))
+            ends = np.concatenate((nl, [len(chunk)]))
+            lengths = ends - starts - 1
+            long = np.flatnonzero(lengths > MAX_LINE_BYTES)
+            if long.size:
+                k = int(long[0])
+                raise InputError(
+                    f"line longer than {MAX_LINE_BYTES} bytes (binary or corrupt file?)",
+                    name,
+                    line + k,
+                )
+            line += nl.size
+            tail = int(lengths[-1])
+            chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def _decode(raw: bytes, name: str, row: int | None, header) -> str:
+    """Decode UTF-8 (BOM allowed); a bad byte raises InputError naming row and column."""
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        at = exc.start
+        start = raw.rfind(b"\n", 0, at) + 1
+        line = row if row is not None else raw.count(b"\n", 0, at) + 1
+        j = raw.count(b",", start, at)
+        col = header[j] if header is not None and line > 1 and j < len(header) else None
+        raise InputError(
+            f"not UTF-8: byte 0x{raw[at]:02x} at byte {at - start + 1} of the line",
+            name,
+            line,
+            col,
+        ) from None
 
 
 def _raise_bad_cell(name: str, header, body, lines) -> None:
     for i, line in enumerate(body):
         for j, cell in enumerate(line.split(",")):
             try:
+                if "_" in cell:
+                    raise ValueError(cell)
                 float(cell)
             except ValueError:
-                what = "empty cell" if not cell.strip() else f"not a number: {cell.strip()!r}"
+                what = (
+                    "empty cell" if not cell.strip() else f"not a number: {excerpt(cell.strip())!r}"
+                )
                 raise InputError(what, name, int(lines[i]), header[j]) from None
     raise InputError("unreadable numeric data", name)  # pragma: no cover
 

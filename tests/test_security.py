@@ -1,0 +1,344 @@
+"""A config is data, inputs are bounded, outputs never mix (issue 16, shared spec section 5).
+
+Each case is one reproduction from the issue: it must end in a one-line odofuse error (or a
+result), never run code the config names, never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from test_cli import CONFIG, make_run, outputs_left, square_log
+
+from odofuse.cli import main
+from odofuse.config import load_config
+from odofuse.drives import make_drive
+from odofuse.errors import ConfigError
+
+GEOMETRY = "{drive: differential, wheel_radius: 0.1, track_width: 0.5}"
+
+
+def _config(tmp_path, text: str):
+    path = tmp_path / "run.yaml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def _one_line_error(capsys, *needles):
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in err, err
+    return err
+
+
+# ------------------------------------------------------------------- 1. configs are data
+@pytest.mark.parametrize(
+    "text,key",
+    [
+        ('robot: {drive: "os:system", command: "touch pwned"}', "robot.drive"),
+        ('robot: {drive: "subprocess:getoutput", cmd: "touch pwned"}', "robot.drive"),
+        (f'robot: {GEOMETRY}\nestimator: "os:system"', "estimator"),
+        (f'robot: {GEOMETRY}\nestimator: "builtins:print"', "estimator"),
+        (f'robot: {GEOMETRY}\nsensors: {{g: {{class: "os:system"}}}}', "sensors.g.class"),
+        (f'robot: {GEOMETRY}\noptions: {{"subprocess:getoutput": {{}}}}', "options.subprocess"),
+        ('plugins: [os]\nrobot: {drive: "os:system", command: "touch pwned"}', "plugins[0]"),
+        (f"robot: {GEOMETRY}\nplugins: os", "plugins"),
+        (f'robot: {GEOMETRY}\nestimator: "kalman"', "estimator"),
+    ],
+)
+def test_config_naming_code_is_refused_and_nothing_runs(tmp_path, monkeypatch, capsys, text, key):
+    monkeypatch.chdir(tmp_path)
+    cfg = _config(tmp_path, f"log: builtin:plaza1\n{text}\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(cfg)
+    assert info.value.key.startswith(key) and info.value.file == str(cfg)
+    assert main(["run", str(cfg), "-o", str(tmp_path / "o")]) == 2
+    _one_line_error(capsys, str(cfg), key)
+    assert not (tmp_path / "pwned").exists()
+    assert not (tmp_path / "o").exists()
+
+
+def _plugin_module(tmp_path, monkeypatch, name: str, body: str):
+    (tmp_path / f"{name}.py").write_text(textwrap.dedent(body))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, name, raising=False)
+
+
+def test_plugin_module_is_not_imported_without_opt_in(tmp_path, monkeypatch):
+    _plugin_module(
+        tmp_path,
+        monkeypatch,
+        "odofuse_sec_marker",
+        """
+        from pathlib import Path
+        Path(__file__).with_name("imported").write_text("yes")
+        from odofuse.drives import Differential as Drive
+        """,
+    )
+    cfg = _config(
+        tmp_path,
+        "log: builtin:plaza1\n"
+        "robot: {drive: 'odofuse_sec_marker:Drive', wheel_radius: 0.1, track_width: 0.5}\n",
+    )
+    with pytest.raises(ConfigError, match="'plugins:'") as info:
+        load_config(cfg)
+    assert info.value.key == "robot.drive"
+    assert not (tmp_path / "imported").exists() and "odofuse_sec_marker" not in sys.modules
+    opted = _config(tmp_path, "plugins: [odofuse_sec_marker]\n" + cfg.read_text())
+    assert load_config(opted).plugins == ("odofuse_sec_marker",)
+    assert (tmp_path / "imported").exists()
+
+
+def test_opted_in_plugin_is_shape_checked_before_it_is_called(tmp_path, monkeypatch):
+    _plugin_module(
+        tmp_path,
+        monkeypatch,
+        "odofuse_sec_shapes",
+        """
+        from pathlib import Path
+        CALLED = Path(__file__).with_name("called")
+
+        def run(log):  # one argument: not an estimator
+            CALLED.write_text("run")
+
+        class NotADrive:
+            def __init__(self, **kw):
+                CALLED.write_text("init")
+
+        class NotAModel:
+            def __init__(self, **kw):
+                CALLED.write_text("init")
+        """,
+    )
+    head = "log: builtin:plaza1\nplugins: [odofuse_sec_shapes]\n"
+    cases = [
+        (f"robot: {GEOMETRY}\nestimator: odofuse_sec_shapes:run", "estimator", "2 positional"),
+        ("robot: {drive: 'odofuse_sec_shapes:NotADrive'}", "robot.drive", "twist"),
+        (
+            f"robot: {GEOMETRY}\nsensors: {{s: {{class: 'odofuse_sec_shapes:NotAModel'}}}}",
+            "sensors.s.class",
+            "residual",
+        ),
+        (f"robot: {GEOMETRY}\nestimator: odofuse_sec_shapes:CALLED", "estimator", "PosixPath"),
+    ]
+    for text, key, needle in cases:
+        with pytest.raises(ConfigError, match=needle) as info:
+            load_config(_config(tmp_path, head + text + "\n"))
+        assert info.value.key == key
+    assert not (tmp_path / "called").exists()
+
+
+def test_make_drive_refuses_a_function_without_calling_it(tmp_path):
+    with pytest.raises(ConfigError, match="not a class"):
+        make_drive("os:system", command=f"touch {tmp_path / 'pwned'}")
+    assert not (tmp_path / "pwned").exists()
+
+
+def test_docs_say_a_config_naming_plugins_is_code():
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "formats.md").read_text()
+    assert "`plugins`" in text and "is code" in text
+
+
+# ------------------------------------------------------------------- 2. bounded YAML
+def _alias_bomb(levels: int = 9) -> str:
+    text = "log: builtin:plaza1\nrobot: {drive: increments}\nsensors:\n  ranges:\n"
+    text += '    a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]\n'
+    prev = "a"
+    for name in "bcdefghijk"[: levels - 1]:
+        text += f"    {name}: &{name} [" + ",".join([f"*{prev}"] * 9) + "]\n"
+        prev = name
+    return text
+
+
+@pytest.mark.parametrize(
+    "content,needles",
+    [
+        (_alias_bomb().encode(), ["aliases expand", "line 9"]),
+        (b"log: x\nrobot: " + b"[" * 10000 + b"]" * 10000 + b"\n", ["nested deeper", "line 2"]),
+        (b"log: x\nrobot: " + b"{a: " * 5000 + b"1" + b"}" * 5000 + b"\n", ["nested deeper"]),
+        (
+            b"log: x\nrobot: {drive: increments}\nestimator: ekf\nestimator: ukf\n",
+            ["duplicate key 'estimator'", "line 4", "first on line 3"],
+        ),
+        (b"log: x\nrobot: {drive: increments, drive: twist}\n", ["duplicate key 'drive'"]),
+        (b"log: x\nrobot: {drive: incr\xc5ments}\n", ["not UTF-8", "0xc5", "offset 26", "line 2"]),
+        (b"log: x\n#" + b"x" * (2 << 20) + b"\n", ["larger than"]),
+    ],
+)
+def test_hostile_yaml_ends_in_one_line_error(tmp_path, capsys, content, needles):
+    cfg = tmp_path / "run.yaml"
+    cfg.write_bytes(content)
+    with pytest.raises(ConfigError) as info:
+        load_config(cfg)
+    message = str(info.value)
+    assert "\n" not in message and len(message) < 300 and str(cfg) in message
+    for needle in needles:
+        assert needle in message
+    assert main(["run", str(cfg)]) == 2
+    _one_line_error(capsys, str(cfg), needles[0])
+
+
+def test_a_few_aliases_and_merge_keys_still_work(tmp_path):
+    cfg = _config(
+        tmp_path,
+        """\
+        log: builtin:plaza1
+        robot: {drive: increments}
+        sensors:
+          gps: &base {sigma: 1.5, gate: 0.99}
+          compass: {<<: *base, sigma: 0.05}
+        """,
+    )
+    config = load_config(cfg)
+    assert config.sensors["compass"].sigma == 0.05 and config.sensors["compass"].gate == 0.99
+
+
+# ------------------------------------------------------------------- 3. bounded CSV logs
+def _csv_run(tmp_path):
+    cfg = make_run(tmp_path)
+    return cfg, tmp_path / "log" / "odometry.csv"
+
+
+def _set_row(path, index: int, row: bytes) -> None:
+    lines = path.read_bytes().splitlines()
+    lines[index] = row
+    path.write_bytes(b"\n".join(lines) + b"\n")
+
+
+def test_sparse_two_gigabyte_csv_ends_in_a_short_error(tmp_path, capsys):
+    cfg, odo = _csv_run(tmp_path)
+    with open(odo, "r+b") as fh:  # a hole of 2 GiB: no line breaks, no disk space used
+        fh.seek(2 << 30)
+        fh.write(b"\n30.0,0.1,0.05\n")
+    assert main(["run", str(cfg)]) == 2
+    err = _one_line_error(capsys, str(odo), "row 202", "line longer than")
+    assert len(err) < 300
+    assert outputs_left(tmp_path) == []
+
+
+@pytest.mark.parametrize(
+    "row,needles",
+    [
+        (b"1.5,0.1," + b"9" * (100 << 20), ["row 6", "line longer than"]),
+        (b"1.5,0.1,0.\xc55", ["row 6", "column 'dtheta'", "not UTF-8", "0xc5"]),
+        (b"1.5,1e308,0.05", ["row 6", "column 'ds'", "out of range"]),
+        (b"1.5e18,0.1,0.05", ["row 6", "column 't'", "seconds"]),
+        (b"1.5,1_0,0.05", ["row 6", "column 'ds'", "not a number: '1_0'"]),
+        (b"1.5,0.1," + b"x" * 5000, ["row 6", "column 'dtheta'", "not a number"]),
+    ],
+)
+def test_bad_csv_row_names_file_row_and_column_with_a_short_excerpt(tmp_path, capsys, row, needles):
+    cfg, odo = _csv_run(tmp_path)
+    _set_row(odo, 5, row)
+    assert main(["run", str(cfg)]) == 2
+    err = _one_line_error(capsys, str(odo), *needles)
+    assert len(err) < 300, len(err)
+    assert outputs_left(tmp_path) == []
+
+
+def test_non_utf8_header_names_the_file_and_row(tmp_path, capsys):
+    cfg, odo = _csv_run(tmp_path)
+    _set_row(odo, 0, b"t,d\xc5s,dtheta")
+    assert main(["run", str(cfg)]) == 2
+    _one_line_error(capsys, str(odo), "row 1", "not UTF-8")
+
+
+# ------------------------------------------------------------------- 4. output integrity
+def _snapshot(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def _leftovers(parent):
+    return sorted(p.name for p in parent.iterdir() if p.name.startswith("."))
+
+
+KILL_DURING_WRITE = """
+import os, signal, sys
+import odofuse.rundir as rundir
+real = rundir.write_tum
+def dying(path, traj):
+    real(path, traj)
+    os.kill(os.getpid(), signal.{sig})
+rundir.write_tum = dying
+from odofuse.cli import main
+sys.argv = ["odofuse", "run", {cfg!r}]
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_killed_run_keeps_the_previous_result_and_the_next_run_cleans_up(tmp_path, sig):
+    cfg = make_run(tmp_path)
+    assert main(["run", str(cfg)]) == 0
+    out = tmp_path / "out"
+    before = _snapshot(out)
+    script = KILL_DURING_WRITE.format(sig=sig, cfg=str(cfg))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    assert _snapshot(out) == before  # the previous complete result, untouched
+    if sig == "SIGTERM":  # cleanup ran: no temporary folder, no lock
+        assert _leftovers(tmp_path) == []
+    else:  # SIGKILL: nothing can run, the next run cleans up
+        assert any(".out.tmp-" in n for n in _leftovers(tmp_path))
+        assert ".out.lock" in _leftovers(tmp_path)
+    assert main(["run", str(cfg)]) == 0
+    assert _leftovers(tmp_path) == []
+    assert _snapshot(out).keys() == before.keys()
+
+
+def test_second_run_into_a_claimed_folder_is_a_clear_error(tmp_path, capsys):
+    cfg = make_run(tmp_path)
+    assert main(["run", str(cfg)]) == 0
+    before = _snapshot(tmp_path / "out")
+    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (tmp_path / ".out.lock").write_text(f"{holder.pid}\n")
+        capsys.readouterr()
+        assert main(["run", str(cfg)]) == 2
+        _one_line_error(capsys, "in use by another run", f"pid {holder.pid}")
+        assert _snapshot(tmp_path / "out") == before
+    finally:
+        holder.kill()
+        holder.wait()
+    # the holder is gone: its lock is stale and taken over
+    assert main(["run", str(cfg)]) == 0
+    assert _leftovers(tmp_path) == []
+
+
+def test_two_concurrent_runs_never_leave_a_mixed_folder(tmp_path):
+    short = make_run(tmp_path / "a")
+    long_dir = tmp_path / "b"
+    square_log(long_dir / "log", n=3000)
+    long = long_dir / "run.yaml"
+    long.write_text(CONFIG.format(log="log", out="out"))
+    out = tmp_path / "shared"
+    cmd = [sys.executable, "-m", "odofuse", "run"]
+    procs = [
+        subprocess.Popen([*cmd, str(c), "-o", str(out)], stderr=subprocess.PIPE)
+        for c in (long, short)
+    ]
+    codes = [(p.wait(), p.stderr.read().decode()) for p in procs]
+    for rc, err in codes:
+        assert rc == 0 or (rc == 2 and "in use by another run" in err), err
+    metrics = json.loads((out / "metrics.json").read_text())
+    rows = len((out / "trajectory.csv").read_text().splitlines()) - 1
+    assert metrics["poses"] == rows
+    assert _leftovers(tmp_path) == []
+
+
+def test_output_folder_with_other_files_is_not_replaced(tmp_path, capsys):
+    cfg = make_run(tmp_path)
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "notes.txt").write_text("mine")
+    assert main(["run", str(cfg)]) == 2
+    _one_line_error(capsys, "holds other files (notes.txt)")
+    assert sorted(os.listdir(tmp_path / "out")) == ["notes.txt"]
