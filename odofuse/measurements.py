@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from odofuse.declarations import STREAM_DEFAULTS, LoopClosureOptions, PluginSensorOptions
-from odofuse.errors import ConfigError
+from odofuse.errors import ConfigError, InputError
 from odofuse.options import explicit
 from odofuse.se2 import wrap
 
@@ -245,14 +245,17 @@ class MeasurementModel:
 
 
 def _landmark(landmarks: Mapping[int, np.ndarray], row, stream: str):
-    """Map position of the row's ``id`` (an ``(2,)`` array or pair), ValueError if unknown."""
+    """Map position of the row's ``id`` (an ``(2,)`` array or pair), InputError if unknown."""
     lid = int(round(float(row["id"])))
     try:
         return landmarks[lid]
     except KeyError:
-        raise ValueError(
+        ids = sorted(landmarks)
+        known = ", ".join(map(str, ids[:10])) + (", ..." if len(ids) > 10 else "")
+        raise InputError(
             f"stream '{stream}' at t={row.get('t', float('nan')):.6f}: landmark id {lid} "
-            f"is not in the map (known ids: {sorted(landmarks)})"
+            f"is not in the map (known ids: {known or 'none'})",
+            column="id",
         ) from None
 
 

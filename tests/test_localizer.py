@@ -239,8 +239,9 @@ def test_bad_rows_are_input_errors_naming_stream_and_column():
         loc.add_measurement("ranges", {"id": 0, "range": 3.0})
     with pytest.raises(InputError, match="non-finite"):
         loc.add_odometry(t[1], [0.1, float("inf")])
-    # A stream without a model is ignored.
-    loc.add_measurement("sonar", {"t": 1.0, "d": 3.0})
+    # A stream without a model is an error (issue 16: a misspelled "GPS" was dropped silently).
+    with pytest.raises(InputError, match="unknown stream 'sonar'"):
+        loc.add_measurement("sonar", {"t": 1.0, "d": 3.0})
     loc.add_odometry(t[1], U[0])
     assert loc.t == t[1]
 

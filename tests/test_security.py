@@ -7,11 +7,13 @@ result), never run code the config names, never a traceback.
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 from test_cli import CONFIG, make_run, outputs_left, square_log
 
@@ -342,3 +344,129 @@ def test_output_folder_with_other_files_is_not_replaced(tmp_path, capsys):
     assert main(["run", str(cfg)]) == 2
     _one_line_error(capsys, "holds other files (notes.txt)")
     assert sorted(os.listdir(tmp_path / "out")) == ["notes.txt"]
+
+
+# ------------------------------------------------------------------- 5. streaming API
+def _localizer(steps=20):
+    from test_ekf import simulate
+    from test_localizer import _cfg
+
+    from odofuse.estimators import ekf
+    from odofuse.estimators.localizer import build
+
+    log, _ = simulate(31, steps=steps)
+    loc, t, U = build(_cfg(), log, "ekf", ekf.make_backend)
+    return log, loc, t, U
+
+
+@pytest.mark.parametrize(
+    "stream,row,needles",
+    [
+        ("GPS", {"t": 1.0, "x": 0.0, "y": 0.0}, ["unknown stream 'GPS'", "ranges"]),
+        (None, {"t": 1.0}, ["unknown stream None"]),
+        ("ranges", None, ["mapping", "NoneType"]),
+        ("ranges", 3.0, ["mapping", "float"]),
+        ("ranges", {"t": None, "id": 0, "range": 3.0}, ["'t' must be a number"]),
+        ("ranges", {"t": "1.0", "id": 0, "range": 3.0}, ["'t' must be a number"]),
+        ("ranges", {"t": 1.0, "id": 0, "range": None}, ["t=1.000000", "'range'"]),
+        ("ranges", {"t": 1.0, "id": 0, "range": [3.0, 4.0]}, ["'range' must be a number"]),
+        ("ranges", {"t": 1.0, "id": 0, "range": 1e308}, ["'range'", "out of range"]),
+        ("ranges", {"t": math.inf, "id": 0, "range": 3.0}, ["'t' is non-finite"]),
+    ],
+)
+def test_streaming_bad_readings_name_stream_time_and_field(stream, row, needles):
+    from odofuse.errors import InputError
+
+    _, loc, _, _ = _localizer()
+    with pytest.raises(InputError) as info:
+        loc.add_measurement(stream, row)
+    message = str(info.value)
+    assert "\n" not in message and len(message) < 300
+    for needle in needles:
+        assert needle in message, message
+
+
+@pytest.mark.parametrize(
+    "u,needles",
+    [
+        ([0.1, 0.2, 0.3], ["shape (2,)", "got (3,)"]),
+        (0.1, ["shape (2,)", "got ()"]),
+        (None, ["NoneType"]),
+        ([0.1, None], ["'dtheta'", "non-finite"]),
+        ([1e308, 0.0], ["out of range"]),
+        ([0.1, math.nan], ["non-finite"]),
+        ("ab", ["str"]),
+    ],
+)
+def test_streaming_bad_odometry_names_time_and_field(u, needles):
+    from odofuse.errors import InputError
+
+    _, loc, t, _ = _localizer()
+    before = loc.pose()
+    with pytest.raises(InputError) as info:
+        loc.add_odometry(t[1], u)
+    for needle in needles:
+        assert needle in str(info.value), str(info.value)
+    np.testing.assert_array_equal(loc.pose(), before)
+    assert np.all(np.isfinite(loc.covariance()))
+    with pytest.raises(InputError, match="'t' must be a number"):
+        loc.add_odometry(None, [0.1, 0.0])
+
+
+def test_streaming_add_returns_what_happened_to_the_reading():
+    from odofuse.estimators.localizer import events
+
+    log, loc, t, U = _localizer(steps=60)
+    ranges = log.streams["ranges"]
+    evs = events(log, t, U, ["ranges"])
+    held = None
+    for te, kind, stream, i in evs:
+        if kind == 1:
+            assert loc.add_odometry(te, U[i]) == "used"
+        elif held is None and i >= 3:
+            held = ranges.row(i)  # fed later, while still inside the late window
+        else:
+            fate = loc.add_measurement(stream, ranges.row(i))
+            assert fate in ("used", "rejected") if te <= loc.t else fate == "buffered"
+        if held is not None and loc.t >= held["t"] and loc.t - held["t"] < loc.late_window / 2:
+            break
+    assert held is not None and loc.t >= held["t"]
+    assert loc.add_measurement("ranges", held) == "used"  # applied by a replay
+    assert loc.add_measurement("ranges", held) == "duplicate"
+    outlier = {**held, "t": held["t"] - 1e-4, "range": held["range"] + 500.0}
+    assert loc.add_measurement("ranges", outlier) == "rejected"
+    future = {**held, "t": loc.t + 1.0}
+    assert loc.add_measurement("ranges", future) == "buffered"
+    old = {**held, "t": loc.t - loc.late_window - 1.0}
+    assert loc.add_measurement("ranges", old) == "dropped"
+    conflict = {**held, "range": held["range"] + 0.1}
+    from odofuse.errors import InputError
+
+    with pytest.raises(InputError, match="different values"):
+        loc.add_measurement("ranges", conflict)
+
+
+def test_streaming_exact_duplicates_match_the_offline_run():
+    from test_localizer import _cfg
+
+    from odofuse.estimators import ekf
+    from odofuse.estimators.localizer import events
+
+    log, loc, t, U = _localizer(steps=60)
+    offline = ekf.run(log, _cfg())
+    for te, kind, stream, i in events(log, t, U, ["ranges"]):
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+            assert loc.add_odometry(te, U[i]) == "duplicate"
+        else:
+            row = log.streams[stream].row(i)
+            loc.add_measurement(stream, row)
+            for _ in range(50):  # a burst of identical fixes counts once, as offline
+                assert loc.add_measurement(stream, row) == "duplicate"
+    loc.finish()
+    online = loc.result()
+    np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses)
+    np.testing.assert_array_equal(online.trajectory.covariances, offline.trajectory.covariances)
+    assert online.used == offline.used
+    assert online.extra["duplicates"]["ranges"] == 50 * len(log.streams["ranges"])
+    assert online.extra["duplicates"]["odometry"] == len(U)

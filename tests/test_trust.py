@@ -138,7 +138,8 @@ def test_localizer_health_is_live():
 
 def _gyro_run(steps, particles=50, seed=1):
     """Particle filter fed ``steps`` odometry steps with a precise gyro at every step."""
-    from odofuse.estimators.localizer import Localizer, augmented_prior, state_layout
+    from odofuse.estimators.common import augmented_prior, state_layout
+    from odofuse.estimators.localizer import Localizer
     from odofuse.estimators.particle import ParticleBackend
     from odofuse.measurements import GyroYawRate
     from odofuse.motion import motion_model_from_config

@@ -1,6 +1,9 @@
-"""What every estimator needs from a log and a config: odometry inputs and the initial state."""
+"""What every estimator needs from a log and a config: odometry inputs, the initial state and
+the augmented state layout (calibration and clone states of the measurement models)."""
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -123,3 +126,41 @@ def initial_state(config, log) -> tuple[np.ndarray, np.ndarray]:
             key="initial",
         )
     return pose, np.diag(sigma**2)
+
+
+def state_layout(models: Mapping[str, object]) -> tuple[list[str], dict[str, int]]:
+    """Names of the augmented states (first-seen order) and their index in the state vector."""
+    names: list[str] = []
+    for m in models.values():
+        for s in getattr(m, "calib_states", ()):
+            if s not in names:
+                names.append(s)
+    return names, {s: 3 + i for i, s in enumerate(names)}
+
+
+def augmented_prior(models, names, pose0, P0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Initial state, covariance and random-walk variances per second of the full state.
+
+    Clone states (``models[..].clones()``) start as copies of their source state.
+    """
+    n = 3 + len(names)
+    x0 = np.zeros(n)
+    x0[:3] = pose0
+    P = np.zeros((n, n))
+    P[:3, :3] = P0
+    walk = np.zeros(n)
+    for m in models.values():
+        prior = m.calib_prior() if hasattr(m, "calib_prior") else {}
+        rw = m.calib_walk() if hasattr(m, "calib_walk") else {}
+        for s, (value, sigma) in prior.items():
+            i = 3 + names.index(s)
+            x0[i], P[i, i] = float(value), float(sigma) ** 2
+        for s, w in rw.items():
+            walk[3 + names.index(s)] = float(w) ** 2
+        for s, src in (m.clones() if hasattr(m, "clones") else {}).items():
+            i = 3 + names.index(s)
+            x0[i] = x0[src]
+            P[i, :] = P[src, :]
+            P[:, i] = P[:, src]
+            P[i, i] = P[src, src]
+    return x0, P, walk

@@ -41,7 +41,7 @@ def _exp_coeffs(w: float) -> tuple[float, float, float, float]:
     """
     half = 0.5 * w
     sh, ch = math.sin(half), math.cos(half)
-    sinc_half = 1.0 if w == 0.0 else sh / half
+    sinc_half = 1.0 if half == 0.0 else sh / half  # half underflows for subnormal w
     A, B = sinc_half * ch, sinc_half * sh
     if abs(w) < _SERIES_BELOW:
         w2 = w * w

@@ -49,7 +49,8 @@ import numpy as np
 from odofuse import se2
 from odofuse.declarations import DEFAULT_LATE_WINDOW, EkfOptions
 from odofuse.errors import ConfigError, InputError
-from odofuse.estimators import monitors
+from odofuse.estimators import inputs, monitors
+from odofuse.estimators.common import augmented_prior, state_layout
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -62,44 +63,6 @@ class _Step:
     u: np.ndarray
     snapshot: object  # the filter state before the step
     n_traj: int  # trajectory length before the step
-
-
-def state_layout(models: Mapping[str, object]) -> tuple[list[str], dict[str, int]]:
-    """Names of the augmented states (first-seen order) and their index in the state vector."""
-    names: list[str] = []
-    for m in models.values():
-        for s in getattr(m, "calib_states", ()):
-            if s not in names:
-                names.append(s)
-    return names, {s: 3 + i for i, s in enumerate(names)}
-
-
-def augmented_prior(models, names, pose0, P0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Initial state, covariance and random-walk variances per second of the full state.
-
-    Clone states (``models[..].clones()``) start as copies of their source state.
-    """
-    n = 3 + len(names)
-    x0 = np.zeros(n)
-    x0[:3] = pose0
-    P = np.zeros((n, n))
-    P[:3, :3] = P0
-    walk = np.zeros(n)
-    for m in models.values():
-        prior = m.calib_prior() if hasattr(m, "calib_prior") else {}
-        rw = m.calib_walk() if hasattr(m, "calib_walk") else {}
-        for s, (value, sigma) in prior.items():
-            i = 3 + names.index(s)
-            x0[i], P[i, i] = float(value), float(sigma) ** 2
-        for s, w in rw.items():
-            walk[3 + names.index(s)] = float(w) ** 2
-        for s, src in (m.clones() if hasattr(m, "clones") else {}).items():
-            i = 3 + names.index(s)
-            x0[i] = x0[src]
-            P[i, :] = P[src, :]
-            P[:, i] = P[:, src]
-            P[i, i] = P[src, src]
-    return x0, P, walk
 
 
 class Localizer:
@@ -167,6 +130,9 @@ class Localizer:
         self._traj_x = [x[:3].copy()]
         self._traj_P = [backend.cov()[:3, :3].copy()]
         self._odom = x[:3].copy()
+        self._duplicates = inputs.Duplicates(self.late_window)
+        self._x_probe = np.zeros_like(x)  # any state of the right length, for input checks
+        self._watch, self._fate = None, inputs.USED
 
     @classmethod
     def from_config(
@@ -237,69 +203,79 @@ class Localizer:
         }
 
     # ----------------------------------------------------------------- inputs
-    def add(self, stream: str, row: Mapping[str, float]) -> None:
+    def add(self, stream: str, row: Mapping[str, float]) -> str:
         """Feed one row of any measurement stream (``row`` holds ``t`` and the columns)."""
-        self.add_measurement(stream, row)
+        return self.add_measurement(stream, row)
 
-    def add_measurement(self, stream: str, row: Mapping[str, float]) -> None:
+    def add_measurement(self, stream: str, row: Mapping[str, float]) -> str:
         """Queue one measurement row; it is applied once odometry reaches its time.
 
-        Streams without a model are ignored. A measurement at or before the filter time
-        triggers a replay from the step that covers it (within ``late_window``) or is dropped.
+        A measurement at or before the filter time triggers a replay from the step that covers
+        it (within ``late_window``) or is dropped. The reading is checked first
+        (:mod:`odofuse.estimators.inputs`): an unknown stream, a missing, non-numeric,
+        non-finite or out-of-range value is an :class:`~odofuse.errors.InputError` naming the
+        stream, the time and the field; an exact repeat of a reading (same ``t``, ``id`` and
+        values) is dropped and counted (``extra["duplicates"]``), as the CSV loader does.
+
+        Returns ``"used"``/``"rejected"`` (gate) when applied now or by a replay, ``"buffered"``
+        while it waits for odometry, ``"dropped"`` when older than the late window,
+        ``"duplicate"`` (see :data:`odofuse.estimators.inputs.USED` and the others).
         """
+        known = set(self.models) | ({self._gyro_stream} - {None})
+        t, row = inputs.check_row(stream, row, known)
+        if self._duplicates.check(stream, t, row, self.t):
+            return inputs.DUPLICATE
         if stream == self._gyro_stream:
+            if "wz" not in row:
+                raise InputError(f"stream '{stream}' at t={t:.6f}: no column 'wz'", column="wz")
             self._add_gyro_sample(row)
-            return
-        if stream not in self.models:
-            return
-        if stream == self._slip_stream and "wz" in row and math.isfinite(float(row["t"])):
-            self._store_gyro(float(row["t"]), float(row["wz"]))
-        row = dict(row)
-        t = float(row.get("t", math.nan))
-        if not math.isfinite(t):
-            raise InputError(f"stream '{stream}': missing or non-finite time", column="t")
-        try:
-            z = np.asarray(self.models[stream].z(row), dtype=float)
-        except KeyError as exc:
-            raise InputError(
-                f"stream '{stream}' at t={t:.6f}: no column {exc}", column=str(exc).strip("'")
-            ) from None
-        if not np.all(np.isfinite(z)):
-            raise InputError(f"stream '{stream}' at t={t:.6f}: non-finite value {z.tolist()}")
+            return inputs.USED
+        if stream == self._slip_stream and "wz" in row:
+            self._store_gyro(t, row["wz"])
+        inputs.check_measurement(stream, self.models[stream], t, row, self._x_probe)
         item = (t, self._seq, stream, row)
         self._seq += 1
         if t > self.t:
             bisect.insort(self._pending, item)
-            return
-        if not self._steps and self.t == self.t_start and t >= self.t - self.late_window:
-            # Before the first odometry step: applied to the initial state as it is.
-            self._apply(item)
-            return
-        if (
-            t < self.t - self.late_window
-            or t <= self.t_start
-            or not self._steps
-            or t <= self._steps[0].t0
-        ):
-            self.dropped_late[stream] += 1
-            return
-        self._replay_with(item)
+            return inputs.BUFFERED
+        self._watch, self._fate = item[1], inputs.USED
+        try:
+            if not self._steps and self.t == self.t_start and t >= self.t - self.late_window:
+                # Before the first odometry step: applied to the initial state as it is.
+                self._apply(item)
+            elif (
+                t < self.t - self.late_window
+                or t <= self.t_start
+                or not self._steps
+                or t <= self._steps[0].t0
+            ):
+                self.dropped_late[stream] += 1
+                return inputs.DROPPED
+            else:
+                self._replay_with(item)
+            return self._fate
+        finally:
+            self._watch = None
 
-    def add_odometry(self, t: float, u) -> None:
-        """Process one odometry step ``(t_prev, t]`` with drive input ``u`` (n,)."""
-        t = float(t)
-        u = np.asarray(u, dtype=float)
-        if not (math.isfinite(t) and np.all(np.isfinite(u))):
-            raise InputError(f"odometry at t={t:.6f}: non-finite time or input {u.tolist()}")
+    def add_odometry(self, t: float, u) -> str:
+        """Process one odometry step ``(t_prev, t]`` with drive input ``u`` (n,); returns "used".
+
+        Checked as a reading is (one number per drive input); an exact repeat of the previous
+        step is dropped (``"duplicate"``), another input at the same time is an error.
+        """
+        t, u = inputs.check_odometry(t, u, tuple(self.motion_model.drive.input_names))
         if not t >= self.t:
             raise InputError(
                 f"odometry time {t:.6f} is before the filter time {self.t:.6f}", column="t"
             )
+        if self._duplicates.odometry(t, u):
+            return inputs.DUPLICATE
         due = []
         while self._pending and self._pending[0][0] <= t:
             due.append(self._pending.pop(0))
         self._process_step(self.t, t, u, due)
         self._odom = se2.compose(self._odom, self._increment(u)[0])
+        return inputs.USED
 
     def _store_gyro(self, t: float, wz: float) -> None:
         bisect.insort(self._gyro, (t, wz))
@@ -392,6 +368,8 @@ class Localizer:
         accepted, nis = self.backend.update(model, row)
         if self.monitor.observe(stream, tm, accepted, nis):
             accepted, nis = self._recover(stream, model, row)
+        if item[1] == self._watch:
+            self._fate = inputs.USED if accepted else inputs.REJECTED
         if accepted:
             self.used[stream] += 1
         else:
@@ -464,6 +442,8 @@ class Localizer:
             "dropped_late": {s: n for s, n in self.dropped_late.items() if n},
             "map_to_odom": [float(v) for v in self.map_to_odom()],
         }
+        if self._duplicates.count:
+            extra["duplicates"] = dict(self._duplicates.count)
         if self._gyro_stream is not None:
             extra["gyrodometry_switches"] = int(self.gyro_switches)
         if self._slip_stream is not None:
