@@ -112,11 +112,26 @@ class MotionOptions:
         doc="variance added to each input every step (one number, or one per input)",
         **_NONNEG,
     )
+    k_theta_ds: float | None = option(
+        None,
+        unit="rad^2 per m",
+        doc=(
+            "heading-input variance per metre travelled (increments, twist); null: k[1]^2/k[0], "
+            "the two-wheel robot with the same k (docs/motion.md)"
+        ),
+        **_NONNEG,
+    )
+    var_rate: float | tuple[float, ...] = option(
+        0.0,
+        unit="input^2 per s",
+        doc="variance added to each input per second (filters; one number, or one per input)",
+        **_NONNEG,
+    )
     steer_sigma: float = option(0.01, unit="rad", doc="noise of a steering-angle input", **_NONNEG)
     alphas: tuple[float, float, float, float] | None = option(
         None,
         unit="-",
-        doc="Thrun's velocity-model a1..a4 on variances (twist drive only)",
+        doc="Thrun's velocity-model a1..a4 on variances (twist and increments drives)",
         **_NONNEG,
     )
 

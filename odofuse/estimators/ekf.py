@@ -70,11 +70,20 @@ class FastIncrement:
         self.M = np.asarray(drive.matrix(), dtype=float)
         self.scale = np.abs(np.asarray(drive.travel_scale(), dtype=float))
         safe = np.where(self.scale > 0, self.scale, 1.0)
-        self.k_eff = np.where(self.scale > 0, np.asarray(model.errors.k) / safe, 0.0)
+        # var_i = sum_j K_ij |u_j| + floor_i (+ rate_i dt),
+        # K = (diag(k) + C) diag(scale) / scale_i^2
+        K = np.diag(np.asarray(model.errors.k, dtype=float))
+        if model.errors.cross is not None:
+            K = K + np.asarray(model.errors.cross, dtype=float)
+        K = K * self.scale[None, :] / (safe**2)[:, None]
+        self.K = np.where((self.scale > 0)[:, None], K, 0.0)
         self.floor = np.asarray(model.errors.floor, dtype=float)
+        rate = model.errors.rate
+        self.rate = np.zeros(len(self.floor)) if rate is None else np.asarray(rate, dtype=float)
         self.integrator = model.integrator
-        self._k = self.k_eff.tolist()
+        self._K = self.K.tolist()
         self._f = self.floor.tolist()
+        self._r = self.rate.tolist()
         self._Ml = self.M.tolist()
         self._two = self.M.shape[1] == 2
         rng = np.random.default_rng(0)
@@ -112,12 +121,13 @@ class FastIncrement:
             Jt = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
         return d, Jt + ((1.0, 0.0, 0.0),)
 
-    def __call__(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(delta (3,), J_delta_u (3, n), var_u (n,))`` of one step."""
+    def __call__(self, u, dt: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(delta (3,), J_delta_u (3, n), var_u (n,))`` of one step of ``dt`` seconds."""
         d, Jt = self._increment(*(self.M @ u).tolist())
-        return np.array(d), np.array(Jt) @ self.M, self.k_eff * np.abs(u) + self.floor
+        var = self.K @ np.abs(u) + self.floor + self.rate * dt
+        return np.array(d), np.array(Jt) @ self.M, var
 
-    def terms(self, u) -> tuple[float, float, float, list[list[float]]]:
+    def terms(self, u, dt: float = 0.0) -> tuple[float, float, float, list[list[float]]]:
         """Scalar form for the EKF: ``delta`` as floats and ``G = J_delta_u diag(sigma_u)``.
 
         ``G G^T = J_delta_u Sigma_u J_delta_u^T`` is the body-frame process noise of the step.
@@ -132,10 +142,12 @@ class FastIncrement:
         d, Jt = self._increment(w, vx, vy)
         if self._two:
             # Two inputs (increments, differential, skid-steer): unrolled.
-            k0, k1 = self._k
+            (k00, k01), (k10, k11) = self._K
             f0, f1 = self._f
-            s0 = math.sqrt(k0 * abs(u0) + f0)
-            s1 = math.sqrt(k1 * abs(u1) + f1)
+            r0, r1 = self._r
+            a0, a1 = abs(u0), abs(u1)
+            s0 = math.sqrt(k00 * a0 + k01 * a1 + f0 + r0 * dt)
+            s1 = math.sqrt(k10 * a0 + k11 * a1 + f1 + r1 * dt)
             (r0, r1, r2), (p0, p1, p2), _ = Jt
             G = [
                 [(r0 * m00 + r1 * m10 + r2 * m20) * s0, (r0 * m01 + r1 * m11 + r2 * m21) * s1],
@@ -143,7 +155,11 @@ class FastIncrement:
                 [m00 * s0, m01 * s1],  # the theta row of J_delta_twist is (1, 0, 0)
             ]
             return d[0], d[1], d[2], G
-        sd = [math.sqrt(k * abs(v) + f) for k, v, f in zip(self._k, ul, self._f, strict=True)]
+        au = [abs(v) for v in ul]
+        sd = [
+            math.sqrt(sum(k * a for k, a in zip(row, au, strict=True)) + f + r * dt)
+            for row, f, r in zip(self._K, self._f, self._r, strict=True)
+        ]
         M = self._Ml
         G = [
             [(r[0] * M[0][j] + r[1] * M[1][j] + r[2] * M[2][j]) * sd[j] for j in range(len(sd))]
@@ -204,10 +220,10 @@ class EkfBackend:
         """
         x, P = self.kf.x, self.kf.P
         if self._fast is not None:
-            d0, d1, d2, G = self._fast.terms(u)
+            d0, d1, d2, G = self._fast.terms(u, dt)
         else:
             delta, J = self.model.increment(u)
-            var = self._errors.variances(self._drive, u)
+            var = self._errors.variances(self._drive, u, dt)
             d0, d1, d2 = delta.tolist()
             G = (J * np.sqrt(var)).tolist()
         if noise_scale != 1.0:

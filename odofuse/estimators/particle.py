@@ -149,7 +149,7 @@ class ParticleBackend:
         ``noise_scale`` multiplies the input variances (robust odometry during wheel slip).
         """
         u = np.asarray(u, dtype=float)
-        var = self.model.errors.variances(self.model.drive, u) * noise_scale
+        var = self.model.errors.variances(self.model.drive, u, dt) * noise_scale
         U = u + self.rng.standard_normal((self.N, u.size)) * np.sqrt(var)
         delta, _ = self.model.increment(U)
         if dtheta is not None:

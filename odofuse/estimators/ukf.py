@@ -148,10 +148,10 @@ class UkfBackend:
         ``noise_scale`` multiplies ``Sigma_u`` (robust odometry during wheel slip).
         """
         if self._fast is not None:
-            delta, J, var = self._fast(np.asarray(u, dtype=float))
+            delta, J, var = self._fast(np.asarray(u, dtype=float), dt)
         else:
             delta, J = self.model.increment(u)
-            var = self.model.errors.variances(self.model.drive, u)
+            var = self.model.errors.variances(self.model.drive, u, dt)
         var = var * noise_scale
         if dtheta is not None:
             delta, J = delta.copy(), J.copy()
