@@ -427,6 +427,27 @@ class FilterOptions:
         doc="measurements up to this late are replayed, older dropped",
         **_NONNEG,
     )
+    odometry_calibration: bool = option(
+        False,
+        unit="-",
+        doc=(
+            "estimate the odometry's systematic errors online (increments: ds_scale, "
+            "dtheta_scale, dtheta_bias; differential, skid_steer: wheel_radius_ratio, "
+            "track_width_scale)"
+        ),
+    )
+    odometry_calibration_sigma: tuple[float, ...] | None = option(
+        None,
+        unit="-, -, rad/s",
+        doc="prior sigmas of those states; null: the graph's defaults (docs/filters.md)",
+        **_POSITIVE,
+    )
+    odometry_calibration_walk: tuple[float, ...] | None = option(
+        None,
+        unit="per sqrt(s)",
+        doc="random-walk sigmas of those states; null: 1e-4 (scales), 1e-5 rad/s (bias)",
+        **_NONNEG,
+    )
     nis_window: int = option(
         20,
         unit="readings",

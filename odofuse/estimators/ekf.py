@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from odofuse import se2
 from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
 
@@ -182,6 +183,9 @@ class EkfBackend:
         Random-walk variance per second of each state (0 for the pose block).
     """
 
+    #: Odometry-calibration states (:mod:`odofuse.estimators.odocal`), set by ``assemble``.
+    odo_cal = None
+
     def __init__(self, model, models, x0, P0, walk, options=None) -> None:
         from filterpy.kalman import ExtendedKalmanFilter
 
@@ -218,6 +222,9 @@ class EkfBackend:
         ``var_dtheta`` instead of the wheels' contribution to it. ``noise_scale`` multiplies
         the wheel input variances of the step (robust odometry during wheel slip).
         """
+        if self.odo_cal is not None:
+            self._predict_calibrated(u, dt, dtheta, var_dtheta, noise_scale)
+            return
         x, P = self.kf.x, self.kf.P
         if self._fast is not None:
             d0, d1, d2, G = self._fast.terms(u, dt)
@@ -283,6 +290,44 @@ class EkfBackend:
             Pn[self._diag] += self.walk * dt
         self.kf.x = xn
         self.kf.P = Pn
+
+    def transition(self, x, u, dt, dtheta=None):
+        """Predicted state and its Jacobian ``F`` ``(n, n)`` with odometry calibration.
+
+        ``u' = odo_cal.apply(u, p, dt)`` with ``p`` the calibration states of ``x``; the pose
+        moves by ``delta(u')`` and ``F = [[F_p, F_u du'/dp], [0, I]]``. Also returns ``F_u``
+        (3, n) for the process noise. ``dtheta`` replaces the heading change (gyrodometry).
+        """
+        cal = self.odo_cal
+        idx = list(cal.index)
+        p = x[idx]
+        uc = cal.apply(u, p, dt)
+        delta, J = self.model.increment(uc)
+        if dtheta is not None:
+            delta, J = delta.copy(), J.copy()
+            delta[2], J[2, :] = dtheta, 0.0
+        F_p, J_b = se2.J_compose(x[:3], delta)
+        F_u = J_b @ J
+        F = np.eye(self.n)
+        F[:3, :3] = F_p
+        F[:3, idx] = F_u @ cal.jacobian(u, p, dt)
+        xn = x.copy()
+        xn[:3] = se2.compose(x[:3], delta)
+        return xn, F, F_u, uc
+
+    def _predict_calibrated(self, u, dt, dtheta, var_dtheta, noise_scale) -> None:
+        """General-matrix prediction with odometry-calibration states (:meth:`transition`)."""
+        x, P = self.kf.x, self.kf.P
+        xn, F, F_u, uc = self.transition(x, np.asarray(u, dtype=float), dt, dtheta)
+        var = self._errors.variances(self._drive, uc, dt) * noise_scale
+        Pn = F @ P @ F.T
+        Pn[:3, :3] += (F_u * var) @ F_u.T
+        if dtheta is not None:
+            Pn[2, 2] += var_dtheta
+        if self._has_walk and dt > 0:
+            Pn[self._diag] += self.walk * dt
+        self.kf.x = xn
+        self.kf.P = 0.5 * (Pn + Pn.T)
 
     def increment(self, u) -> tuple[np.ndarray, np.ndarray]:
         """``MotionModel.increment(u)`` (through the fast path when available)."""
