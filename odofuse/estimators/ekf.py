@@ -26,7 +26,6 @@ import math
 
 import numpy as np
 
-from odofuse import se2
 from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
 
@@ -302,24 +301,32 @@ class EkfBackend:
         idx = list(cal.index)
         p = x[idx]
         uc = cal.apply(u, p, dt)
-        delta, J = self.model.increment(uc)
+        delta, J = self.increment(uc)
         if dtheta is not None:
             delta, J = delta.copy(), J.copy()
             delta[2], J[2, :] = dtheta, 0.0
-        F_p, J_b = se2.J_compose(x[:3], delta)
+        # se2.compose / se2.J_compose in scalar form (the filter's hot path)
+        c, s = math.cos(x[2]), math.sin(x[2])
+        dxw, dyw = c * delta[0] - s * delta[1], s * delta[0] + c * delta[1]
+        J_b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         F_u = J_b @ J
         F = np.eye(self.n)
-        F[:3, :3] = F_p
+        F[0, 2], F[1, 2] = -dyw, dxw
         F[:3, idx] = F_u @ cal.jacobian(u, p, dt)
         xn = x.copy()
-        xn[:3] = se2.compose(x[:3], delta)
+        xn[0] += dxw
+        xn[1] += dyw
+        xn[2] = (x[2] + delta[2] + math.pi) % TWO_PI - math.pi
         return xn, F, F_u, uc
 
     def _predict_calibrated(self, u, dt, dtheta, var_dtheta, noise_scale) -> None:
         """General-matrix prediction with odometry-calibration states (:meth:`transition`)."""
         x, P = self.kf.x, self.kf.P
         xn, F, F_u, uc = self.transition(x, np.asarray(u, dtype=float), dt, dtheta)
-        var = self._errors.variances(self._drive, uc, dt) * noise_scale
+        if self._fast is not None:
+            var = self._fast(uc, dt)[2] * noise_scale
+        else:
+            var = self._errors.variances(self._drive, uc, dt) * noise_scale
         Pn = F @ P @ F.T
         Pn[:3, :3] += (F_u * var) @ F_u.T
         if dtheta is not None:
