@@ -261,6 +261,9 @@ def _check_drive(drive: str, geometry: dict, src: str) -> None:
         raise ConfigError(msg, src, f"robot.{hit[0]}" if hit else "robot.drive") from None
 
 
+FILTER_ESTIMATORS = ("ekf", "ukf", "particle")
+
+
 def _check_motion_against_drive(robot: dict, motion: MotionOptions, src: str) -> None:
     """``k_r``/``k_l`` need a left/right drive; a ``k`` list needs one entry per drive input."""
     from odofuse.drives import make_drive
@@ -276,7 +279,7 @@ def _check_motion_against_drive(robot: dict, motion: MotionOptions, src: str) ->
                 src,
                 f"motion.{key}",
             )
-    for key in ("k", "var_floor"):
+    for key in ("k", "var_floor", "var_rate"):
         value = getattr(motion, key)
         if isinstance(value, tuple) and len(value) != len(names):
             raise ConfigError(
@@ -284,10 +287,17 @@ def _check_motion_against_drive(robot: dict, motion: MotionOptions, src: str) ->
                 src,
                 f"motion.{key}",
             )
+    if motion.k_theta_ds is not None and not hasattr(drive, "heading_input"):
+        raise ConfigError(
+            f"applies to the increments and twist drives, not '{robot['drive']}'",
+            src,
+            "motion.k_theta_ds",
+        )
     if motion.alphas is not None:
         if not hasattr(drive, "quadratic_noise"):
             raise ConfigError(
-                f"Thrun's velocity-model alphas need the twist drive, not '{robot['drive']}'",
+                f"Thrun's velocity-model alphas need the increments or twist drive, "
+                f"not '{robot['drive']}'",
                 src,
                 "motion.alphas",
             )
@@ -344,6 +354,14 @@ def config_from_dict(
     robot = _validate_robot(top["robot"], src)
     motion = from_mapping(MotionOptions, top.get("motion"), "motion", src)
     _check_motion_against_drive(robot, motion, src)
+    rates = motion.var_rate if isinstance(motion.var_rate, tuple) else (motion.var_rate,)
+    if max(rates) > 0 and estimator not in FILTER_ESTIMATORS:
+        raise ConfigError(
+            f"the per-second floor is used by the filters ({', '.join(FILTER_ESTIMATORS)}), "
+            f"not by '{estimator}' yet; use var_floor (per step)",
+            src,
+            "motion.var_rate",
+        )
     return RunConfig(
         log=log,
         robot=robot,

@@ -112,11 +112,26 @@ class MotionOptions:
         doc="variance added to each input every step (one number, or one per input)",
         **_NONNEG,
     )
+    k_theta_ds: float | None = option(
+        None,
+        unit="rad^2 per m",
+        doc=(
+            "heading-input variance per metre travelled (increments, twist); null: k[1]^2/k[0], "
+            "the two-wheel robot with the same k (docs/motion.md)"
+        ),
+        **_NONNEG,
+    )
+    var_rate: float | tuple[float, ...] = option(
+        0.0,
+        unit="input^2 per s",
+        doc="variance added to each input per second (filters; one number, or one per input)",
+        **_NONNEG,
+    )
     steer_sigma: float = option(0.01, unit="rad", doc="noise of a steering-angle input", **_NONNEG)
     alphas: tuple[float, float, float, float] | None = option(
         None,
         unit="-",
-        doc="Thrun's velocity-model a1..a4 on variances (twist drive only)",
+        doc="Thrun's velocity-model a1..a4 on variances (twist and increments drives)",
         **_NONNEG,
     )
 
@@ -447,6 +462,27 @@ class FilterOptions:
         DEFAULT_LATE_WINDOW,
         unit="s",
         doc="measurements up to this late are replayed, older dropped",
+        **_NONNEG,
+    )
+    odometry_calibration: bool = option(
+        False,
+        unit="-",
+        doc=(
+            "estimate the odometry's systematic errors online (increments: ds_scale, "
+            "dtheta_scale, dtheta_bias; differential, skid_steer: wheel_radius_ratio, "
+            "track_width_scale)"
+        ),
+    )
+    odometry_calibration_sigma: tuple[float, ...] | None = option(
+        None,
+        unit="-, -, rad/s",
+        doc="prior sigmas of those states; null: the graph's defaults (docs/filters.md)",
+        **_POSITIVE,
+    )
+    odometry_calibration_walk: tuple[float, ...] | None = option(
+        None,
+        unit="per sqrt(s)",
+        doc="random-walk sigmas of those states; null: 1e-4 (scales), 1e-5 rad/s (bias)",
         **_NONNEG,
     )
     nis_window: int = option(

@@ -16,8 +16,11 @@ Integrators (Politecnico slides ``003_73fced8ec7c15fe5.txt``, Modern Robotics 13
 
 Error model (Siegwart & Nourbakhsh ch. 5): each wheel's travel ``ds_i`` has variance
 ``k_i |ds_i|`` (m^2 per m), uncorrelated between wheels; steering inputs have a constant
-variance. ``Sigma_p' = F_p Sigma_p F_p^T + F_u Sigma_u F_u^T``. Velocity inputs (the
-``twist`` drive) may add Thrun's quadratic velocity-model terms (``OdometryErrorModel.quadratic``).
+variance; every input may add a per-step and a per-second floor. Increment and twist inputs
+add a heading variance per metre travelled (:func:`implied_k_theta_ds`), so driving straight
+never claims a perfect heading. ``Sigma_p' = F_p Sigma_p F_p^T + F_u Sigma_u F_u^T``.
+Velocity inputs (the ``twist`` and ``increments`` drives) may add Thrun's quadratic
+velocity-model terms (``OdometryErrorModel.quadratic``).
 Redundant wheels (``wheels_per_side``) are checked against their side mates by
 :func:`side_outliers`.
 """
@@ -98,12 +101,14 @@ def integrate(pose, twist, integrator: str = "exact"):
 class OdometryErrorModel:
     """Per-input variances of one odometry step (Siegwart & Nourbakhsh ch. 5, generalised).
 
-    ``var(u_i) = (k_i |travel_i| ) / scale_i^2 + floor_i`` for wheel inputs (``travel`` in
-    metres, ``scale`` = metres per input unit, the wheel radius for wheel angles), and
-    ``floor_i`` alone for inputs with zero scale (steering angles). With ``quadratic`` (an
-    ``(n, n)`` matrix ``Q``) each variance also gets ``sum_j Q_ij u_j^2``: Thrun, Burgard &
+    ``var(u_i) = (k_i |travel_i| + sum_j C_ij |travel_j|) / scale_i^2 + floor_i + rate_i dt``
+    for wheel inputs (``travel`` in metres, ``scale`` = metres per input unit, the wheel radius
+    for wheel angles), and ``floor_i + rate_i dt`` alone for inputs with zero scale (steering
+    angles). ``C`` (``cross``) carries the distance-driven heading variance of the increment
+    and twist drives (``motion.k_theta_ds``, derived in ``docs/motion.md``). With ``quadratic``
+    (an ``(n, n)`` matrix ``Q``) each variance also gets ``sum_j Q_ij u_j^2``: Thrun, Burgard &
     Fox's velocity motion model (Probabilistic Robotics, Table 5.3, alphas on variances) for
-    the ``twist`` drive, whose inputs are ``v dt`` and ``w dt``.
+    the ``twist`` and ``increments`` drives, whose inputs are ``v dt`` and ``w dt``.
 
     Parameters
     ----------
@@ -113,21 +118,33 @@ class OdometryErrorModel:
         Constant variance per input and step, in the input's units squared.
     quadratic : tuple of tuple of float, optional
         ``Q`` (n x n), dimensionless; default none.
+    cross : tuple of tuple of float, optional
+        ``C`` (n x n, zero diagonal), m^2 per metre of input ``j``'s travel; default none.
+    rate : tuple of float, optional
+        Variance per second of each input (input units squared per s); used where the step's
+        duration ``dt`` is known (the filters); default none.
     """
 
     k: tuple[float, ...]
     floor: tuple[float, ...]
     quadratic: tuple[tuple[float, ...], ...] | None = None
+    cross: tuple[tuple[float, ...], ...] | None = None
+    rate: tuple[float, ...] | None = None
 
-    def variances(self, drive, u) -> np.ndarray:
-        """Input variances, shape ``(..., n)``."""
+    def variances(self, drive, u, dt: float | None = None) -> np.ndarray:
+        """Input variances, shape ``(..., n)``; ``dt`` (s) adds the per-time ``rate`` term."""
         scale = np.asarray(drive.travel_scale(), dtype=float)
         travel = np.abs(drive.travel(u))
         safe = np.where(scale > 0, scale, 1.0)
-        wheel = np.where(scale > 0, np.asarray(self.k) * travel / safe**2, 0.0)
+        lin = np.asarray(self.k) * travel
+        if self.cross is not None:
+            lin = lin + travel @ np.asarray(self.cross).T
+        wheel = np.where(scale > 0, lin / safe**2, 0.0)
         var = wheel + np.asarray(self.floor)
         if self.quadratic is not None:
             var = var + np.square(np.asarray(u, dtype=float)) @ np.asarray(self.quadratic).T
+        if self.rate is not None and dt is not None:
+            var = var + np.asarray(self.rate) * max(float(dt), 0.0)
         return var
 
 
@@ -385,13 +402,46 @@ def dead_reckon(model: MotionModel, pose0, P0, U, with_cov: bool = True):
     return poses, covs
 
 
+def implied_k_theta_ds(k_ds: float, k_dtheta: float) -> float:
+    """Heading variance per metre of the two-wheel robot with the same increment ``k``.
+
+    A differential robot of track ``b`` with ``var(ds_w) = k_w |ds_w|`` per wheel (Siegwart &
+    Nourbakhsh ch. 5, ``004_f4547100a083f338.txt``) has ``ds = (ds_r + ds_l)/2``,
+    ``dtheta = (ds_r - ds_l)/b`` and hence ``var(ds) = k_w (|ds_r| + |ds_l|)/4``,
+    ``var(dtheta) = k_w (|ds_r| + |ds_l|)/b^2`` with ``|ds_r| + |ds_l| = max(2|ds|, b|dtheta|)``.
+    Straight (``dtheta = 0``) that is ``k_ds = k_w/2``; turning on the spot
+    ``k_dtheta = k_w/b``; so ``b = 2 k_ds/k_dtheta`` and the straight-line heading variance per
+    metre is ``2 k_w/b^2 = k_dtheta^2/k_ds``. The sum ``k_theta_ds |ds| + k_dtheta |dtheta|``
+    bounds the max from above and equals it on both limits.
+
+    Parameters
+    ----------
+    k_ds : float
+        m^2 per m.
+    k_dtheta : float
+        rad^2 per rad.
+
+    Returns
+    -------
+    float
+        rad^2 per m; 0 when ``k_dtheta`` is 0.
+    """
+    if k_dtheta == 0.0:
+        return 0.0
+    if k_ds <= 0.0:
+        raise ValueError("motion.k_theta_ds: set it explicitly when k[0] (ds) is 0")
+    return k_dtheta**2 / k_ds
+
+
 def error_model_from_config(drive, motion) -> OdometryErrorModel:
     """Build the error model from the ``motion`` block (:class:`MotionOptions` or a mapping).
 
     Keys: ``k_r``/``k_l`` (differential and skid-steer: right/left wheel), or ``k`` (a number
-    for every wheel input, or a list per input), ``var_floor`` (a number or a list per input),
-    ``steer_sigma`` (rad, steering inputs), ``alphas`` (Thrun's ``[a1, a2, a3, a4]`` on
-    variances, for drives with ``quadratic_noise``: ``twist``); defaults in
+    for every wheel input, or a list per input), ``var_floor`` (a number or a list per input,
+    per step), ``var_rate`` (per second), ``steer_sigma`` (rad, steering inputs),
+    ``k_theta_ds`` (increments and twist: heading variance per metre travelled, default
+    :func:`implied_k_theta_ds`), ``alphas`` (Thrun's ``[a1, a2, a3, a4]`` on variances, for
+    drives with ``quadratic_noise``: ``twist``, ``increments``); defaults in
     :class:`odofuse.declarations.MotionOptions`. ``k_l``/``k_r`` apply to every wheel of that
     side (``wheels_per_side``).
     """
@@ -408,17 +458,41 @@ def error_model_from_config(drive, motion) -> OdometryErrorModel:
             if value is not None:
                 k[sides == side] = float(value)
     floor = np.broadcast_to(np.asarray(motion.var_floor, dtype=float), (n,)).copy()
+    rate = np.broadcast_to(np.asarray(motion.var_rate, dtype=float), (n,)).copy()
     steer_var = float(motion.steer_sigma) ** 2
     floor = np.where(scale > 0, floor, floor + steer_var)
     k = np.where(scale > 0, k, 0.0)
+    cross = None
+    heading = getattr(drive, "heading_input", None)
+    if heading is None:
+        if motion.k_theta_ds is not None:
+            raise ValueError(
+                f"motion.k_theta_ds applies to the increments and twist drives, not "
+                f"'{drive.name}' (its heading variance already grows with wheel travel)"
+            )
+    else:
+        trans = tuple(drive.translation_inputs)
+        kts = motion.k_theta_ds
+        if kts is None:
+            kts = implied_k_theta_ds(float(k[trans[0]]), float(k[heading]))
+        C = np.zeros((n, n))
+        C[heading, list(trans)] = float(kts)
+        cross = tuple(map(tuple, C.tolist()))
     quadratic = None
     if motion.alphas is not None:
         if not hasattr(drive, "quadratic_noise"):
             raise ValueError(
-                f"motion.alphas (Thrun's velocity model) needs the twist drive, not '{drive.name}'"
+                f"motion.alphas (Thrun's velocity model) needs the increments or twist drive, "
+                f"not '{drive.name}'"
             )
         quadratic = tuple(map(tuple, np.asarray(drive.quadratic_noise(motion.alphas)).tolist()))
-    return OdometryErrorModel(tuple(map(float, k)), tuple(map(float, floor)), quadratic)
+    return OdometryErrorModel(
+        tuple(map(float, k)),
+        tuple(map(float, floor)),
+        quadratic,
+        cross,
+        tuple(map(float, rate)) if np.any(rate > 0) else None,
+    )
 
 
 def side_outliers(model: MotionModel, U, n_sigma: float = 3.0) -> np.ndarray:

@@ -23,7 +23,9 @@ def _motion(drive="increments", integrator="exact", k=(1e-3, 1e-4), floor=1e-8, 
     cfg = RunConfig(
         log="x",
         robot={"drive": drive, **geometry},
-        motion={"integrator": integrator, "k": list(k), "var_floor": floor},
+        # k_theta_ds: 0 keeps the pure per-input model these statistics were written for.
+        motion={"integrator": integrator, "k": list(k), "var_floor": floor}
+        | ({"k_theta_ds": 0.0} if drive == "increments" else {}),
     )
     return motion_model_from_config(cfg)
 
@@ -89,7 +91,7 @@ def sim_config(
     return RunConfig(
         log="sim",
         robot={"drive": "increments"},
-        motion={"integrator": "exact", "k": list(k), "var_floor": floor},
+        motion={"integrator": "exact", "k": list(k), "var_floor": floor, "k_theta_ds": 0.0},
         estimator=estimator,
         initial={"sigma": [sigma0, sigma0, sigma0 / 5]},
         sensors={"ranges": ranges},

@@ -8,10 +8,14 @@ Robotics, Table 5.3) and the Siegwart slides. A row's velocity is held until the
 ``u_k = v_k (t_{k+1} - t_k)``: the drive's input is that increment (m, m, rad), and
 ``twist = [w dt, v dt, 0]`` (or ``[w dt, vx dt, vy dt]``).
 
-Noise (``motion.alphas: [a1, a2, a3, a4]``, Thrun Table 5.3, on **variances**):
+Noise (``motion.alphas: [a1, a2, a3, a4]``, Thrun Table 5.3, on **variances**, for both drives:
+an increment ``(ds, dtheta)`` is a twist ``(v dt, w dt)``):
 ``var(v dt) = a1 (v dt)^2 + a2 (w dt)^2`` and ``var(w dt) = a3 (v dt)^2 + a4 (w dt)^2``
 (for the holonomic form ``(v dt)^2 = (vx dt)^2 + (vy dt)^2`` and both ``vx`` and ``vy`` get
 the first law). Thrun's extra final rotation (``a5, a6``) is not modelled.
+
+Both drives name their heading input (``heading_input``) and their translation inputs
+(``translation_inputs``) for the distance-driven heading variance ``motion.k_theta_ds``.
 """
 
 from __future__ import annotations
@@ -23,6 +27,22 @@ import numpy as np
 
 from odofuse.drives.base import _LinearDrive
 from odofuse.errors import ConfigError
+
+
+def thrun_quadratic(alphas, holonomic: bool, who: str) -> np.ndarray:
+    """``Q`` with ``var(u_i) = sum_j Q_ij u_j^2`` from Thrun's ``[a1, a2, a3, a4]`` (variances).
+
+    Inputs ``(v dt, w dt)``, or ``(vx dt, vy dt, w dt)`` when ``holonomic``.
+    """
+    a = np.asarray(alphas, dtype=float)
+    if a.shape != (4,) or not (np.isfinite(a).all() and (a >= 0).all()):
+        raise ConfigError(
+            f"{who}: alphas must be four non-negative numbers, got {alphas!r}", key="alphas"
+        )
+    a1, a2, a3, a4 = a
+    if holonomic:
+        return np.array([[a1, a1, a2], [a1, a1, a2], [a3, a3, a4]])
+    return np.array([[a1, a2], [a3, a4]])
 
 
 @dataclass(frozen=True)
@@ -39,12 +59,18 @@ class Increments(_LinearDrive):
     input_names: ClassVar[tuple[str, ...]] = ("ds", "dtheta")
     input_kinds: ClassVar[tuple[str, ...]] = ("increment", "increment")
     degree_of_mobility: ClassVar[int] = 2
+    heading_input: ClassVar[int] = 1
+    translation_inputs: ClassVar[tuple[int, ...]] = (0,)
 
     def matrix(self) -> np.ndarray:
         return np.array([[0.0, 1.0], [1.0, 0.0], [0.0, 0.0]])
 
     def travel_scale(self) -> np.ndarray:
         return np.ones(2)
+
+    def quadratic_noise(self, alphas) -> np.ndarray:
+        """Thrun's velocity model on ``(ds, dtheta)`` (:func:`thrun_quadratic`)."""
+        return thrun_quadratic(alphas, False, "Increments")
 
 
 @dataclass(frozen=True)
@@ -87,14 +113,14 @@ class Twist(_LinearDrive):
     def travel_scale(self) -> np.ndarray:
         return np.ones(len(self.input_names))
 
+    @property
+    def heading_input(self) -> int:
+        return len(self.input_names) - 1
+
+    @property
+    def translation_inputs(self) -> tuple[int, ...]:
+        return (0, 1) if self.holonomic else (0,)
+
     def quadratic_noise(self, alphas) -> np.ndarray:
         """``Q`` with ``var(u_i) = sum_j Q_ij u_j^2`` from Thrun's ``[a1, a2, a3, a4]``."""
-        a = np.asarray(alphas, dtype=float)
-        if a.shape != (4,) or not (np.isfinite(a).all() and (a >= 0).all()):
-            raise ConfigError(
-                f"Twist: alphas must be four non-negative numbers, got {alphas!r}", key="alphas"
-            )
-        a1, a2, a3, a4 = a
-        if self.holonomic:
-            return np.array([[a1, a1, a2], [a1, a1, a2], [a3, a3, a4]])
-        return np.array([[a1, a2], [a3, a4]])
+        return thrun_quadratic(alphas, self.holonomic, "Twist")

@@ -70,11 +70,20 @@ class FastIncrement:
         self.M = np.asarray(drive.matrix(), dtype=float)
         self.scale = np.abs(np.asarray(drive.travel_scale(), dtype=float))
         safe = np.where(self.scale > 0, self.scale, 1.0)
-        self.k_eff = np.where(self.scale > 0, np.asarray(model.errors.k) / safe, 0.0)
+        # var_i = sum_j K_ij |u_j| + floor_i (+ rate_i dt),
+        # K = (diag(k) + C) diag(scale) / scale_i^2
+        K = np.diag(np.asarray(model.errors.k, dtype=float))
+        if model.errors.cross is not None:
+            K = K + np.asarray(model.errors.cross, dtype=float)
+        K = K * self.scale[None, :] / (safe**2)[:, None]
+        self.K = np.where((self.scale > 0)[:, None], K, 0.0)
         self.floor = np.asarray(model.errors.floor, dtype=float)
+        rate = model.errors.rate
+        self.rate = np.zeros(len(self.floor)) if rate is None else np.asarray(rate, dtype=float)
         self.integrator = model.integrator
-        self._k = self.k_eff.tolist()
+        self._K = self.K.tolist()
         self._f = self.floor.tolist()
+        self._r = self.rate.tolist()
         self._Ml = self.M.tolist()
         self._two = self.M.shape[1] == 2
         rng = np.random.default_rng(0)
@@ -112,12 +121,13 @@ class FastIncrement:
             Jt = ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
         return d, Jt + ((1.0, 0.0, 0.0),)
 
-    def __call__(self, u) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(delta (3,), J_delta_u (3, n), var_u (n,))`` of one step."""
+    def __call__(self, u, dt: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(delta (3,), J_delta_u (3, n), var_u (n,))`` of one step of ``dt`` seconds."""
         d, Jt = self._increment(*(self.M @ u).tolist())
-        return np.array(d), np.array(Jt) @ self.M, self.k_eff * np.abs(u) + self.floor
+        var = self.K @ np.abs(u) + self.floor + self.rate * dt
+        return np.array(d), np.array(Jt) @ self.M, var
 
-    def terms(self, u) -> tuple[float, float, float, list[list[float]]]:
+    def terms(self, u, dt: float = 0.0) -> tuple[float, float, float, list[list[float]]]:
         """Scalar form for the EKF: ``delta`` as floats and ``G = J_delta_u diag(sigma_u)``.
 
         ``G G^T = J_delta_u Sigma_u J_delta_u^T`` is the body-frame process noise of the step.
@@ -132,10 +142,12 @@ class FastIncrement:
         d, Jt = self._increment(w, vx, vy)
         if self._two:
             # Two inputs (increments, differential, skid-steer): unrolled.
-            k0, k1 = self._k
+            (k00, k01), (k10, k11) = self._K
             f0, f1 = self._f
-            s0 = math.sqrt(k0 * abs(u0) + f0)
-            s1 = math.sqrt(k1 * abs(u1) + f1)
+            r0, r1 = self._r
+            a0, a1 = abs(u0), abs(u1)
+            s0 = math.sqrt(k00 * a0 + k01 * a1 + f0 + r0 * dt)
+            s1 = math.sqrt(k10 * a0 + k11 * a1 + f1 + r1 * dt)
             (r0, r1, r2), (p0, p1, p2), _ = Jt
             G = [
                 [(r0 * m00 + r1 * m10 + r2 * m20) * s0, (r0 * m01 + r1 * m11 + r2 * m21) * s1],
@@ -143,7 +155,11 @@ class FastIncrement:
                 [m00 * s0, m01 * s1],  # the theta row of J_delta_twist is (1, 0, 0)
             ]
             return d[0], d[1], d[2], G
-        sd = [math.sqrt(k * abs(v) + f) for k, v, f in zip(self._k, ul, self._f, strict=True)]
+        au = [abs(v) for v in ul]
+        sd = [
+            math.sqrt(sum(k * a for k, a in zip(row, au, strict=True)) + f + r * dt)
+            for row, f, r in zip(self._K, self._f, self._r, strict=True)
+        ]
         M = self._Ml
         G = [
             [(r[0] * M[0][j] + r[1] * M[1][j] + r[2] * M[2][j]) * sd[j] for j in range(len(sd))]
@@ -165,6 +181,9 @@ class EkfBackend:
     walk : ndarray (n,)
         Random-walk variance per second of each state (0 for the pose block).
     """
+
+    #: Odometry-calibration states (:mod:`odofuse.estimators.odocal`), set by ``assemble``.
+    odo_cal = None
 
     def __init__(self, model, models, x0, P0, walk, options=None) -> None:
         from filterpy.kalman import ExtendedKalmanFilter
@@ -202,12 +221,15 @@ class EkfBackend:
         ``var_dtheta`` instead of the wheels' contribution to it. ``noise_scale`` multiplies
         the wheel input variances of the step (robust odometry during wheel slip).
         """
+        if self.odo_cal is not None:
+            self._predict_calibrated(u, dt, dtheta, var_dtheta, noise_scale)
+            return
         x, P = self.kf.x, self.kf.P
         if self._fast is not None:
-            d0, d1, d2, G = self._fast.terms(u)
+            d0, d1, d2, G = self._fast.terms(u, dt)
         else:
             delta, J = self.model.increment(u)
-            var = self._errors.variances(self._drive, u)
+            var = self._errors.variances(self._drive, u, dt)
             d0, d1, d2 = delta.tolist()
             G = (J * np.sqrt(var)).tolist()
         if noise_scale != 1.0:
@@ -267,6 +289,52 @@ class EkfBackend:
             Pn[self._diag] += self.walk * dt
         self.kf.x = xn
         self.kf.P = Pn
+
+    def transition(self, x, u, dt, dtheta=None):
+        """Predicted state and its Jacobian ``F`` ``(n, n)`` with odometry calibration.
+
+        ``u' = odo_cal.apply(u, p, dt)`` with ``p`` the calibration states of ``x``; the pose
+        moves by ``delta(u')`` and ``F = [[F_p, F_u du'/dp], [0, I]]``. Also returns ``F_u``
+        (3, n) for the process noise. ``dtheta`` replaces the heading change (gyrodometry).
+        """
+        cal = self.odo_cal
+        idx = list(cal.index)
+        p = x[idx]
+        uc = cal.apply(u, p, dt)
+        delta, J = self.increment(uc)
+        if dtheta is not None:
+            delta, J = delta.copy(), J.copy()
+            delta[2], J[2, :] = dtheta, 0.0
+        # se2.compose / se2.J_compose in scalar form (the filter's hot path)
+        c, s = math.cos(x[2]), math.sin(x[2])
+        dxw, dyw = c * delta[0] - s * delta[1], s * delta[0] + c * delta[1]
+        J_b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        F_u = J_b @ J
+        F = np.eye(self.n)
+        F[0, 2], F[1, 2] = -dyw, dxw
+        F[:3, idx] = F_u @ cal.jacobian(u, p, dt)
+        xn = x.copy()
+        xn[0] += dxw
+        xn[1] += dyw
+        xn[2] = (x[2] + delta[2] + math.pi) % TWO_PI - math.pi
+        return xn, F, F_u, uc
+
+    def _predict_calibrated(self, u, dt, dtheta, var_dtheta, noise_scale) -> None:
+        """General-matrix prediction with odometry-calibration states (:meth:`transition`)."""
+        x, P = self.kf.x, self.kf.P
+        xn, F, F_u, uc = self.transition(x, np.asarray(u, dtype=float), dt, dtheta)
+        if self._fast is not None:
+            var = self._fast(uc, dt)[2] * noise_scale
+        else:
+            var = self._errors.variances(self._drive, uc, dt) * noise_scale
+        Pn = F @ P @ F.T
+        Pn[:3, :3] += (F_u * var) @ F_u.T
+        if dtheta is not None:
+            Pn[2, 2] += var_dtheta
+        if self._has_walk and dt > 0:
+            Pn[self._diag] += self.walk * dt
+        self.kf.x = xn
+        self.kf.P = 0.5 * (Pn + Pn.T)
 
     def increment(self, u) -> tuple[np.ndarray, np.ndarray]:
         """``MotionModel.increment(u)`` (through the fast path when available)."""

@@ -65,6 +65,10 @@ class _Step:
     n_traj: int  # trajectory length before the step
 
 
+#: Key of the odometry-calibration states in the layout (not a measurement stream).
+ODOMETRY_CALIBRATION = "__odometry_calibration__"
+
+
 class Localizer:
     """Streaming estimator: feed readings one at a time, ask for the pose at any moment.
 
@@ -195,6 +199,9 @@ class Localizer:
         clones = {
             s for m in self.models.values() for s in (m.clones() if hasattr(m, "clones") else {})
         }
+        odo = getattr(self.backend, "odo_cal", None)
+        if odo is not None:
+            index.update(zip(odo.names, odo.index, strict=True))
         x, P = self.backend.mean(), self.backend.cov()
         return {
             s: {"value": float(x[i]), "sigma": float(math.sqrt(max(P[i, i], 0.0)))}
@@ -515,6 +522,7 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
     from types import SimpleNamespace
 
     from odofuse.estimators.common import initial_state
+    from odofuse.estimators.odocal import filter_odometry_calibration
     from odofuse.measurements import measurement_models
     from odofuse.motion import motion_model_from_config
 
@@ -527,10 +535,15 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
     gyro = _gyrodometry(config)
     # With gyrodometry the gyro feeds the prediction and is not a measurement model.
     filt = {s: m for s, m in models.items() if gyro is None or s != gyro[0]}
-    names, index = state_layout(filt)
+    # Odometry calibration states (odofuse.estimators.odocal) are laid out after the sensors'.
+    odo = filter_odometry_calibration(motion, opts, f"options.{estimator}", config.source)
+    extra = {} if odo is None else {ODOMETRY_CALIBRATION: odo}
+    names, index = state_layout({**filt, **extra})
     filt = {s: (m.bind(index) if hasattr(m, "bind") else m) for s, m in filt.items()}
-    x0, Pa, walk = augmented_prior(filt, names, pose0, P0)
+    extra = {k: m.bind(index) for k, m in extra.items()}
+    x0, Pa, walk = augmented_prior({**filt, **extra}, names, pose0, P0)
     backend = make_backend(motion, filt, x0, Pa, walk, opts)
+    backend.odo_cal = extra.get(ODOMETRY_CALIBRATION)
     late = opts.late_window
     if gyro is not None:
         gyro = (gyro[0], gyro[1], float(getattr(models["gyro"], "sigma", 0.0)))

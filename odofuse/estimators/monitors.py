@@ -438,7 +438,7 @@ def step_slip_scale(loc, t0: float, t1: float, u) -> float:
     model = loc.models[loc._slip_stream]
     delta, J = loc._increment(u)
     mm = loc.motion_model
-    var_odo = float((J[2] ** 2) @ mm.errors.variances(mm.drive, u))
+    var_odo = float((J[2] ** 2) @ mm.errors.variances(mm.drive, u, t1 - t0))
     span = t1 - t0
     if loc._bias_idx is not None:
         bias = float(loc.backend.mean()[loc._bias_idx])

@@ -94,6 +94,9 @@ class ParticleBackend:
         into :class:`~odofuse.declarations.ParticleOptions`.
     """
 
+    #: Odometry-calibration states (:mod:`odofuse.estimators.odocal`), set by ``assemble``.
+    odo_cal = None
+
     def __init__(self, model, models, x0, P0, walk, options=None) -> None:
         options = coerce(ParticleOptions, options, "options.particle")
         self.model = model
@@ -149,8 +152,11 @@ class ParticleBackend:
         ``noise_scale`` multiplies the input variances (robust odometry during wheel slip).
         """
         u = np.asarray(u, dtype=float)
-        var = self.model.errors.variances(self.model.drive, u) * noise_scale
+        var = self.model.errors.variances(self.model.drive, u, dt) * noise_scale
         U = u + self.rng.standard_normal((self.N, u.size)) * np.sqrt(var)
+        cal = self.odo_cal
+        if cal is not None:  # each particle's own odometry calibration
+            U = cal.apply(U, self.X[:, list(cal.index)], dt)
         delta, _ = self.model.increment(U)
         if dtheta is not None:
             delta = delta.copy()

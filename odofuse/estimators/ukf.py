@@ -57,6 +57,9 @@ class UkfBackend:
         validated into :class:`UkfOptions`.
     """
 
+    #: Odometry-calibration states (:mod:`odofuse.estimators.odocal`), set by ``assemble``.
+    odo_cal = None
+
     def __init__(self, model, models, x0, P0, walk, options=None) -> None:
         from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
@@ -126,8 +129,14 @@ class UkfBackend:
             return d, J
         return self.model.increment(u)
 
-    @staticmethod
-    def _fx(s, dt, delta=None):
+    def _fx(self, s, dt, delta=None, raw=None):
+        if raw is not None:
+            u, step, dtheta = raw
+            cal = self.odo_cal
+            delta, _ = self.increment(cal.apply(u, s[list(cal.index)], step))
+            if dtheta is not None:
+                delta = delta.copy()
+                delta[2] = dtheta
         c, sn = math.cos(s[2]), math.sin(s[2])
         out = s.copy()
         out[0] = s[0] + c * delta[0] - sn * delta[1]
@@ -147,11 +156,15 @@ class UkfBackend:
 
         ``noise_scale`` multiplies ``Sigma_u`` (robust odometry during wheel slip).
         """
+        cal = self.odo_cal
+        raw = np.asarray(u, dtype=float)
+        if cal is not None:  # the noise at the calibrated input of the mean
+            u = cal.apply(u, self.kf.x[list(cal.index)], dt)
         if self._fast is not None:
-            delta, J, var = self._fast(np.asarray(u, dtype=float))
+            delta, J, var = self._fast(np.asarray(u, dtype=float), dt)
         else:
             delta, J = self.model.increment(u)
-            var = self.model.errors.variances(self.model.drive, u)
+            var = self.model.errors.variances(self.model.drive, u, dt)
         var = var * noise_scale
         if dtheta is not None:
             delta, J = delta.copy(), J.copy()
@@ -167,7 +180,10 @@ class UkfBackend:
         if dt > 0:
             Q[np.diag_indices(self.n)] += self.walk * dt
         self.kf.Q = Q
-        self.kf.predict(dt=dt, delta=delta)
+        if cal is None:
+            self.kf.predict(dt=dt, delta=delta)
+        else:  # each sigma point moves by the increment of its own calibration
+            self.kf.predict(dt=dt, delta=None, raw=(raw, dt, None if dtheta is None else dtheta))
         self.kf.P = 0.5 * (self.kf.P + self.kf.P.T)
         self._fresh = True
 
