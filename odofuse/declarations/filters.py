@@ -1,0 +1,168 @@
+"""Declarations of the recursive estimators' blocks: ``options.dead_reckoning``,
+``options.ekf``, ``options.ukf`` and ``options.particle`` (:class:`FilterOptions` holds the keys
+every filter shares)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from odofuse.declarations.common import _NONNEG, _POSITIVE, DEFAULT_LATE_WINDOW
+from odofuse.options import option
+
+
+@dataclass(frozen=True)
+class DeadReckoningOptions:
+    """``options.dead_reckoning``: the gyro-vs-wheels heading check (when a gyro is logged)."""
+
+    heading_window: float = option(
+        1.0,
+        unit="s",
+        doc="window over which gyro and wheel heading changes are compared",
+        **_POSITIVE,
+    )
+    heading_alpha: float = option(
+        1e-3,
+        unit="-",
+        doc="false-alarm probability of the disagreement test over the run",
+        **_POSITIVE,
+    )
+    bias_sigma: float = option(
+        0.01, unit="rad/s", doc="prior sigma of an unmodelled gyro bias in that test", **_NONNEG
+    )
+
+
+@dataclass(frozen=True)
+class FilterOptions:
+    """Keys of every recursive filter."""
+
+    late_window: float = option(
+        DEFAULT_LATE_WINDOW,
+        unit="s",
+        doc="measurements up to this late are replayed, older dropped",
+        **_NONNEG,
+    )
+    odometry_calibration: bool = option(
+        False,
+        unit="-",
+        doc=(
+            "estimate the odometry's systematic errors online (increments: ds_scale, "
+            "dtheta_scale, dtheta_bias; differential, skid_steer: wheel_radius_ratio, "
+            "track_width_scale)"
+        ),
+    )
+    odometry_calibration_sigma: tuple[float, ...] | None = option(
+        None,
+        unit="-, -, rad/s",
+        doc="prior sigmas of those states; null: the graph's defaults (docs/filters.md)",
+        **_POSITIVE,
+    )
+    odometry_calibration_walk: tuple[float, ...] | None = option(
+        None,
+        unit="per sqrt(s)",
+        doc="random-walk sigmas of those states; null: 1e-4 (scales), 1e-5 rad/s (bias)",
+        **_NONNEG,
+    )
+    nis_window: int = option(
+        20,
+        unit="readings",
+        doc="sliding window of one sensor's readings for the NIS band check",
+        minimum=2,
+    )
+    nis_alpha: float = option(
+        1e-3,
+        unit="-",
+        doc="false-alarm probability of the NIS band over the run (Bonferroni)",
+        **_POSITIVE,
+    )
+    reject_run: int = option(
+        5,
+        unit="readings",
+        doc="consecutive rejections of one stream that mean divergence",
+        minimum=1,
+    )
+    recovery: bool = option(
+        True, unit="-", doc="re-open (inflate the pose covariance) when a stream shows divergence"
+    )
+    max_inflation: float = option(
+        1e6, unit="-", doc="largest pose covariance inflation of one recovery", minimum=1
+    )
+    max_condition: float = option(
+        1e10, unit="-", doc="largest condition number of the pose correlation matrix", minimum=1
+    )
+    growth_factor: float = option(
+        100.0,
+        unit="-",
+        doc="growth of the position sigma over its running minimum reported",
+        minimum=1,
+    )
+    calib_sigmas: float = option(
+        5.0,
+        unit="sigma",
+        doc="distance from its prior of a calibration at its bound",
+        **_POSITIVE,
+    )
+    slip: bool = option(
+        True, unit="-", doc="robust odometry: widen a step's input noise when the gyro disagrees"
+    )
+    slip_gate: float = option(
+        0.999,
+        unit="-",
+        doc="chi-square probability of the per-step gyro-wheel disagreement",
+        minimum=0,
+        maximum=1,
+        exclusive_minimum=True,
+        exclusive_maximum=True,
+    )
+
+
+@dataclass(frozen=True)
+class EkfOptions(FilterOptions):
+    """``options.ekf``: the extended Kalman filter."""
+
+
+@dataclass(frozen=True)
+class UkfOptions(FilterOptions):
+    """``options.ukf``: the unscented Kalman filter (Van der Merwe sigma points)."""
+
+    alpha: float = option(0.5, unit="-", doc="spread of the sigma points", **_POSITIVE)
+    beta: float = option(2.0, unit="-", doc="prior knowledge of the distribution (2: Gaussian)")
+    kappa: float = option(0.0, unit="-", doc="secondary scaling")
+
+
+@dataclass(frozen=True)
+class ParticleOptions(FilterOptions):
+    """``options.particle``: the particle filter."""
+
+    particles: int = option(1000, unit="-", doc="number of particles", minimum=1)
+    seed: int = option(0, unit="-", doc="seed of the filter's random generator", **_NONNEG)
+    resample_threshold: float = option(
+        0.5,
+        unit="-",
+        doc="resample when the effective sample size falls below this fraction",
+        minimum=0,
+        maximum=1,
+    )
+    roughening: float = option(
+        0.1,
+        unit="-",
+        doc="Liu-West kernel width h of the calibration states",
+        minimum=0,
+        maximum=1,
+        exclusive_maximum=True,
+    )
+    regularise: bool = option(
+        True, unit="-", doc="regularised resampling: kernel jitter of the pose after resampling"
+    )
+    bandwidth_scale: float = option(
+        1.0,
+        unit="-",
+        doc="multiplier of Silverman's kernel bandwidth for the pose jitter",
+        **_NONNEG,
+    )
+    min_ess: float = option(
+        0.1,
+        unit="-",
+        doc="a gyro update keeping fewer effective particles moves them instead",
+        minimum=0,
+        maximum=1,
+    )
