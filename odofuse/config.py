@@ -21,6 +21,7 @@ from pathlib import Path
 from odofuse.declarations import (
     ESTIMATOR_OPTIONS,
     EncoderOptions,
+    GraphOptions,
     InitialOptions,
     LogOptions,
     MotionOptions,
@@ -67,6 +68,8 @@ class RunConfig:
         put("sensors", {s: _sensor(s, b, src) for s, b in sensors.items()})
         options = _mapping(self.options, "options", src)
         put("options", {k: estimator_options(k, b, src) for k, b in options.items()})
+        for name in self.options:  # checks across blocks (a graph block and the sensors)
+            self.estimator_options(name)
         enc = (self.robot or {}).get("encoder")
         if enc is not None and not isinstance(enc, EncoderOptions):
             put(
@@ -75,9 +78,17 @@ class RunConfig:
             )
 
     def estimator_options(self, estimator: str | None = None):
-        """The typed options of ``estimator`` (default: this run's), default-filled if absent."""
+        """The typed options of ``estimator`` (default: this run's), default-filled if absent.
+
+        A graph estimator's :class:`~odofuse.declarations.GraphOptions` come resolved for this
+        run (:meth:`~odofuse.declarations.GraphOptions.for_run`: ``robust`` merged with the
+        sensor blocks' own).
+        """
         name = estimator or self.estimator
-        return self.options.get(name) or estimator_options(name, None, self.source)
+        opts = self.options.get(name) or estimator_options(name, None, self.source)
+        if isinstance(opts, GraphOptions):
+            return opts.for_run(name, self.sensors, self.source)
+        return opts
 
 
 def _sensor(stream, block, src: str):

@@ -195,13 +195,13 @@ def test_robust_loss_reduces_injected_outliers():
 
 def test_sensor_block_robust_is_validated_and_overridden_by_options():
     cfg = _config(sensors={"ranges": {"sigma": 0.2, "robust": "tukey"}})
-    assert graph.parse_options(cfg, "smoother").robust["ranges"][0] == "tukey"
+    assert cfg.estimator_options("smoother").robust["ranges"][0] == "tukey"
     cfg = _config(
         sensors={"ranges": {"sigma": 0.2, "robust": "tukey"}}, options={"robust": "huber"}
     )
-    assert graph.parse_options(cfg, "smoother").robust["ranges"][0] == "huber"
+    assert cfg.estimator_options("smoother").robust["ranges"][0] == "huber"
     with pytest.raises(ConfigError) as exc:  # validated once, when the config is built
-        graph.parse_options(_config(sensors={"ranges": {"sigma": 0.2, "robust": "l7"}}), "smoother")
+        _config(sensors={"ranges": {"sigma": 0.2, "robust": "l7"}}).estimator_options("smoother")
     assert exc.value.key == "sensors.ranges.robust"
 
 
@@ -420,9 +420,8 @@ def test_odometry_calibration_recovers_simulated_scales():
     ],
 )
 def test_bad_options_name_the_key(options, key):
-    cfg = _config(sensors={"ranges": {"sigma": 0.2}}, options=options)
-    with pytest.raises(ConfigError) as exc:
-        graph.parse_options(cfg, "smoother")
+    with pytest.raises(ConfigError) as exc:  # validated once, when the config is built
+        _config(sensors={"ranges": {"sigma": 0.2}}, options=options)
     assert exc.value.key == key and exc.value.file == "test.yaml"
 
 
@@ -686,11 +685,10 @@ def test_converged_needs_a_full_window_and_new_measurements():
     ],
 )
 def test_calibration_freeze_option_errors(estimator, freeze, key):
-    cfg = _config(
-        estimator, {"ranges": {"sigma": 0.2, "calibrate": True}}, {"calibration_freeze": freeze}
-    )
-    with pytest.raises(ConfigError) as exc:
-        graph.parse_options(cfg, estimator)
+    with pytest.raises(ConfigError) as exc:  # validated once, when the config is built
+        _config(
+            estimator, {"ranges": {"sigma": 0.2, "calibrate": True}}, {"calibration_freeze": freeze}
+        )
     assert exc.value.key == key and exc.value.file == "test.yaml"
 
 

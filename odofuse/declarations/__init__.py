@@ -42,6 +42,7 @@ from odofuse.declarations.filters import (
     ParticleOptions,
     UkfOptions,
 )
+from odofuse.declarations.graph import GRAPH_ESTIMATORS, SLAM_INITS, GraphOptions
 from odofuse.declarations.run import (
     BLOCK_OPTIONS,
     RUN_OPTIONS,
@@ -76,12 +77,14 @@ __all__ = [
     "DEFAULT_LATE_WINDOW",
     "DOC_FILES",
     "ESTIMATOR_OPTIONS",
+    "GRAPH_ESTIMATORS",
     "GRAPH_STREAM_OPTIONS",
     "INTEGRATORS",
     "ROBUST_DEFAULT_K",
     "ROBUST_KINDS",
     "RUN_OPTIONS",
     "SENSOR_OPTIONS",
+    "SLAM_INITS",
     "STREAM_DEFAULTS",
     "BearingOptions",
     "CompassOptions",
@@ -90,6 +93,7 @@ __all__ = [
     "EncoderOptions",
     "FilterOptions",
     "GpsOptions",
+    "GraphOptions",
     "GyroOptions",
     "InitialOptions",
     "LogOptions",
@@ -117,7 +121,7 @@ __all__ = [
 
 
 #: The docs files whose ``<!-- options:NAME -->`` tables are generated.
-DOC_FILES = ("docs/filters.md", "docs/formats.md")
+DOC_FILES = ("docs/filters.md", "docs/formats.md", "docs/graph.md")
 
 
 def catalogue() -> dict[str, tuple[type, str]]:
@@ -128,8 +132,11 @@ def catalogue() -> dict[str, tuple[type, str]]:
     for stream, cls in GRAPH_STREAM_OPTIONS.items():
         out[f"sensors.{stream}"] = (cls, f"sensors.{stream}")
     for name, cls in ESTIMATOR_OPTIONS.items():
+        if name in GRAPH_ESTIMATORS:
+            continue  # one block for the three: "graph" below
         if cls is not UncheckedOptions and dataclasses.fields(cls):
             out[name] = (cls, f"options.{name}")
+    out["graph"] = (GraphOptions, "options.<estimator>")
     for name, cls in RUN_OPTIONS.items():
         out[name] = (cls, f"options.{name}")
     return out

@@ -14,6 +14,7 @@ from odofuse.declarations.filters import (
     ParticleOptions,
     UkfOptions,
 )
+from odofuse.declarations.graph import GraphOptions
 from odofuse.declarations.run import RUN_OPTIONS
 from odofuse.errors import ConfigError
 from odofuse.options import coerce
@@ -21,9 +22,8 @@ from odofuse.options import coerce
 
 @dataclass(frozen=True)
 class UncheckedOptions:
-    """An estimator block whose keys the estimator itself validates (the graph estimators until
-    their ``GraphOptions`` move to :func:`~odofuse.options.option` fields, and user estimators
-    without ``Options``); ``values`` is the block, read-only."""
+    """The block of a user estimator without ``Options``: its keys are the estimator's to
+    validate; ``values`` is the block, read-only."""
 
     values: Mapping = dataclasses.field(default_factory=lambda: types.MappingProxyType({}))
 
@@ -44,9 +44,9 @@ ESTIMATOR_OPTIONS: dict[str, type] = {
     "ekf": EkfOptions,
     "ukf": UkfOptions,
     "particle": ParticleOptions,
-    "smoother": UncheckedOptions,
-    "isam2": UncheckedOptions,
-    "fixed_lag": UncheckedOptions,
+    "smoother": GraphOptions,
+    "isam2": GraphOptions,
+    "fixed_lag": GraphOptions,
 }
 
 

@@ -26,12 +26,12 @@ The graph is built from the run's single :class:`odofuse.motion.MotionModel` and
 Solvers: batch Levenberg-Marquardt (:func:`run_smoother`), iSAM2 one update per keyframe
 (:func:`run_isam2`) and GTSAM's ``IncrementalFixedLagSmoother`` (:func:`run_fixed_lag`).
 Marginal covariances are converted to the world frame with :func:`odofuse.se2.cov_body_to_world`.
-Options are documented in ``docs/graph.md``.
+The options are :class:`~odofuse.declarations.GraphOptions` (declared with the other blocks in
+:mod:`odofuse.declarations.graph`, validated with the config, documented in ``docs/graph.md``);
+the estimators read them as ``config.estimator_options(estimator)``.
 
 The package is split by role, each module importing only those above it:
 
-``options``
-    :class:`GraphOptions`, :func:`parse_options` (validation of ``options.<estimator>``).
 ``keys``
     GTSAM keys of the variables and the sensor kinds the graph dispatches on.
 ``keyframes``
@@ -56,10 +56,10 @@ The package is split by role, each module importing only those above it:
     :func:`run_isam2` (with the calibration freeze), :func:`run_fixed_lag`.
 """
 
+from odofuse.declarations import GraphOptions
 from odofuse.estimators.graph.calibration import OdometryCalibration, odometry_calibration_for
 from odofuse.estimators.graph.isam2 import run_fixed_lag, run_isam2
 from odofuse.estimators.graph.keyframes import keyframe_times, preintegrate
-from odofuse.estimators.graph.options import GraphOptions, parse_options
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.estimators.graph.slam import slam_initial_landmarks
 from odofuse.estimators.graph.solvers import build_graph, run_smoother
@@ -67,7 +67,6 @@ from odofuse.estimators.graph.solvers import build_graph, run_smoother
 __all__ = [
     "GraphOptions",
     "GraphProblem",
-    "parse_options",
     "keyframe_times",
     "preintegrate",
     "OdometryCalibration",

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse.errors import ConfigError
-from odofuse.estimators.graph.options import nonneg_option
 
 
 @dataclass(frozen=True)
@@ -66,7 +65,8 @@ _ODO_CAL = {
 def odometry_calibration_for(model, value, key, source) -> OdometryCalibration | None:
     """The :class:`OdometryCalibration` of ``options.<est>.odometry_calibration``.
 
-    ``value`` is ``false`` (none), ``true`` (default prior sigmas) or a list of prior sigmas.
+    ``value`` is ``false`` (none), ``true`` (default prior sigmas) or a sequence of prior
+    sigmas (numbers, already checked non-negative by the option declarations).
     """
     if value is False or value is None:
         return None
@@ -79,13 +79,13 @@ def odometry_calibration_for(model, value, key, source) -> OdometryCalibration |
         )
     names, nominal, sigma = _ODO_CAL[name]
     if value is not True:
-        if not isinstance(value, list) or len(value) != len(names):
+        if not isinstance(value, list | tuple) or len(value) != len(names):
             raise ConfigError(
                 f"expected true or {len(names)} prior sigmas for {', '.join(names)}",
                 file=source,
                 key=key,
             )
-        sigma = tuple(nonneg_option(v, f"{key}[{i}]", source) for i, v in enumerate(value))
+        sigma = tuple(float(v) for v in value)
         if min(sigma) <= 0:
             raise ConfigError("prior sigmas must be positive", file=source, key=key)
     return OdometryCalibration(names, nominal, tuple(sigma), name)

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from odofuse import se2
+from odofuse.declarations import ROBUST_DEFAULT_K
 from odofuse.estimators.graph.custom_factors import (
     calibrated_between_factor,
     frozen_calibration_factor,
@@ -22,7 +23,6 @@ from odofuse.estimators.graph.custom_factors import (
 )
 from odofuse.estimators.graph.keys import B, L, X, model_kind
 from odofuse.estimators.graph.loops import STREAM
-from odofuse.estimators.graph.options import ROBUST_DEFAULT_K
 from odofuse.estimators.graph.problem import GraphProblem, Measurement
 
 # Variance (m^2, rad^2) added to every pre-integrated covariance so that a single step of a

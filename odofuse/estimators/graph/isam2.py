@@ -15,11 +15,11 @@ import time
 import numpy as np
 
 from odofuse import se2
+from odofuse.declarations import GraphOptions
 from odofuse.errors import ConfigError
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X, model_kind
-from odofuse.estimators.graph.options import GraphOptions
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.estimators.graph.solvers import (
     finish,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from odofuse import se2
-from odofuse.estimators.graph.options import GraphOptions
+from odofuse.declarations import GraphOptions
 
 
 def keyframe_times(t_odo, U, model, sensor_times, options: GraphOptions) -> np.ndarray:

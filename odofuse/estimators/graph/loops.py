@@ -61,7 +61,7 @@ def loop_block(config) -> dict | None:
 
     ``sigma``: one number (every axis, m and rad) or three ``[x, y, theta]``; it replaces the
     file's covariance by ``diag(sigma^2)``. ``robust`` is read with the other streams'
-    losses by :func:`odofuse.estimators.graph.options.parse_options`.
+    losses by :meth:`odofuse.declarations.GraphOptions.for_run`.
 
     The block is validated with the config (:class:`odofuse.declarations.LoopClosureOptions`).
     """

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from odofuse import se2
+from odofuse.declarations import GraphOptions
 from odofuse.errors import ConfigError
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.graph.calibration import OdometryCalibration, odometry_calibration_for
@@ -28,7 +29,6 @@ from odofuse.estimators.graph.loops import (
     loop_closures,
     loop_times,
 )
-from odofuse.estimators.graph.options import GraphOptions, parse_options
 from odofuse.estimators.graph.slam import log_with_ids, slam_initial_landmarks
 
 LANDMARK_SENSORS = ("BeaconRange", "LandmarkBearing", "LandmarkRangeBearing")
@@ -138,7 +138,7 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
     from odofuse.measurements import measurement_models
     from odofuse.motion import motion_model_from_config
 
-    options = parse_options(config, estimator)
+    options = config.estimator_options(estimator)
     if options.slam and estimator == "fixed_lag":
         raise ConfigError(
             "slam (unknown landmarks) is implemented for the smoother and isam2 only",
