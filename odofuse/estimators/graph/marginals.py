@@ -1,78 +1,50 @@
-"""Marginal covariances of a solved graph that never throw (issue 12, item 4).
+"""Marginal covariances of a solved graph that never throw.
 
-Owns :func:`batch_marginals`: ``gtsam.Marginals`` of the batch solution; when GTSAM refuses the
+Owns :func:`marginal_covariances`: ``gtsam.Marginals`` of the solution; when GTSAM refuses the
 system (``IndeterminantLinearSystemException``: a gauge-free or numerically singular
-information matrix), the marginals of the same graph regularised by a weak prior on every
-variable (:data:`REGULARISER_SIGMA`), and when that fails too, no covariances. Each fallback
-is reported as a :class:`~odofuse.health.Finding` instead of a traceback.
+information matrix), the marginals of the same graph linearised with a weak prior on every
+variable, and when that fails too, no covariances. Each fallback is reported as a
+:class:`~odofuse.health.Finding` (:func:`~odofuse.estimators.graph.health.marginals_finding`)
+instead of a traceback. The batch smoother uses it (iSAM2 and the fixed-lag smoother read
+their own Bayes tree's marginals).
 """
 
 from __future__ import annotations
 
-from odofuse.health import Finding
+import numpy as np
 
-#: Sigma (m, rad, or the calibration state's unit) of the weak prior put on every variable when
-#: the system is indeterminate: a direction no factor determines then gets a variance of about
-#: ``REGULARISER_SIGMA**2``, far above any real one, while determined directions change by a
-#: relative ``sigma_real**2 / REGULARISER_SIGMA**2``.
-REGULARISER_SIGMA = 1e3
+from odofuse.estimators.graph.health import marginals_finding
 
 
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text[:160] + ("..." if len(text) > 160 else "")
+def marginal_covariances(graph, values, keys, dims) -> tuple[dict, list]:
+    """Marginal covariances (GTSAM tangent) of ``keys``, and the findings of a failure.
 
+    ``dims`` maps every variable's key to its tangent dimension.
 
-def _regularised(graph, values):
-    import gtsam
-
-    g = graph.clone()
-    for key in values.keys():
-        kind = chr(gtsam.Symbol(key).chr())
-        if kind == "x":
-            nm = gtsam.noiseModel.Isotropic.Sigma(3, REGULARISER_SIGMA)
-            g.add(gtsam.PriorFactorPose2(key, values.atPose2(key), nm))
-        elif kind in "lb":
-            nm = gtsam.noiseModel.Isotropic.Sigma(2, REGULARISER_SIGMA)
-            g.add(gtsam.PriorFactorPoint2(key, values.atPoint2(key), nm))
-        else:
-            vec = values.atVector(key)
-            nm = gtsam.noiseModel.Isotropic.Sigma(len(vec), REGULARISER_SIGMA)
-            g.add(gtsam.PriorFactorVector(key, vec, nm))
-    return g
-
-
-def batch_marginals(graph, values):
-    """Marginals of ``graph`` at ``values``, regularised or skipped rather than thrown.
-
-    Returns
-    -------
-    marginal_covariance : callable or None
-        ``key -> (d, d) covariance`` in GTSAM's tangent convention (``None``: skipped).
-    findings : list of Finding
-        Empty when ``gtsam.Marginals`` succeeded as is.
+    ``gtsam.Marginals`` is tried first; if the system is indeterminate, again on the graph
+    linearised at ``values`` with a prior of sigma 100 (m, rad, units of the variable) on
+    every variable: a covariance the data determine to sigma ``s`` changes by the fraction
+    ``~(s / 100)^2`` (1e-8 for decimetres), the directions they do not determine get the
+    prior's size instead of an exception (a weaker prior trips GTSAM's own conditioning check).
+    If that fails too, no covariances are returned.
     """
     import gtsam
 
     try:
-        return gtsam.Marginals(graph, values).marginalCovariance, []
+        marginals = gtsam.Marginals(graph, values)
+        return {k: marginals.marginalCovariance(k) for k in keys}, []
     except RuntimeError as exc:
-        first = _one_line(exc)
-    try:
-        m = gtsam.Marginals(_regularised(graph, values), values)
-    except RuntimeError as exc:
-        return None, [
-            Finding(
-                "covariance",
-                f"marginal covariances skipped: GTSAM found the system indeterminate ({first}); "
-                f"regularised: {_one_line(exc)}",
+        detail = str(exc).strip().splitlines()[0][:160]
+    lin = graph.linearize(values)
+    sig = 1e2
+    for key, dim in dims.items():
+        lin.add(
+            gtsam.JacobianFactor(
+                key, np.eye(dim) / sig, np.zeros(dim), gtsam.noiseModel.Unit.Create(dim)
             )
-        ]
-    note = Finding(
-        "covariance",
-        f"GTSAM found the system indeterminate ({first}); covariances are of the graph with a "
-        f"{REGULARISER_SIGMA:g} (m, rad) prior on every variable: a direction no factor "
-        "determines shows a variance near its square",
-        degrades=False,
-    )
-    return m.marginalCovariance, [note]
+        )
+    try:
+        marginals = gtsam.Marginals(lin, values)
+        return {k: marginals.marginalCovariance(k) for k in keys}, [marginals_finding(detail, True)]
+    except RuntimeError:
+        return {}, [marginals_finding(detail, False)]

@@ -29,13 +29,13 @@ from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.health import (
     factor_residuals,
     graph_findings,
-    marginals_finding,
     residual_summary,
     robust_weights,
     solver_findings,
 )
 from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X
+from odofuse.estimators.graph.marginals import marginal_covariances
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.trajectory import EstimateResult, Trajectory
 
@@ -207,40 +207,6 @@ def finish(
     traj = Trajectory(problem.kt.copy(), poses, covs)
     used = {k: int(v) for k, v in fac.used.items()}
     return EstimateResult(estimator, traj, used, dict(problem.rejected), extra, findings)
-
-
-def marginal_covariances(graph, values, keys, dims) -> tuple[dict, list]:
-    """Marginal covariances (GTSAM tangent) of ``keys``, and the findings of a failure.
-
-    ``dims`` maps every variable's key to its tangent dimension.
-
-    ``gtsam.Marginals`` is tried first; if the system is indeterminate, again on the graph
-    linearised at ``values`` with a prior of sigma 100 (m, rad, units of the variable) on
-    every variable: a covariance the data determine to sigma ``s`` changes by the fraction
-    ``~(s / 100)^2`` (1e-8 for decimetres), the directions they do not determine get the
-    prior's size instead of an exception (a weaker prior trips GTSAM's own conditioning check).
-    If that fails too, no covariances are returned.
-    """
-    import gtsam
-
-    try:
-        marginals = gtsam.Marginals(graph, values)
-        return {k: marginals.marginalCovariance(k) for k in keys}, []
-    except RuntimeError as exc:
-        detail = str(exc).strip().splitlines()[0][:160]
-    lin = graph.linearize(values)
-    sig = 1e2
-    for key, dim in dims.items():
-        lin.add(
-            gtsam.JacobianFactor(
-                key, np.eye(dim) / sig, np.zeros(dim), gtsam.noiseModel.Unit.Create(dim)
-            )
-        )
-    try:
-        marginals = gtsam.Marginals(lin, values)
-        return {k: marginals.marginalCovariance(k) for k in keys}, [marginals_finding(detail, True)]
-    except RuntimeError:
-        return {}, [marginals_finding(detail, False)]
 
 
 def build_graph(problem: GraphProblem, fac: Factors | None = None, initial=None):
