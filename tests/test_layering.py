@@ -44,11 +44,15 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
     # wheels.csv into drive inputs and by config to validate the geometry.
     ("robot", False, ("odofuse.drives", "odofuse.encoders")),
     ("io", False, ("odofuse.io",)),
+    # The option declarations (a package: common, run, sensors, filters, graph, estimators) and
+    # the config they validate; the graph estimators' GraphOptions live here, not in graph/.
     (
         "config",
         False,
         ("odofuse.options", "odofuse.declarations", "odofuse.config", "odofuse.log_defaults"),
     ),
+    # Packages by role: motion (integrators, noise, model), measurements (base, absolute, gyro,
+    # landmarks, registry).
     ("models", False, ("odofuse.motion", "odofuse.measurements", "odofuse.frames")),
     ("estimators", False, ("odofuse.estimators",)),
     (
