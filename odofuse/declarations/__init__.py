@@ -42,7 +42,13 @@ from odofuse.declarations.filters import (
     ParticleOptions,
     UkfOptions,
 )
-from odofuse.declarations.graph import GRAPH_ESTIMATORS, SLAM_INITS, GraphOptions
+from odofuse.declarations.graph import (
+    GRAPH_ESTIMATORS,
+    SLAM_INITS,
+    FreezeConvergence,
+    FreezeThresholds,
+    GraphOptions,
+)
 from odofuse.declarations.run import (
     BLOCK_OPTIONS,
     RUN_OPTIONS,
@@ -92,6 +98,8 @@ __all__ = [
     "EkfOptions",
     "EncoderOptions",
     "FilterOptions",
+    "FreezeConvergence",
+    "FreezeThresholds",
     "GpsOptions",
     "GraphOptions",
     "GyroOptions",
@@ -137,6 +145,9 @@ def catalogue() -> dict[str, tuple[type, str]]:
         if cls is not UncheckedOptions and dataclasses.fields(cls):
             out[name] = (cls, f"options.{name}")
     out["graph"] = (GraphOptions, "options.<estimator>")
+    freeze = "options.isam2.calibration_freeze"
+    out["graph.freeze_convergence"] = (FreezeConvergence, freeze)
+    out["graph.freeze_thresholds"] = (FreezeThresholds, freeze)
     for name, cls in RUN_OPTIONS.items():
         out[name] = (cls, f"options.{name}")
     return out

@@ -12,14 +12,13 @@ the run config (the sensor blocks' own ``robust``, the estimator's name). The gr
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 from odofuse.declarations.common import _NONNEG, _POSITIVE, robust_loss
 from odofuse.errors import ConfigError
-from odofuse.options import explicit, option
+from odofuse.options import explicit, from_mapping, option, to_mapping
 
 #: Values of ``slam_init`` (the smoother's initial values of a SLAM problem).
 SLAM_INITS = ("auto", "incremental", "dead_reckoning")
@@ -44,83 +43,62 @@ def robust_option(value, key: str, source: str):
     return robust_loss(value, key, source)
 
 
-def _positive_number(value, key: str, source: str) -> float:
-    """A finite number ``> 0`` (``bool`` refused), for the ``calibration_freeze`` thresholds."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"expected a number, got {value!r}", file=source, key=key)
-    v = float(value)
-    if not (math.isfinite(v) and v >= 0.0):
-        raise ConfigError(f"must be a non-negative number, got {value!r}", file=source, key=key)
-    if v == 0.0:
-        raise ConfigError("must be positive", file=source, key=key)
-    return v
+@dataclass(frozen=True)
+class FreezeThresholds:
+    """``calibration_freeze`` by absolute thresholds: freeze a sensor once every one of its
+    calibration states' marginal sigma is below its threshold."""
+
+    sigma: dict[str, float] = option(
+        unit="state's unit", doc="calibration state -> sigma threshold", **_POSITIVE
+    )
+    check_every: int = option(10, unit="updates", doc="iSAM2 updates between checks", minimum=1)
+
+
+@dataclass(frozen=True)
+class FreezeConvergence:
+    """``calibration_freeze`` by convergence: freeze a sensor once each of its calibration
+    sigmas shrank by less than ``rel_change`` over the last ``window`` s of log time."""
+
+    rel_change: float = option(
+        unit="-",
+        doc="largest relative shrink over the window that counts as converged",
+        minimum=0,
+        maximum=1,
+        exclusive_minimum=True,
+        exclusive_maximum=True,
+    )
+    window: float = option(unit="s", doc="log time over which the shrink is measured", **_POSITIVE)
+    min_time: float = option(
+        0.0, unit="s", doc="log time after the first keyframe before any freeze", **_NONNEG
+    )
+    check_every: int = option(10, unit="updates", doc="iSAM2 updates between checks", minimum=1)
 
 
 def freeze_option(value, key: str, source: str):
     """Validate ``calibration_freeze`` (isam2 only) into one of two read-only forms.
 
-    Absolute thresholds: ``{sigma: {state: positive float}, check_every: n}``.
-    Convergence: ``{rel_change: r, window: W, min_time: T, check_every: n}`` with
-    ``0 < r < 1``, ``W > 0`` s of log time and ``T >= 0`` s (default 0). Exactly one of
-    ``sigma`` and ``rel_change`` must be given; ``check_every`` defaults to 10.
+    Absolute thresholds (:class:`FreezeThresholds`): ``{sigma: {state: threshold},
+    check_every}``; convergence (:class:`FreezeConvergence`): ``{rel_change, window, min_time,
+    check_every}``. Exactly one of ``sigma`` and ``rel_change`` must be given. Returns the
+    validated, default-filled keys as a read-only mapping (the form
+    :mod:`odofuse.estimators.graph.isam2` reads).
     """
     form = "{sigma: {state: threshold}} or {rel_change: r, window: s}"
     if not isinstance(value, Mapping):
         raise ConfigError(f"expected {form}, got {value!r}", source, key)
-    allowed = ("sigma", "rel_change", "window", "min_time", "check_every")
-    bad = set(value) - set(allowed)
-    if bad:
-        raise ConfigError(
-            f"unknown key; allowed: {', '.join(allowed)}", source, f"{key}.{min(bad, key=str)}"
-        )
-    every = value.get("check_every", 10)
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ConfigError(
-            f"expected a positive integer, got {every!r}", source, f"{key}.check_every"
-        )
     if "sigma" in value and "rel_change" in value:
         raise ConfigError(
             "give either sigma (absolute thresholds) or rel_change (convergence), not both",
             source,
             f"{key}.rel_change",
         )
-    if "sigma" in value:
-        for extra in ("window", "min_time"):
-            if extra in value:
-                raise ConfigError("only with rel_change", source, f"{key}.{extra}")
-        if not isinstance(value["sigma"], Mapping):
-            raise ConfigError(
-                f"expected {{state: threshold}}, got {value['sigma']!r}", source, f"{key}.sigma"
-            )
-        sigma = {
-            str(state): _positive_number(v, f"{key}.sigma.{state}", source)
-            for state, v in value["sigma"].items()
-        }
-        return types.MappingProxyType(
-            {"sigma": types.MappingProxyType(sigma), "check_every": every}
-        )
-    if "rel_change" not in value:
+    if "sigma" not in value and "rel_change" not in value:
         raise ConfigError(f"expected {form}, got {value!r}", source, key)
-    rel = value["rel_change"]
-    if isinstance(rel, bool) or not isinstance(rel, int | float) or not 0.0 < rel < 1.0:
-        raise ConfigError(f"must be a fraction in (0, 1), got {rel!r}", source, f"{key}.rel_change")
-    if "window" not in value:
-        raise ConfigError("required with rel_change (s of log time)", source, f"{key}.window")
-    window = _positive_number(value["window"], f"{key}.window", source)
-    min_time = value.get("min_time", 0.0)
-    number = isinstance(min_time, int | float) and not isinstance(min_time, bool)
-    if not (number and math.isfinite(min_time) and min_time >= 0):
-        raise ConfigError(
-            f"must be a non-negative number, got {min_time!r}", source, f"{key}.min_time"
-        )
-    return types.MappingProxyType(
-        {
-            "rel_change": float(rel),
-            "window": window,
-            "min_time": float(min_time),
-            "check_every": every,
-        }
-    )
+    cls = FreezeThresholds if "sigma" in value else FreezeConvergence
+    spec = to_mapping(from_mapping(cls, value, key, source))
+    if "sigma" in spec:
+        spec["sigma"] = types.MappingProxyType(spec["sigma"])
+    return types.MappingProxyType(spec)
 
 
 @dataclass(frozen=True)
