@@ -1,9 +1,10 @@
 """Reading a log folder of CSV files (shared spec section 1) into a validated ``SensorLog``.
 
 Every stream file has a header line and ``t`` (seconds) as its first column; ``map.csv`` holds
-``id, x, y``. Parsing is vectorised (one ``float`` conversion over all cells), so a 10^6-row
-``wheels.csv`` loads in about a second; only when something is wrong does the reader go back
-row by row to name the offending line.
+``id, x, y``. The numbers are parsed by :func:`odofuse.io.csvtable.read_table` (numpy's C
+reader for a plain file; the exact line-by-line path, which names the offending line, for
+anything else); this module owns the checks of each stream's columns and values and the
+repairs.
 
 Bad input (spec section 5) either raises :class:`odofuse.errors.InputError` naming the file, the
 1-based line number (the header is line 1) and the column, or is repaired and counted in
