@@ -269,15 +269,22 @@ def nees_values(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> np.ndarray:
     e = e[:, dims]
     covs = est.covariances[idx][:, dims][:, :, dims]
     covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
-    out = []
-    for ek, pk in zip(e, covs, strict=False):
-        try:
-            ch = np.linalg.cholesky(pk)
-        except np.linalg.LinAlgError:
-            continue
-        y = np.linalg.solve(ch, ek)
-        out.append(float(y @ y))
-    return np.asarray(out)
+    try:  # every covariance positive definite: one batched factorisation and solve
+        ch = np.linalg.cholesky(covs)
+    except np.linalg.LinAlgError:  # find the ones that are, pose by pose
+        ok = np.zeros(len(covs), dtype=bool)
+        ch = np.zeros_like(covs)
+        for k, pk in enumerate(covs):
+            try:
+                ch[k] = np.linalg.cholesky(pk)
+                ok[k] = True
+            except np.linalg.LinAlgError:
+                continue
+        ch, e = ch[ok], e[ok]
+    if len(ch) == 0:
+        return np.empty(0)
+    y = np.linalg.solve(ch, e[:, :, None])[:, :, 0]
+    return (y * y).sum(axis=1)  # the same sums as y @ y per pose
 
 
 def nees(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> float:

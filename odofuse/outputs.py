@@ -11,14 +11,16 @@ half-written file. The picture is :mod:`odofuse.plotting`'s; the whole output fo
 
 from __future__ import annotations
 
+import io
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
 from odofuse.errors import InputError
-from odofuse.io.atomic import atomic_write_text
+from odofuse.io.atomic import atomic_write, atomic_write_text
 from odofuse.se2 import wrap
 from odofuse.trajectory import Trajectory
 
@@ -38,24 +40,83 @@ CSV_HEADER = (
 _COV_IDX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
+#: Rows formatted and written per block: bounds the text held in memory (about 200 bytes a
+#: row) whatever the trajectory's length.
+_ROWS = 1 << 16
+
+
+def _csv_table(traj: Trajectory, rows: slice) -> np.ndarray:
+    """``trajectory.csv`` values of ``rows``, shape (n, 10): t, pose (heading wrapped), cov."""
+    t = traj.t[rows]
+    table = np.empty((len(t), len(CSV_HEADER)))
+    table[:, 0] = t
+    table[:, 1:3] = traj.poses[rows, :2]
+    table[:, 3] = wrap(traj.poses[rows, 2])
+    if traj.covariances is None:
+        table[:, 4:] = np.nan
+    else:
+        cov = traj.covariances[rows]
+        for k, (i, j) in enumerate(_COV_IDX):
+            table[:, 4 + k] = cov[:, i, j]
+    return table
+
+
+def _tum_table(traj: Trajectory, rows: slice) -> np.ndarray:
+    """TUM values of ``rows``, shape (n, 8): t, x, y, z = 0, quaternion of the yaw."""
+    t = traj.t[rows]
+    table = np.zeros((len(t), 8))
+    table[:, 0] = t
+    table[:, 1:3] = traj.poses[rows, :2]
+    table[:, 4:] = yaw_to_quaternion(traj.poses[rows, 2])
+    return table
+
+
+def _write_rows(fh, traj: Trajectory, make, sep: str) -> None:
+    """Write the rows ``make(traj, rows)`` to the text file ``fh`` in blocks of ``_ROWS``,
+    ``%.17g`` per value.
+
+    A column that holds one value throughout a block (TUM's z, qx, qy; absent covariances) is
+    formatted once into that block's row format.
+    """
+    for k in range(0, len(traj), _ROWS):
+        table = make(traj, slice(k, k + _ROWS))
+        bits = table.view(np.int64)  # the same bits: -0.0 and 0.0 print differently
+        same = (bits == bits[:1]).all(axis=0)
+        cells = [f"{float(v):.17g}" if c else "%.17g" for v, c in zip(table[0], same, strict=True)]
+        fmt = sep.join(cells) + "\n"
+        block = table[:, ~same].tolist()
+        fh.write("".join([fmt % tuple(row) for row in block]))
+
+
+def _text(traj: Trajectory, make, sep: str, header: str | None = None) -> str:
+    out = io.StringIO()
+    if header is not None:
+        out.write(header + "\n")
+    _write_rows(out, traj, make, sep)
+    return out.getvalue()
+
+
+def _atomic_table(path, traj: Trajectory, make, sep: str, header: str | None = None) -> Path:
+    """Write a table atomically, block by block (never the whole text in memory)."""
+
+    def write(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+            if header is not None:
+                fh.write(header + "\n")
+            _write_rows(fh, traj, make, sep)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    return atomic_write(path, write)
+
+
 def trajectory_csv_text(traj: Trajectory) -> str:
     """The ``trajectory.csv`` content: one row per pose, covariance in the world frame.
 
     Values use ``%.17g`` (round-trips every float64 exactly); a trajectory without
     covariances gets ``nan`` in the six covariance columns.
     """
-    n = len(traj)
-    cov = traj.covariances
-    covcols = (
-        np.full((n, 6), np.nan)
-        if cov is None
-        else np.stack([cov[:, i, j] for i, j in _COV_IDX], axis=1)
-    )
-    table = np.column_stack([traj.t, traj.poses[:, :2], wrap(traj.poses[:, 2]), covcols])
-    lines = [",".join(CSV_HEADER)]
-    fmt = ",".join(["%.17g"] * len(CSV_HEADER))
-    lines += [fmt % tuple(row) for row in table]
-    return "\n".join(lines) + "\n"
+    return _text(traj, _csv_table, ",", ",".join(CSV_HEADER))
 
 
 def yaw_to_quaternion(theta) -> np.ndarray:
@@ -67,14 +128,12 @@ def yaw_to_quaternion(theta) -> np.ndarray:
 
 def trajectory_tum_text(traj: Trajectory) -> str:
     """The TUM content: ``t x y z qx qy qz qw`` per line, z = 0, yaw quaternion (evo-readable)."""
-    q = yaw_to_quaternion(traj.poses[:, 2])
-    table = np.column_stack([traj.t, traj.poses[:, :2], np.zeros(len(traj)), q])
-    return "".join(" ".join(f"{v:.17g}" for v in row) + "\n" for row in table)
+    return _text(traj, _tum_table, " ")
 
 
 def write_trajectory_csv(path: str | Path, traj: Trajectory) -> Path:
-    """Write ``trajectory.csv`` atomically."""
-    return atomic_write_text(path, trajectory_csv_text(traj))
+    """Write ``trajectory.csv`` atomically (:func:`trajectory_csv_text`, in blocks)."""
+    return _atomic_table(path, traj, _csv_table, ",", ",".join(CSV_HEADER))
 
 
 #: Header of ``landmarks.csv``: SLAM landmark estimates, world frame, covariance in m^2.
@@ -107,8 +166,8 @@ def write_landmarks_csv(path: str | Path, landmarks: dict, covariances: dict | N
 
 
 def write_tum(path: str | Path, traj: Trajectory) -> Path:
-    """Write a TUM trajectory file atomically."""
-    return atomic_write_text(path, trajectory_tum_text(traj))
+    """Write a TUM trajectory file atomically (:func:`trajectory_tum_text`, in blocks)."""
+    return _atomic_table(path, traj, _tum_table, " ")
 
 
 def _json_default(obj):

@@ -1,7 +1,8 @@
 """Pictures of a run: estimate, ground truth, beacons/landmarks and 2-sigma covariance ellipses.
 
 Uses matplotlib's non-interactive Agg backend through the object API (no pyplot state), so it
-works on headless machines and in threads.
+works on headless machines and in threads. Lines longer than :data:`MAX_LINE_POINTS` are
+decimated (:func:`decimate`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ import numpy as np
 
 from odofuse.trajectory import EstimateResult, Trajectory
 
+#: Lines with more points than this are decimated (every k-th point and the last): at the
+#: picture's 880 x 770 pixels nothing is lost, and a 10 h, 50 Hz run draws in a second.
+MAX_LINE_POINTS = 50_000
 #: Mahalanobis radius of the drawn ellipses: 2 sigma in 2-D holds 86.5 % of the probability.
 ELLIPSE_SIGMA = 2.0
 
@@ -44,6 +48,16 @@ def covariance_ellipse(
     a = np.linspace(0.0, 2 * math.pi, points)
     circle = np.stack([np.cos(a), np.sin(a)], axis=1)
     return np.asarray(mean_xy, dtype=float) + n_sigma * (circle * np.sqrt(w)) @ v.T
+
+
+def decimate(n: int, limit: int = MAX_LINE_POINTS) -> slice | np.ndarray:
+    """Indices of the points of an ``n``-point line to draw: all of them up to ``limit``, else
+    every ``ceil(n / limit)``-th point and the last."""
+    if n <= limit:
+        return slice(None)
+    k = -(-n // limit)
+    idx = np.arange(0, n, k)
+    return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
 
 
 def plot_run(
@@ -87,8 +101,16 @@ def plot_run(
     ax = fig.add_subplot(1, 1, 1)
     gt = getattr(log, "groundtruth", None)
     if gt is not None and len(gt):
-        ax.plot(gt["x"], gt["y"], color="0.45", lw=1.2, label="ground truth")
-    ax.plot(traj.poses[:, 0], traj.poses[:, 1], color="tab:blue", lw=1.2, label=f"{name} estimate")
+        keep = decimate(len(gt))
+        ax.plot(gt["x"][keep], gt["y"][keep], color="0.45", lw=1.2, label="ground truth")
+    keep = decimate(len(traj))
+    ax.plot(
+        traj.poses[keep, 0],
+        traj.poses[keep, 1],
+        color="tab:blue",
+        lw=1.2,
+        label=f"{name} estimate",
+    )
     if len(traj):
         ax.plot(*traj.poses[0, :2], "o", color="tab:green", ms=6, label="start")
         ax.plot(*traj.poses[-1, :2], "s", color="tab:red", ms=6, label="end")

@@ -98,7 +98,8 @@ def write_outputs(
             written["csv"] = write_trajectory_csv(tmp / "trajectory.csv", result.trajectory)
             written["tum"] = write_tum(tmp / "trajectory.tum", result.trajectory)
             if named_tum != "trajectory.tum":
-                written["tum_estimator"] = write_tum(tmp / named_tum, result.trajectory)
+                # the same content: copied, not formatted twice
+                written["tum_estimator"] = Path(shutil.copyfile(written["tum"], tmp / named_tum))
             if result.extra.get("landmarks"):
                 written["landmarks"] = write_landmarks_csv(
                     tmp / LANDMARKS_NAME,

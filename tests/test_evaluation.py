@@ -157,3 +157,36 @@ def test_metrics_keys():
     assert m["nees_position_mean"] == pytest.approx(0.04 / 0.04)
     m2 = metrics(res, SensorLog("mem", {}), 0.5)
     assert "ate_rmse_m" not in m2 and m2["repairs"] == {}
+
+
+def test_batched_nees_equals_the_per_pose_loop():
+    """One batched cholesky/solve gives the same bits as pose by pose, skipping the poses
+    whose covariance is not positive definite."""
+    from odofuse.evaluation import associate, nees_values
+    from odofuse.se2 import wrap
+
+    rng = np.random.default_rng(4)
+    n = 300
+    cov = rng.normal(size=(n, 3, 3))
+    cov = cov @ np.swapaxes(cov, 1, 2) * 1e-2
+    t = np.arange(n) * 0.1
+    gt = Trajectory(t, rng.normal(size=(n, 3)))
+    for bad in (False, True):
+        c = cov.copy()
+        if bad:
+            c[::7] = 0.0
+        est = Trajectory(t, gt.poses + rng.normal(size=(n, 3)) * 0.1, c)
+        idx, g = associate(est, gt)
+        e = est.poses[idx] - g
+        e[:, 2] = wrap(e[:, 2])
+        want = []
+        for ek, pk in zip(e, c, strict=True):
+            try:
+                ch = np.linalg.cholesky(0.5 * (pk + pk.T))
+            except np.linalg.LinAlgError:
+                continue
+            y = np.linalg.solve(ch, ek)
+            want.append(float(y @ y))
+        got = nees_values(est, gt)
+        assert got.shape == (n - (43 if bad else 0),)
+        assert np.array_equal(got, np.asarray(want))

@@ -220,3 +220,76 @@ def test_encoder_columns_follow_the_drive(tmp_path):
     s = load_log_for(cfg).streams["wheels"]
     np.testing.assert_allclose(s["wheel"], [0.0, math.pi])
     np.testing.assert_allclose(s["steer"], [0.1, 0.2])
+
+
+# the fast (numpy C reader) and exact (line by line) paths of read_table must agree on every
+# input: the same arrays and line numbers, or the same one-line error
+_TRICKY = [
+    b"t,x\n1,2\n3,4\n",
+    b"t,x\r\n1,2\r\n3,4\r\n",
+    b"t,x\n1,2\n3,4",
+    b"t,x\n1,2\n\n3,4\n",
+    b"t,x\n1,2\n3\n",
+    b"t,x\n1,2\n3,4,5\n",
+    b"t,x\n1,nan\n",
+    b"t,x\n1,1e16\n",
+    b"t,x\n1,1_0\n",
+    b"\xef\xbb\xbft,x\n1,2\n",
+    b"t,x\n1,\xff\n",
+    b"t,x\n1, 2 \n3,\t4\n",
+    b"t,x\n1,2\r3,4\n",
+    b"t,x\n",
+    b"",
+    b"t,t\n1,2\n",
+    b"x,t\n1,2\n",
+    b"t,x\n1,abc\n",
+    b"t,x\n1,2\n3,4\r",
+    b"t,x\n" + b"1,2\n" * 5 + b"1" * 9000 + b"\n",
+    b"t,x\n1,+inf\n",
+    b"t,x\n1,.5\n2,5.\n3,1E3\n",
+    b"t , x \n1,2\n",
+    b"t\n1\n2\n",
+    b"t,x\n1,2\n   \n",
+    b"t,x\n1,2\n,\n",
+    b't,x\n1,"2"\n',
+    b"t,x\n1,0x1\n",
+    b"t,x\n1,True\n",
+    b"t,x\n1,2\x0c\n",
+    b"t,x\n1,2\n3,4\n\n\n",
+]
+
+
+@pytest.mark.parametrize("chunk", [None, 5])
+def test_fast_and_exact_csv_paths_agree(tmp_path, monkeypatch, chunk):
+    from odofuse.io import csvtable
+
+    if chunk:  # chunk and block boundaries inside lines and line breaks
+        monkeypatch.setattr(csvtable, "_CHUNK", chunk)
+        monkeypatch.setattr(csvtable, "_BLOCK", 3)
+    rng = np.random.default_rng(0)
+    cells = ["1", "2.5", "-3e2", " 4 ", "", "nan", "1_0", "x", "1e20", "0.1", "7"]
+    cases = list(_TRICKY)
+    for _ in range(150):
+        rows = [
+            ",".join(rng.choice(cells) for _ in range(rng.integers(1, 4)))
+            for _ in range(rng.integers(1, 6))
+        ]
+        sep, end = rng.choice(["\n", "\r\n"]), rng.choice(["", "\n"])
+        cases.append(("t,a,b\n" + sep.join(rows) + end).encode())
+
+    def outcome(read, *args):
+        try:
+            header, data, lines = read(*args)
+            return header, data.shape, data.tobytes(), lines.tolist()
+        except InputError as exc:
+            return str(exc)
+
+    fast = 0
+    for k, raw in enumerate(cases):
+        p = tmp_path / f"c{k}.csv"
+        p.write_bytes(raw)
+        got = outcome(csvtable.read_table, p, "t")
+        assert got == outcome(csvtable._read_exact, p, str(p), "t"), raw
+        if not isinstance(got, str):
+            fast += csvtable._read_fast(p, str(p), "t") is not None
+    assert fast >= 5  # the fast path did serve the plain files (9 of these cases)

@@ -183,3 +183,36 @@ def test_outputs_get_the_permissions_open_would_give(tmp_path):
     finally:
         os.umask(umask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o644
+
+
+def test_block_writer_equals_per_row_format(tmp_path, monkeypatch):
+    """Blocks, constant columns formatted once (-0.0 vs 0.0 kept apart): the same text as
+    ``%.17g`` per value, row by row."""
+    from odofuse import outputs
+    from odofuse.se2 import wrap
+
+    monkeypatch.setattr(outputs, "_ROWS", 7)
+    rng = np.random.default_rng(3)
+    n = 50
+    poses = rng.normal(size=(n, 3)) * [1e3, 1e-3, 10]
+    poses[10:30] = 0.0
+    poses[12, 0] = -0.0
+    cov = rng.normal(size=(n, 3, 3))
+    cov = cov @ np.swapaxes(cov, 1, 2)
+    cov[:20] = 0.0
+    cov[5] = np.nan
+    traj = Trajectory(np.cumsum(rng.random(n)), poses, cov)
+    rows = np.column_stack(
+        [traj.t, poses[:, :2], wrap(poses[:, 2])]
+        + [cov[:, i, j] for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
+    )
+    want = (
+        ",".join(CSV_HEADER) + "\n" + "".join(",".join(f"{v:.17g}" for v in r) + "\n" for r in rows)
+    )
+    assert outputs.trajectory_csv_text(traj) == want
+    outputs.write_trajectory_csv(tmp_path / "t.csv", traj)
+    assert (tmp_path / "t.csv").read_text() == want
+    half = 0.5 * poses[:, 2]
+    tum = np.column_stack([traj.t, poses[:, :2], np.zeros((n, 3)), np.sin(half), np.cos(half)])
+    want_tum = "".join(" ".join(f"{v:.17g}" for v in r) + "\n" for r in tum)
+    assert outputs.trajectory_tum_text(traj) == want_tum

@@ -1,9 +1,10 @@
 """Reading a log folder of CSV files (shared spec section 1) into a validated ``SensorLog``.
 
 Every stream file has a header line and ``t`` (seconds) as its first column; ``map.csv`` holds
-``id, x, y``. Parsing is vectorised (one ``float`` conversion over all cells), so a 10^6-row
-``wheels.csv`` loads in about a second; only when something is wrong does the reader go back
-row by row to name the offending line.
+``id, x, y``. The numbers are parsed by :func:`odofuse.io.csvtable.read_table` (numpy's C
+reader for a plain file; the exact line-by-line path, which names the offending line, for
+anything else); this module owns the checks of each stream's columns and values and the
+repairs.
 
 Bad input (spec section 5) either raises :class:`odofuse.errors.InputError` naming the file, the
 1-based line number (the header is line 1) and the column, or is repaired and counted in
@@ -31,6 +32,13 @@ from pathlib import Path
 import numpy as np
 
 from odofuse.errors import InputError
+from odofuse.io.csvtable import (  # noqa: F401  (re-exported: the bounds are spec section 5)
+    EXCERPT_CHARS,
+    MAX_LINE_BYTES,
+    MAX_MAGNITUDE,
+    excerpt,
+    read_table,
+)
 from odofuse.io.log import SensorLog, Stream, time_ordered
 from odofuse.se2 import wrap
 
@@ -67,180 +75,10 @@ KEYED_STREAMS = ("ranges", "landmarks")
 #: (``<stream>.conflicting_dropped``), since the log does not say which one is right.
 REPAIR: dict = {"sort": False, "duplicates": "drop_exact"}
 REPAIR_DUPLICATES = ("error", "drop_exact", "keep_first", "drop_conflicting")
-#: Bounds of a CSV file (shared spec section 5): a line longer than this many bytes is an
-#: error (read in chunks of ``_CHUNK`` bytes, so memory stays bounded for a file without line
-#: breaks), and a cell beyond this magnitude is out of range (no physical value in SI units
-#: comes near; a time stamp in nanoseconds since 1970 does).
-MAX_LINE_BYTES = 8192
-MAX_MAGNITUDE = 1e15
-#: Input quoted in a message is cut to this many characters.
-EXCERPT_CHARS = 40
-_CHUNK = 1 << 24
 #: A time gap counts when it exceeds this many median sample intervals.
 GAP_FACTOR = 10.0
 
 _TWO_PI = 2.0 * math.pi
-
-
-def read_table(
-    path: str | Path, first_column: str | None = "t"
-) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
-    """Read a numeric CSV table with a header line.
-
-    Parameters
-    ----------
-    path : str or Path
-        The CSV file.
-    first_column : str or None
-        Required name of the first column (``"t"`` for stream files), or ``None``.
-
-    Returns
-    -------
-    header : tuple of str
-        Column names, stripped of surrounding white space.
-    data : ndarray, shape (N, C)
-        All cells as floats (finite: NaN/inf raise).
-    lines : ndarray of int, shape (N,)
-        1-based line number of each data row in the file (the header is line 1).
-
-    Raises
-    ------
-    InputError
-        Empty file, bad header, a row with too few/many cells, a non-numeric, empty or
-        non-finite cell; the message names file, line and column.
-    """
-    path = Path(path)
-    name = str(path)
-    raw = _read_bounded(path, name)
-    first = raw.split(b"\n", 1)[0]
-    head_text = _decode(first, name, 1, None).removeprefix("\ufeff")
-    text = _decode(raw, name, None, tuple(c.strip() for c in head_text.split(",")))
-    del raw
-    all_lines = text.removeprefix("\ufeff").splitlines()
-    if not all_lines or not all_lines[0].strip():
-        raise InputError("empty file: expected a header line", name, 1)
-    header = tuple(c.strip() for c in all_lines[0].split(","))
-    for j, col in enumerate(header):
-        if not col:
-            raise InputError(f"empty column name in header (column {j + 1})", name, 1)
-        if header.index(col) != j:
-            raise InputError("column named twice in the header", name, 1, col)
-    if first_column is not None and header[0] != first_column:
-        raise InputError(
-            f"first column must be '{first_column}', found '{header[0]}'", name, 1, first_column
-        )
-    ncol = len(header)
-    body = all_lines[1:]
-    keep = [i for i, line in enumerate(body) if line.strip()]
-    if len(keep) != len(body):
-        body = [body[i] for i in keep]
-    lines = np.asarray(keep, dtype=np.int64) + 2
-    counts = np.fromiter((line.count(",") for line in body), dtype=np.int64, count=len(body))
-    bad = np.flatnonzero(counts != ncol - 1)
-    if bad.size:
-        i = int(bad[0])
-        n = int(counts[i]) + 1
-        what = "too few" if n < ncol else "too many"
-        col = header[n] if n < ncol else None
-        raise InputError(
-            f"{what} cells: {n} instead of {ncol} ({excerpt(', '.join(header))})",
-            name,
-            int(lines[i]),
-            col,
-        )
-    if not body:
-        return header, np.empty((0, ncol)), lines
-    joined = ",".join(body)
-    try:
-        if "_" in joined:  # Python's float() reads "1_0" as 10; a CSV number has no "_"
-            raise ValueError("underscore in a number")
-        data = np.array(joined.split(","), dtype=float).reshape(len(body), ncol)
-    except ValueError:
-        _raise_bad_cell(name, header, body, lines)
-        raise  # pragma: no cover - _raise_bad_cell always raises
-    finite = np.isfinite(data)
-    if not finite.all():
-        i, j = np.argwhere(~finite)[0]
-        cell = excerpt(body[i].split(",")[j].strip())
-        raise InputError(f"value {cell!r} is not finite", name, int(lines[i]), header[j])
-    huge = np.abs(data) > MAX_MAGNITUDE
-    if huge.any():
-        i, j = np.argwhere(huge)[0]
-        cell = excerpt(body[i].split(",")[j].strip())
-        hint = " (time stamps must be in seconds)" if j == 0 and first_column == "t" else ""
-        raise InputError(
-            f"value {cell} is out of range (|value| > {MAX_MAGNITUDE:g}){hint}",
-            name,
-            int(lines[i]),
-            header[j],
-        )
-    return header, data, lines
-
-
-def excerpt(text: str, limit: int = EXCERPT_CHARS) -> str:
-    """``text`` cut to ``limit`` characters (with ``...``), for quoting input in a message."""
-    return text if len(text) <= limit else text[:limit] + "..."
-
-
-def _read_bounded(path: Path, name: str) -> bytes:
-    """The file's bytes, refusing a line longer than :data:`MAX_LINE_BYTES` while reading.
-
-    Reads in chunks, so a multi-gigabyte file without line breaks (a sparse file, a binary
-    file) ends after the first chunk instead of being read into memory.
-    """
-    chunks, line, tail = [], 1, 0  # tail: bytes since the last newline
-    with open(path, "rb") as fh:
-        while chunk := fh.read(_CHUNK):
-            arr = np.frombuffer(chunk, dtype=np.uint8)
-            nl = np.flatnonzero(arr == 10)
-            starts = np.concatenate(([-tail - 1], nl))
-            ends = np.concatenate((nl, [len(chunk)]))
-            lengths = ends - starts - 1
-            long = np.flatnonzero(lengths > MAX_LINE_BYTES)
-            if long.size:
-                k = int(long[0])
-                raise InputError(
-                    f"line longer than {MAX_LINE_BYTES} bytes (binary or corrupt file?)",
-                    name,
-                    line + k,
-                )
-            line += nl.size
-            tail = int(lengths[-1])
-            chunks.append(chunk)
-    return b"".join(chunks)
-
-
-def _decode(raw: bytes, name: str, row: int | None, header) -> str:
-    """Decode UTF-8 (BOM allowed); a bad byte raises InputError naming row and column."""
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        at = exc.start
-        start = raw.rfind(b"\n", 0, at) + 1
-        line = row if row is not None else raw.count(b"\n", 0, at) + 1
-        j = raw.count(b",", start, at)
-        col = header[j] if header is not None and line > 1 and j < len(header) else None
-        raise InputError(
-            f"not UTF-8: byte 0x{raw[at]:02x} at byte {at - start + 1} of the line",
-            name,
-            line,
-            col,
-        ) from None
-
-
-def _raise_bad_cell(name: str, header, body, lines) -> None:
-    for i, line in enumerate(body):
-        for j, cell in enumerate(line.split(",")):
-            try:
-                if "_" in cell:
-                    raise ValueError(cell)
-                float(cell)
-            except ValueError:
-                what = (
-                    "empty cell" if not cell.strip() else f"not a number: {excerpt(cell.strip())!r}"
-                )
-                raise InputError(what, name, int(lines[i]), header[j]) from None
-    raise InputError("unreadable numeric data", name)  # pragma: no cover
 
 
 def _check_columns(stream: str, header: tuple[str, ...], name: str) -> None:
