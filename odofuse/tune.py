@@ -294,7 +294,12 @@ def tune(
         r = set_values(raw, keys, values)
         return config_from_dict(r, config.source, Path(config.source).parent), r
 
+    seen: dict = {}
+
     def nll(theta, bounded=True):
+        key = tuple(np.asarray(theta, dtype=float).tolist())
+        if key in seen:  # Nelder-Mead starts from the start values already evaluated
+            return seen[key]
         if bounded and (time.perf_counter() - clock > max_seconds):
             raise _Bound("time bound")
         if bounded and count["n"] >= max_evaluations:
@@ -305,6 +310,7 @@ def tune(
         f = -total if math.isfinite(total) and n else math.inf
         if f < best["f"]:
             best.update(f=f, x=np.array(theta, dtype=float))
+        seen[key] = f
         show(
             f"tune: run {count['n']:4d}  -loglik {f:12.2f}  best {best['f']:12.2f}  "
             f"{time.perf_counter() - clock:6.0f} s"
