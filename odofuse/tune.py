@@ -409,6 +409,8 @@ def tune_config(path, out=None, keys=None, **kw) -> tuple[TuneResult, Path]:
     path = Path(path)
     config = load_config(path)
     raw = parse_yaml(decode_utf8(path.read_bytes(), str(path)), str(path))
+    for key in keys or default_keys(raw):
+        get_value(raw, key)  # a bad key fails before the log is read
     log = load_log_for(config, groundtruth=False)
     res = tune(config, raw, log, keys, **kw)
     out = Path(out) if out is not None else path.with_name(f"{path.stem}-tuned.yaml")
