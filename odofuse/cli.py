@@ -315,6 +315,33 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+# -------------------------------------------------------------------------------------- tune
+def _tune_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", help="run config (YAML) whose noise numbers are learned from its log")
+    p.add_argument("-o", "--out", help="tuned config to write (default CONFIG-tuned.yaml)")
+    p.add_argument(
+        "--params", nargs="+", help="dotted keys (default: k's and sigmas), docs/tune.md"
+    )
+    p.add_argument("--max-seconds", type=float, default=600.0, help="time bound (default 600)")
+    p.add_argument("--fit-fraction", type=float, default=2 / 3, help="share fitted (default 2/3)")
+
+
+@command("tune", _tune_args)
+def cmd_tune(args: argparse.Namespace) -> int:
+    """Learn noise parameters from the log by innovation likelihood (never ground truth)."""
+    from odofuse.tune import report_lines, tune_config
+
+    res, out = tune_config(
+        args.config,
+        args.out,
+        args.params,
+        max_seconds=args.max_seconds,
+        fit_fraction=args.fit_fraction,
+    )
+    print("\n".join(report_lines(res) + [f"tuned config: {out}"]))
+    return 0
+
+
 # ----------------------------------------------------------------------------------- options
 def _options_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("name", nargs="?", help="a block (motion, sensors.gps, ekf, ...); omitted: all")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -260,30 +261,51 @@ def test_covariance_stays_symmetric_positive_definite_over_a_million_steps():
 
 
 # ------------------------------------------------------------------------------ Plaza1
-def _plaza_rmse(estimator):
+@functools.cache
+def _plaza_rmse(estimator, config=None, log_name="builtin:plaza1"):
+    """Position RMSE, result and log of ``configs/<config>`` (default ``plaza1-<estimator>``)
+    run unchanged but for ``log:`` on ``log_name``; cached (several tests share a run)."""
+    import pathlib
+
     from odofuse.config import load_config
+    from odofuse.estimators import get_estimator
     from odofuse.io.builtin import load_builtin
 
-    log = load_builtin("builtin:plaza1")
-    cfg = load_config(f"configs/plaza1-{estimator}.yaml")
-    from odofuse.estimators import get_estimator
-
-    res = get_estimator(estimator)(log, cfg)
+    root = pathlib.Path(__file__).resolve().parents[1]
+    log = load_builtin(log_name)
+    cfg = load_config(root / "configs" / (config or f"plaza1-{estimator}.yaml"))
+    res = get_estimator(estimator)(log, dataclasses.replace(cfg, log=log_name))
     tr, gt = res.trajectory, log.groundtruth
     gx, gy = np.interp(tr.t, gt.t, gt["x"]), np.interp(tr.t, gt.t, gt["y"])
     rmse = math.sqrt(np.mean((tr.poses[:, 0] - gx) ** 2 + (tr.poses[:, 1] - gy) ** 2))
     return rmse, res, log
 
 
-def test_plaza1_ekf_rmse_at_most_30_cm(monkeypatch):
-    import pathlib
-
-    monkeypatch.chdir(pathlib.Path(__file__).resolve().parents[1])
-    rmse, res, log = _plaza_rmse("ekf")
+def test_plaza1_ekf_rmse_at_most_30_cm():
+    # The hand-written Plaza1-only config (the reference of issue 11's 1.3x target).
+    rmse, res, log = _plaza_rmse("ekf", "handtuned-plaza1-ekf.yaml")
     assert rmse <= 0.30
     # The ranges' systematic scale error (~7 %) is learnt, not absorbed into the pose.
     assert 1.03 < res.extra["calibration"]["range_scale"]["value"] < 1.10
     assert res.used["ranges"] + res.rejected["ranges"] == len(log.streams["ranges"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("log_name", ["builtin:plaza1", "builtin:plaza2"])
+def test_one_plaza_ekf_config_serves_both_runs(log_name):
+    # configs/plaza1-ekf.yaml with only log: changed (issue 11). Plaza1: within 1.3x of the
+    # hand-written Plaza1-only config. Plaza2 has no hand-tuned reference (tuning on it would
+    # be the one-log pattern again): pinned near its measured 0.328 m, against 0.71 m (NEES
+    # 7.4) for the Plaza1-only config there. Position NEES within 0.5-2x its dimension.
+    from odofuse.evaluation import metrics
+
+    rmse, res, log = _plaza_rmse("ekf", None, log_name)
+    if log_name == "builtin:plaza1":
+        assert rmse <= 1.3 * _plaza_rmse("ekf", "handtuned-plaza1-ekf.yaml")[0]
+    else:
+        assert rmse <= 0.35
+    assert 1.0 <= metrics(res, log)["nees_position_mean"] <= 4.0
+    assert 1.03 < res.extra["calibration"]["range_scale"]["value"] < 1.10
 
 
 def test_gps_with_lever_arm_and_compass_end_to_end():

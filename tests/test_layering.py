@@ -60,7 +60,7 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
         True,
         ("odofuse.evaluation", "odofuse.outputs", "odofuse.outputs_ros", "odofuse.plotting"),
     ),
-    ("run folder", False, ("odofuse.rundir",)),
+    ("run folder", False, ("odofuse.rundir", "odofuse.tune")),
     ("fleet", False, ("odofuse.batch",)),
     ("command line", False, ("odofuse.cli", "odofuse.__main__")),
     # May import anything; imported only by itself and by odofuse.cli (see TEACHING_USERS).

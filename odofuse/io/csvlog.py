@@ -340,6 +340,7 @@ def read_csv_log(
     encoder: dict | None = None,
     gap_factor: float = GAP_FACTOR,
     repair: dict | None = None,
+    groundtruth: bool = True,
 ) -> SensorLog:
     """Read a log folder (shared spec section 1).
 
@@ -358,6 +359,8 @@ def read_csv_log(
         Time gaps above this many median sample intervals are counted as ``<stream>.gaps``.
     repair : dict, optional
         Repair policy ``{sort, duplicates}`` for every stream file (:data:`REPAIR`).
+    groundtruth : bool
+        False: ``groundtruth.csv`` is not opened at all (``odofuse tune`` must never see it).
 
     Returns
     -------
@@ -370,9 +373,10 @@ def read_csv_log(
     landmarks = read_map(folder / "map.csv") if (folder / "map.csv").exists() else {}
     ids = set(landmarks) if landmarks else None
     streams: dict[str, Stream] = {}
+    skip = {"map.csv"} if groundtruth else {"map.csv", "groundtruth.csv"}
     groundtruth = None
     for path in sorted(folder.glob("*.csv")):
-        if path.name == "map.csv":
+        if path.name in skip:
             continue
         stream = path.stem
         s = read_stream(

@@ -76,6 +76,7 @@ def load_log(
     topics: dict | None = None,
     repair: dict | None = None,
     joints: dict | None = None,
+    groundtruth: bool = True,
 ) -> SensorLog:
     """Load a log from ``builtin:NAME``, a CSV folder, a ROS bag/MCAP or a GTSAM text file.
 
@@ -93,11 +94,19 @@ def load_log(
         CSV repair policy ``{sort: bool, duplicates: str}`` (:data:`odofuse.io.csvlog.REPAIR`).
     joints : dict, optional
         ``{drive input: JointState joint name}`` for bags.
+    groundtruth : bool
+        False: the log comes without ground truth (a CSV folder's ``groundtruth.csv`` is not
+        even read; other formats drop it after reading).
 
     Returns
     -------
     SensorLog
     """
+    log = _load_log(spec, base_dir, encoder, topics, repair, joints, groundtruth)
+    return log if groundtruth else dataclasses.replace(log, groundtruth=None)
+
+
+def _load_log(spec, base_dir, encoder, topics, repair, joints, groundtruth) -> SensorLog:
     s = str(spec)
     if s.startswith("builtin:"):
         from odofuse.io.builtin import load_builtin
@@ -112,7 +121,7 @@ def load_log(
     if kind == "csv":
         from odofuse.io.csvlog import read_csv_log
 
-        return read_csv_log(path, encoder=encoder, repair=repair)
+        return read_csv_log(path, encoder=encoder, repair=repair, groundtruth=groundtruth)
     if repair:
         raise InputError("log.repair applies to CSV log folders only", str(path))
     if kind == "bag":
@@ -132,14 +141,15 @@ def load_log(
     return read_gtsam_text(path)
 
 
-def load_log_for(config) -> SensorLog:
+def load_log_for(config, groundtruth: bool = True) -> SensorLog:
     """Load the log named by a :class:`odofuse.config.RunConfig` (its encoder block and topics).
 
     When the robot has an ``encoder`` block without ``columns``, the encoder columns of
     ``wheels.csv`` are the drive's inputs of kind ``"wheel"`` (steering angles stay radians).
     With ``log.wheel_inputs: velocity`` those columns hold wheel speeds (rad/s; ticks/s with
     an encoder block; JointState ``velocity`` in a bag) and are integrated once here into
-    cumulative angles, see :func:`integrate_wheel_velocities`.
+    cumulative angles, see :func:`integrate_wheel_velocities`. ``groundtruth=False``: see
+    :func:`load_log`.
     """
     robot = dict(config.robot or {})
     options = config.log_options or {}
@@ -176,6 +186,7 @@ def load_log_for(config) -> SensorLog:
         topics=options.get("topics"),
         repair=options.get("repair"),
         joints=options.get("joints"),
+        groundtruth=groundtruth,
     )
     if velocity and "wheels" in log.streams:
         wheels = integrate_wheel_velocities(log.streams["wheels"], cols)

@@ -1,0 +1,469 @@
+"""``odofuse tune``: noise parameters learned from the log itself, never from ground truth.
+
+This module owns the tuning criterion, the optimiser loop and the tuned config file.
+
+Criterion: the EKF's prediction-error decomposition of the likelihood. For every measurement
+update with innovation ``y`` and innovation covariance ``S`` (dimension ``d``) the log-likelihood
+is ``-(log det(2 pi S) + y^T S^-1 y) / 2``; their sum over the updates is exactly the
+log-likelihood of the measurements given the noise parameters (Gaussian, linearised). An
+update rejected by the sensor's gate contributes with its NIS capped at the gate, so that
+shrinking a sigma until readings are rejected does not pay (a trimmed likelihood, robust to
+the outliers the gate is for).
+
+The parameters (dotted config keys such as ``motion.k[0]``, ``motion.k_theta_ds``,
+``sensors.ranges.sigma``) are optimised in log space by Nelder-Mead on the first part of the
+log (default two thirds, by time); the held-out rest is scored with the learned and the
+starting values (mean log-likelihood per update, NIS per dimension per sensor, expected 1).
+The uncertainty of each learned value is the inverse of the numerical Hessian of the negative
+log-likelihood in log space (central differences), i.e. a relative 1-sigma.
+
+Ground truth never enters: :func:`tune_config` loads the log with ``groundtruth=False`` (a
+log folder's ``groundtruth.csv`` is not even opened) and :func:`tune` drops it from a log it
+is given before anything else runs.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from odofuse.errors import ConfigError
+
+#: Default share of the log (by time, from its start) the parameters are fitted on.
+FIT_FRACTION = 2.0 / 3.0
+#: Step of the numerical Hessian, in log-parameter units (a factor e^0.1 = 1.105).
+HESSIAN_STEP = 0.1
+_KEY = re.compile(r"^([A-Za-z_][\w]*(?:\.[A-Za-z_][\w]*)*)(?:\[(\d+)\])?$")
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneResult:
+    """What :func:`tune` learned.
+
+    Attributes
+    ----------
+    keys : tuple of str
+        Dotted config keys tuned.
+    start, values : tuple of float
+        Starting and learned values (the keys' units).
+    log_sigma : tuple of float or None
+        1-sigma of ``log(value)`` from the inverse Hessian (None: not computed or not
+        identifiable); ``value * exp(+-log_sigma)`` is the 1-sigma band.
+    fit_loglik, start_fit_loglik : float
+        Maximised figure: total innovation log-likelihood of the fitted part (learned, start).
+    fit_updates : int
+        Measurement updates in the fitted part.
+    t_split : float
+        End of the fitted part (s, log time); the held-out part is ``t > t_split``.
+    heldout : dict
+        ``{"learned": {...}, "start": {...}}``, each ``{"updates", "mean_loglik", "nis": {stream:
+        NIS/dim}}`` on the held-out part.
+    evaluations : int
+        Filter runs done by the optimiser (and the Hessian).
+    seconds : float
+        Wall time of the whole tuning.
+    stopped : str
+        ``"converged"``, ``"time bound"`` or ``"evaluation bound"``.
+    raw : dict
+        The config mapping with the learned values (what :func:`write_tuned` writes).
+    """
+
+    keys: tuple
+    start: tuple
+    values: tuple
+    log_sigma: tuple
+    fit_loglik: float
+    start_fit_loglik: float
+    fit_updates: int
+    t_split: float
+    heldout: dict
+    evaluations: int
+    seconds: float
+    stopped: str
+    raw: dict
+
+
+class _Bound(Exception):
+    """The time or evaluation bound was reached inside the objective."""
+
+
+# --------------------------------------------------------------------------------------------
+# Config keys
+# --------------------------------------------------------------------------------------------
+
+
+def _locate(raw: dict, key: str):
+    """``(container, index)`` of the dotted ``key`` (``a.b`` or ``a.b[i]``) in ``raw``."""
+    m = _KEY.match(key)
+    if m is None:
+        raise ConfigError(f"'{key}' is not a dotted key such as motion.k[0]", "odofuse tune")
+    parts, index = m.group(1).split("."), m.group(2)
+    node = raw
+    for p in parts[:-1]:
+        node = node.get(p) if isinstance(node, dict) else None
+        if not isinstance(node, dict):
+            raise ConfigError("no such block in the config", "odofuse tune", key)
+    last = parts[-1]
+    if index is None:
+        return node, last
+    seq = node.get(last)
+    if not isinstance(seq, list) or int(index) >= len(seq):
+        raise ConfigError("not a list with that many entries in the config", "odofuse tune", key)
+    return seq, int(index)
+
+
+def get_value(raw: dict, key: str) -> float:
+    """The positive number at ``key`` in the config mapping ``raw``."""
+    node, i = _locate(raw, key)
+    v = node.get(i) if isinstance(node, dict) else node[i]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+        raise ConfigError(
+            "needs a positive number in the config to start from (tuning is in log space)",
+            "odofuse tune",
+            key,
+        )
+    return float(v)
+
+
+def set_values(raw: dict, keys, values) -> dict:
+    """A deep copy of ``raw`` with ``keys`` set to ``values`` (plain floats)."""
+    out = copy.deepcopy(raw)
+    for key, v in zip(keys, values, strict=True):
+        node, i = _locate(out, key)
+        node[i] = float(v)
+    return out
+
+
+def default_keys(raw: dict) -> list[str]:
+    """The noise keys of a config that hold positive numbers: odometry ``k`` (each entry),
+    ``k_r``, ``k_l``, ``k_theta_ds``, ``var_rate``, and every sensor's scalar ``sigma*``."""
+    keys = []
+    motion = raw.get("motion") or {}
+    for name in ("k", "k_r", "k_l", "k_theta_ds", "var_rate"):
+        v = motion.get(name)
+        if isinstance(v, list):
+            keys += [f"motion.{name}[{i}]" for i, x in enumerate(v) if _positive(x)]
+        elif _positive(v):
+            keys.append(f"motion.{name}")
+    for stream, block in (raw.get("sensors") or {}).items():
+        for name, v in (block or {}).items():
+            if name.startswith("sigma") and _positive(v):
+                keys.append(f"sensors.{stream}.{name}")
+    return keys
+
+
+def _positive(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
+
+
+# --------------------------------------------------------------------------------------------
+# The criterion
+# --------------------------------------------------------------------------------------------
+
+
+def innovations(log, config) -> list[tuple[str, float, float, float, int, bool]]:
+    """Run the EKF of ``config`` over ``log`` and return every measurement update.
+
+    Returns
+    -------
+    list of (stream, t, logdet, nis_capped, dim, accepted)
+        One entry per measurement row (the last update of a row replayed after a late
+        arrival or a recovery): ``logdet = log det(2 pi S)``, ``nis_capped =
+        min(y^T S^-1 y, gate)``, ``dim`` its dimension.
+    """
+    from odofuse.estimators.ekf import EkfBackend
+    from odofuse.estimators.localizer import run_with
+    from odofuse.measurements import gate_threshold
+
+    records: dict = {}
+    names: dict = {}
+
+    class Recording(EkfBackend):
+        def update(self, model, row):
+            ok, nis = super().update(model, row)
+            S = np.atleast_2d(self.last_innovation[1])
+            sign, logdet = np.linalg.slogdet(2.0 * math.pi * S)
+            gate = gate_threshold(getattr(model, "gate", None), model.dim)
+            nis_c = min(nis, gate) if math.isfinite(nis) else gate
+            key = (id(model), tuple(row.items()))
+            logdet = logdet if sign > 0 else math.inf
+            records[key] = (names.get(id(model), "?"), row["t"], logdet, nis_c, model.dim, ok)
+            return ok, nis
+
+    def make(model, models, x0, P0, walk, options):
+        names.update({id(m): s for s, m in models.items()})
+        return Recording(model, models, x0, P0, walk, options)
+
+    cfg = dataclasses.replace(config, estimator="ekf")
+    run_with(log, cfg, "ekf", make)
+    return list(records.values())
+
+
+def loglik(records, t_min: float = -math.inf, t_max: float = math.inf) -> tuple[float, int]:
+    """Total innovation log-likelihood and number of updates with ``t_min < t <= t_max``."""
+    total, n = 0.0, 0
+    for _, t, logdet, nis, _, _ in records:
+        if t_min < t <= t_max:
+            total -= 0.5 * (logdet + nis)
+            n += 1
+    return total, n
+
+
+def heldout_summary(records, t_split: float) -> dict:
+    """``{"updates", "mean_loglik", "nis": {stream: mean NIS/dim}}`` of updates after
+    ``t_split`` (NIS capped at the gate, expected 1 per dimension)."""
+    total, n = loglik(records, t_min=t_split)
+    nis: dict = {}
+    for s, t, _, v, d, _ in records:
+        if t > t_split:
+            nis.setdefault(s, []).append(v / d)
+    return {
+        "updates": n,
+        "mean_loglik": total / n if n else None,
+        "nis": {s: float(np.mean(v)) for s, v in sorted(nis.items())},
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Tuning
+# --------------------------------------------------------------------------------------------
+
+
+def tune(
+    config,
+    raw: dict,
+    log,
+    keys=None,
+    fit_fraction: float = FIT_FRACTION,
+    max_seconds: float = 600.0,
+    max_evaluations: int = 400,
+    uncertainty: bool = True,
+    progress=None,
+) -> TuneResult:
+    """Learn the noise parameters ``keys`` of ``config`` from ``log`` by maximum likelihood.
+
+    Parameters
+    ----------
+    config : RunConfig
+        The validated config (its estimator is ignored: the likelihood is the EKF's, with
+        ``options.ekf`` when given).
+    raw : dict
+        The same config as the parsed YAML mapping; the learned values are written into a copy.
+    log : SensorLog
+        The log; its ground truth is dropped before anything runs.
+    keys : sequence of str, optional
+        Dotted keys to tune (default :func:`default_keys`).
+    fit_fraction : float
+        Share of the log's time span fitted (from the start); the rest is held out.
+    max_seconds, max_evaluations : float, int
+        Bounds of the optimiser (the held-out scoring runs after them).
+    uncertainty : bool
+        Compute the numerical Hessian (about ``2 p^2`` more filter runs for ``p`` keys).
+    progress : callable, optional
+        Called with one status line per filter run (default: a line on stderr).
+    """
+    from scipy.optimize import minimize
+
+    from odofuse.config import config_from_dict
+
+    log = dataclasses.replace(log, groundtruth=None)  # never seen from here on
+    keys = tuple(keys or default_keys(raw))
+    if not keys:
+        raise ConfigError(
+            "no positive noise value to tune (motion k, sensor sigmas)", config.source
+        )
+    if not 0.0 < fit_fraction < 1.0:
+        raise ConfigError("must be between 0 and 1", "odofuse tune", "--fit-fraction")
+    start = np.array([get_value(raw, k) for k in keys])
+    t0_log, t1_log = _time_span(log)
+    t_split = t0_log + fit_fraction * (t1_log - t0_log)
+    fit_log = log.window(t0_log, t_split)
+    show = progress or _stderr_line
+    clock = time.perf_counter()
+    best = {"f": math.inf, "x": np.log(start)}
+    count = {"n": 0}
+
+    def config_for(values):
+        r = set_values(raw, keys, values)
+        return config_from_dict(r, config.source, Path(config.source).parent), r
+
+    seen: dict = {}
+
+    def nll(theta, bounded=True):
+        key = tuple(np.asarray(theta, dtype=float).tolist())
+        if key in seen:  # Nelder-Mead starts from the start values already evaluated
+            return seen[key]
+        if bounded and (time.perf_counter() - clock > max_seconds):
+            raise _Bound("time bound")
+        if bounded and count["n"] >= max_evaluations:
+            raise _Bound("evaluation bound")
+        count["n"] += 1
+        cfg, _ = config_for(np.exp(theta))
+        total, n = loglik(innovations(fit_log, cfg))
+        f = -total if math.isfinite(total) and n else math.inf
+        if f < best["f"]:
+            best.update(f=f, x=np.array(theta, dtype=float))
+        seen[key] = f
+        show(
+            f"tune: run {count['n']:4d}  -loglik {f:12.2f}  best {best['f']:12.2f}  "
+            f"{time.perf_counter() - clock:6.0f} s"
+        )
+        return f
+
+    f_start = nll(np.log(start), bounded=False)
+    x0 = np.log(start)
+    simplex = np.vstack([x0] + [x0 + 0.5 * e for e in np.eye(len(keys))])
+    stopped = "converged"
+    try:
+        minimize(
+            nll,
+            x0,
+            method="Nelder-Mead",
+            options={"initial_simplex": simplex, "xatol": 0.01, "fatol": 0.05, "maxfev": 10**6},
+        )
+    except _Bound as exc:
+        stopped = str(exc)
+    x = best["x"]
+    sig = (None,) * len(keys)
+    if uncertainty and stopped == "converged":
+        try:
+            sig = _log_sigma(lambda th: nll(th), x, best["f"])
+        except _Bound as exc:
+            stopped = f"converged; Hessian cut by the {exc}"
+    values = start if np.array_equal(x, np.log(start)) else np.exp(x)
+    cfg, tuned_raw = config_for(values)
+    learned_rec = innovations(log, cfg)
+    start_rec = innovations(log, config_for(start)[0])
+    _, n_fit = loglik(learned_rec, t_max=t_split)
+    if progress is None:
+        sys.stderr.write("\n")
+    return TuneResult(
+        keys=keys,
+        start=tuple(float(v) for v in start),
+        values=tuple(float(v) for v in values),
+        log_sigma=sig,
+        fit_loglik=-best["f"],
+        start_fit_loglik=-f_start,
+        fit_updates=n_fit,
+        t_split=float(t_split),
+        heldout={
+            "learned": heldout_summary(learned_rec, t_split),
+            "start": heldout_summary(start_rec, t_split),
+        },
+        evaluations=count["n"],
+        seconds=time.perf_counter() - clock,
+        stopped=stopped,
+        raw=tuned_raw,
+    )
+
+
+def _time_span(log) -> tuple[float, float]:
+    ts = [s.t for s in log.streams.values() if len(s)]
+    return float(min(t[0] for t in ts)), float(max(t[-1] for t in ts))
+
+
+def _stderr_line(text: str) -> None:
+    sys.stderr.write("\r" + text)
+    sys.stderr.flush()
+
+
+def _log_sigma(f, x, f0: float, h: float = HESSIAN_STEP) -> tuple:
+    """1-sigma of each log-parameter from the inverse central-difference Hessian of ``f``."""
+    p = len(x)
+    E = np.eye(p) * h
+    H = np.empty((p, p))
+    for i in range(p):
+        H[i, i] = (f(x + E[i]) - 2.0 * f0 + f(x - E[i])) / h**2
+        for j in range(i):
+            H[i, j] = H[j, i] = (
+                f(x + E[i] + E[j]) - f(x + E[i] - E[j]) - f(x - E[i] + E[j]) + f(x - E[i] - E[j])
+            ) / (4.0 * h**2)
+    w = np.linalg.eigvalsh(H) if np.all(np.isfinite(H)) else np.array([-1.0])
+    if w.min() <= 0:
+        return (None,) * p  # not a strict optimum in every direction: not identifiable
+    return tuple(float(s) for s in np.sqrt(np.diag(np.linalg.inv(H))))
+
+
+# --------------------------------------------------------------------------------------------
+# Files
+# --------------------------------------------------------------------------------------------
+
+
+def tune_config(path, out=None, keys=None, **kw) -> tuple[TuneResult, Path]:
+    """Tune the config file ``path`` on its own log and write the tuned config.
+
+    The log is loaded without ground truth (:func:`odofuse.io.loader.load_log_for` with
+    ``groundtruth=False``). ``out`` defaults to ``<stem>-tuned.yaml`` beside ``path``; other
+    keywords go to :func:`tune`. Returns the result and the written path.
+    """
+    from odofuse.config import decode_utf8, load_config, parse_yaml
+    from odofuse.io.loader import load_log_for
+
+    path = Path(path)
+    config = load_config(path)
+    raw = parse_yaml(decode_utf8(path.read_bytes(), str(path)), str(path))
+    for key in keys or default_keys(raw):
+        get_value(raw, key)  # a bad key fails before the log is read
+    log = load_log_for(config, groundtruth=False)
+    res = tune(config, raw, log, keys, **kw)
+    out = Path(out) if out is not None else path.with_name(f"{path.stem}-tuned.yaml")
+    write_tuned(res, out, path, config.log)
+    return res, out
+
+
+def report_lines(res: TuneResult) -> list[str]:
+    """The human-readable summary (also the tuned file's header)."""
+    lines = [
+        f"maximised: EKF innovation log-likelihood of the first part of the log (t <= "
+        f"{res.t_split:.2f} s, {res.fit_updates} updates): {res.start_fit_loglik:.2f} at the "
+        f"start values -> {res.fit_loglik:.2f} learned",
+        f"{res.evaluations} filter runs, {res.seconds:.1f} s, stopped: {res.stopped}",
+    ]
+    for k, s, v, sg in zip(res.keys, res.start, res.values, res.log_sigma, strict=True):
+        band = "uncertainty not computed" if sg is None else f"1-sigma x/ {math.exp(sg):.3f}"
+        lines.append(f"  {k}: {v:.4g} ({band}; start {s:.4g})")
+    for name in ("start", "learned"):
+        h = res.heldout[name]
+        ml = "n/a" if h["mean_loglik"] is None else f"{h['mean_loglik']:.4f}"
+        nis = ", ".join(f"{s} {v:.2f}" for s, v in h["nis"].items()) or "-"
+        lines.append(
+            f"held-out (t > {res.t_split:.2f} s, {h['updates']} updates), {name} values: "
+            f"mean log-likelihood per update {ml}, NIS per dimension {nis} (expected 1)"
+        )
+    return lines
+
+
+def write_tuned(res: TuneResult, out, source, log: str) -> Path:
+    """Write the tuned config: a header saying how it was made, then the config mapping.
+
+    ``log`` is written resolved (the tuned file may live in another folder).
+    """
+    import yaml
+
+    from odofuse.io.atomic import atomic_write_text
+
+    raw = copy.deepcopy(res.raw)
+    if isinstance(raw.get("log"), dict):
+        raw["log"]["path"] = log
+    else:
+        raw["log"] = log
+    raw["description"] = (
+        f"Tuned by `odofuse tune {source}` from the log itself (no ground truth): "
+        + "; ".join(
+            f"{k} = {v:.4g}" + ("" if s is None else f" (x/ {math.exp(s):.3f})")
+            for k, v, s in zip(res.keys, res.values, res.log_sigma, strict=True)
+        )
+    )
+    header = [
+        f"Made by `odofuse tune {source}` on {log}; ground truth was not read.",
+        *report_lines(res),
+    ]
+    text = "".join(f"# {h}\n" for h in header) + yaml.safe_dump(raw, sort_keys=False)
+    return atomic_write_text(out, text)
