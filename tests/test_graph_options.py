@@ -62,7 +62,7 @@ PACKAGED = {
             "rel_change": 0.1,
             "window": 300.0,
         },
-        "odometry_calibration": True,
+        "odometry_calibration": False,
         "robust": {"ranges": _HUBER},
     },
     "configs/plaza1-slam.yaml:smoother": {
