@@ -67,23 +67,33 @@ def inflation_factor(y, S, R, dim: int, cap: float) -> float:
     return float(math.exp(hi))
 
 
-def slip_scale(disagreement: float, var_odo: float, var_ref: float, gate: float) -> float:
+def slip_scale(
+    disagreement: float, var_odo: float, var_ref: float, gate: float, run: float = 0.0
+) -> float:
     """Robust odometry: the factor that widens one step's wheel input noise.
 
     ``disagreement`` (rad) is the gyro heading change minus the wheels' over the step,
     ``var_odo`` the wheels' heading variance of the step (rad^2) and ``var_ref`` that of the
     gyro's change (rate noise and bias uncertainty). When the disagreement fails the
     chi-square test ``d^2 > gate (var_odo + var_ref)`` the wheels slipped (the gyrodometry
-    switching rule of ``002_88fc37db58155723.txt``, with a statistical threshold); the
-    returned factor ``d^2 / var_odo`` makes the wheel noise of that step large enough that
-    the disagreement is a one-sigma event (a heavy-tailed odometry model). Else 1.
+    switching rule of ``002_88fc37db58155723.txt``, with a statistical threshold) and the
+    step's wheel noise is widened (a heavy-tailed odometry model). Else 1.
+
+    A slip lasts: the steps of one burst err alike, so their wheel errors are correlated, and
+    widening each step to its own disagreement (``d^2``) would give the burst's accumulated
+    translation error only ``sqrt(n)`` of the ``n`` sigmas it has. ``run`` is the summed
+    disagreement ``D`` of the consecutive slipping steps just before this one; the step gets
+    the variance that makes the run's accumulated wheel variance ``(D + d)^2`` (the summed
+    heading disagreement is a one-sigma event, and so is the translation error the same
+    slip caused), at least ``d^2``: factor ``max(d^2, (D + d)^2 - D^2) / var_odo``.
     """
     if not var_odo > 0.0:
         return 1.0
     d2 = disagreement * disagreement
     if d2 <= gate * (var_odo + var_ref):
         return 1.0
-    return d2 / var_odo
+    total = run + disagreement
+    return max(d2, total * total - run * run) / var_odo
 
 
 # ----------------------------------------------------------------------------- monitor
@@ -419,6 +429,7 @@ def setup_localizer(loc) -> None:
     loc._slip_stream = gyros[0] if on else None
     loc._slip_gate = gate_threshold(loc.options.slip_gate, 1)
     loc.slip_steps = 0
+    loc._slip_runs = {}  # step end time -> summed disagreement of its slip run (rad)
 
 
 def recover(loc, stream, model, row) -> tuple[bool, float]:
@@ -447,9 +458,17 @@ def step_slip_scale(loc, t0: float, t1: float, u) -> float:
         bias, var_b = 0.0, float(getattr(model, "bias_sigma", 0.0)) ** 2
     sigma = float(getattr(model, "sigma", 0.0))
     var_ref = (sigma**2 + var_b) * span**2
-    scale = slip_scale(g - bias * span - float(delta[2]), var_odo, var_ref, loc._slip_gate)
+    d = g - bias * span - float(delta[2])
+    runs = loc._slip_runs
+    run = runs.get(t0, 0.0)
+    scale = slip_scale(d, var_odo, var_ref, loc._slip_gate, run)
     if scale > 1.0:
         loc.slip_steps += 1
+    runs[t1] = run + d if scale > 1.0 else 0.0
+    if len(runs) > 4096:  # keep what a replay inside the late window can still ask for
+        horizon = t1 - loc.late_window - 1.0
+        for key in [k for k in runs if k < horizon]:
+            del runs[key]
     return scale
 
 
