@@ -31,6 +31,27 @@ def test_slip_scale_widens_only_a_disagreement_the_models_cannot_explain():
     assert monitors.slip_scale(0.01, 1e-6, 1e-8, gate) == pytest.approx(100.0)
 
 
+def test_a_sensor_silent_for_most_of_the_run_is_an_outage_that_degrades():
+    from types import SimpleNamespace
+
+    from odofuse.declarations import EkfOptions
+
+    gps = SimpleNamespace(dim=2, gate=0.999)
+    mon = monitors.FilterMonitor(EkfOptions(), {"gps": gps, "ranges": gps})
+    for tk in np.r_[np.arange(0.0, 60.0), np.arange(240.0, 282.0)]:
+        mon.observe("gps", float(tk), True, 2.0)
+    for tk in np.r_[np.arange(0.0, 100.0), np.arange(200.0, 282.0)]:  # 100 s: under half
+        mon.observe("ranges", float(tk), True, 2.0)
+    t = np.arange(0.0, 282.0, 0.5)
+    found = [f for f in mon.findings(t, np.tile(np.eye(3), (t.size, 1, 1)), {}) if f.degrades]
+    assert [(f.check, f.sensor, f.t_start, f.t_end) for f in found] == [
+        ("outage", "gps", 59.0, 240.0)
+    ]
+    fresh = monitors.FilterMonitor(EkfOptions(), {"gps": gps})  # live start-up: no rate yet
+    fresh.observe("gps", 0.0, True, 2.0)
+    assert not fresh.findings(t[:3], np.tile(np.eye(3), (3, 1, 1)), {})
+
+
 def test_options_are_one_dataclass_with_units_and_errors_name_the_key():
     for f in dataclasses.fields(ParticleOptions):
         assert f.metadata["unit"] and f.metadata["doc"]

@@ -9,8 +9,9 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   run of consecutive rejections while the stream keeps arriving), computes the covariance
   inflation that makes the rejected innovation admissible (:func:`inflation_factor`), and
   turns what it saw into :class:`~odofuse.health.Finding` records (windowed NIS outside its
-  chi-square band, rejection runs, recoveries, pose covariance conditioning and growth,
-  calibration states that ran to their bounds or collapsed);
+  chi-square band, rejection runs, recoveries, a sensor silent for most of the run, pose
+  covariance conditioning and growth, calibration states that ran to their bounds or
+  collapsed);
 * :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
 * :func:`gyro_wheel_findings`, dead reckoning's own tell-tale: gyro and wheels disagreeing.
 
@@ -207,9 +208,12 @@ class FilterMonitor:
             State -> ``{"value", "sigma"}`` (the filter's current augmented states).
         """
         out: list[Finding] = []
+        t = np.asarray(t, dtype=float)
         for s in self._t:
             out += self._nis_findings(s)
             out += self._run_findings(s)
+            if t.size > 1:
+                out += self._outage_findings(s, float(t[0]), float(t[-1]))
         out += self._recovery_findings()
         out += covariance_health(t, P, self.options)
         out += self._calibration_findings(calibration)
@@ -262,6 +266,40 @@ class FilterMonitor:
                 )
             )
         return out
+
+    def _outage_findings(self, s: str, t0: float, t1: float) -> list[Finding]:
+        """A sensor silent for more than half of the run (the estimate is dead reckoning there).
+
+        The longest span ``[t0, t1]`` of the run (pose times) without a reading of ``s``,
+        counting a late start and an early end. The bound is issue 10's own for a score (no
+        score over less than half of the estimate's span without a warning): over most of
+        such a run the filter's pose rests on odometry alone, a drift that no innovation
+        check can see while the sensor is away, so the run does not claim to be the fused
+        estimate it was configured for.
+        """
+        ts = np.sort(np.frombuffer(self._t[s], dtype=float))
+        step = np.diff(ts)
+        step = step[step > 0]
+        if step.size == 0:  # fewer than two readings: no rate to miss (live start-up)
+            return []
+        edges = np.concatenate([[t0], ts[(ts > t0) & (ts < t1)], [t1]])
+        gaps = np.diff(edges)
+        k = int(np.argmax(gaps))
+        # Also longer than reject_run readings of the stream: an outage, not its start-up.
+        long = max(int(self.options.reject_run), 1) * float(np.median(step))
+        if not (gaps[k] > 0.5 * (t1 - t0) and gaps[k] > long):
+            return []
+        return [
+            Finding(
+                "outage",
+                f"no reading for {gaps[k]:.1f} s of the run's {t1 - t0:.1f} s "
+                f"({ts.size} readings in all): over that span the estimate is dead reckoning",
+                sensor=s,
+                t_start=float(edges[k]),
+                t_end=float(edges[k + 1]),
+                figure=float(gaps[k]),
+            )
+        ]
 
     def _run_findings(self, s: str) -> list[Finding]:
         k = max(int(self.options.reject_run), 1)
