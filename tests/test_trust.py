@@ -109,8 +109,13 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
 
 
 #: (scenario, estimator) pairs that still fail silently at one lap (measured, not hidden: the
-#: assertion stays, strict, so a fix shows up as an unexpected pass; the closing note of issue
-#: 10 and docs/trust.md report the figures).
+#: assertion stays, strict, so a fix shows up as an unexpected pass; docs/trust.md reports the
+#: figures). Both are the EKF's start-up with an unknown gyro bias on GPS alone (1 m sigma): its
+#: heading runs 0.1 rad off in the first 10-40 s, within its own covariance (position NEES 4.4
+#: and 3.1), where the smoother, which sees the whole log, is not. gyro_bias_walk: 0.268 m
+#: against the smoother's 0.054 m; gps_outage: 0.308 m against 0.132 m. On seeds 11 and 12
+#: the EKF holds on both (EKF/smoother: gyro_bias_walk 0.181/0.144 and 0.207/0.111 m,
+#: gps_outage 0.083/0.054 and 0.485/0.481 m).
 KNOWN_SILENT = {("gyro_bias_walk", "ekf"), ("gps_outage", "ekf")}
 
 _TRUST_ESTIMATORS = (("dead_reckoning", None), ("ekf", None), ("particle", {"particles": 200}))
