@@ -31,6 +31,27 @@ def test_slip_scale_widens_only_a_disagreement_the_models_cannot_explain():
     assert monitors.slip_scale(0.01, 1e-6, 1e-8, gate) == pytest.approx(100.0)
 
 
+def test_a_sensor_silent_for_most_of_the_run_is_an_outage_that_degrades():
+    from types import SimpleNamespace
+
+    from odofuse.declarations import EkfOptions
+
+    gps = SimpleNamespace(dim=2, gate=0.999)
+    mon = monitors.FilterMonitor(EkfOptions(), {"gps": gps, "ranges": gps})
+    for tk in np.r_[np.arange(0.0, 60.0), np.arange(240.0, 282.0)]:
+        mon.observe("gps", float(tk), True, 2.0)
+    for tk in np.r_[np.arange(0.0, 100.0), np.arange(200.0, 282.0)]:  # 100 s: under half
+        mon.observe("ranges", float(tk), True, 2.0)
+    t = np.arange(0.0, 282.0, 0.5)
+    found = [f for f in mon.findings(t, np.tile(np.eye(3), (t.size, 1, 1)), {}) if f.degrades]
+    assert [(f.check, f.sensor, f.t_start, f.t_end) for f in found] == [
+        ("outage", "gps", 59.0, 240.0)
+    ]
+    fresh = monitors.FilterMonitor(EkfOptions(), {"gps": gps})  # live start-up: no rate yet
+    fresh.observe("gps", 0.0, True, 2.0)
+    assert not fresh.findings(t[:3], np.tile(np.eye(3), (3, 1, 1)), {})
+
+
 def test_options_are_one_dataclass_with_units_and_errors_name_the_key():
     for f in dataclasses.fields(ParticleOptions):
         assert f.metadata["unit"] and f.metadata["doc"]
@@ -87,33 +108,60 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
         assert ts.judge(m, smoother) != "SILENT"
 
 
-#: Scenarios where a filter still fails silently (measured, not hidden: the assertion stays and
-#: the closing note of issue 10 reports the figure). slip_bursts: EKF 0.050 m against the
-#: smoother's 0.033 m with position NEES 11.9 and status ok (the GPS, 1 m sigma, cannot reveal a
-#: 5 cm error the covariance claims is 1.5 cm). gps_outage: dead reckoning 0.80 m against the
-#: smoother's 0.13 m, position NEES 5.9, status ok (the 2x-of-the-smoother rule of judge() does
-#: not suit an estimator without absolute sensors; its covariance is the honest part).
-KNOWN_SILENT = {"slip_bursts", "gyro_bias_walk", "gps_outage"}
+#: (scenario, estimator) pairs that still fail silently at one lap (measured, not hidden: the
+#: assertion stays, strict, so a fix shows up as an unexpected pass; docs/trust.md reports the
+#: figures). Both are the EKF's start-up with an unknown gyro bias on GPS alone (1 m sigma): its
+#: heading runs 0.1 rad off in the first 10-40 s, within its own covariance (position NEES 4.4
+#: and 3.1), where the smoother, which sees the whole log, is not. gyro_bias_walk: 0.268 m
+#: against the smoother's 0.054 m; gps_outage: 0.308 m against 0.132 m. On seeds 11 and 12
+#: the EKF holds on both (EKF/smoother: gyro_bias_walk 0.181/0.144 and 0.207/0.111 m,
+#: gps_outage 0.083/0.054 and 0.485/0.481 m).
+KNOWN_SILENT = {("gyro_bias_walk", "ekf"), ("gps_outage", "ekf")}
+
+_TRUST_ESTIMATORS = (("dead_reckoning", None), ("ekf", None), ("particle", {"particles": 200}))
+_SCENARIO_CACHE: dict = {}
+
+
+def _scenario_and_reference(name):
+    """``(log, config, smoother RMSE)`` of a one-lap scenario, computed once per session."""
+    if name not in _SCENARIO_CACHE:
+        log, cfg = ts.simulated(name, laps=1)
+        _SCENARIO_CACHE[name] = (log, cfg, ts.run(log, cfg, "smoother")["ate_rmse_m"])
+    return _SCENARIO_CACHE[name]
 
 
 @pytest.mark.parametrize(
-    "name",
+    ("name", "est", "opts"),
     [
         pytest.param(
             n,
-            marks=pytest.mark.xfail(reason="known silent failure (issue 10 open)", strict=False),
+            e,
+            o,
+            marks=[pytest.mark.xfail(reason="known silent failure (issue 10)", strict=True)]
+            if (n, e) in KNOWN_SILENT
+            else [],
+            id=f"{n}-{e}",
         )
-        if n in KNOWN_SILENT
-        else n
         for n in ts.SIMULATED
+        for e, o in _TRUST_ESTIMATORS
     ],
 )
-def test_scenarios_have_no_silent_failure(name):
-    log, cfg = ts.simulated(name, laps=1)
-    ref = ts.run(log, cfg, "smoother")["ate_rmse_m"]
-    for est, opts in (("dead_reckoning", None), ("ekf", None), ("particle", {"particles": 200})):
-        m = ts.run(log, cfg, est, opts)
-        assert ts.judge(m, ref) != "SILENT", (est, m["ate_rmse_m"], m["nees_position_mean"])
+def test_scenarios_have_no_silent_failure(name, est, opts):
+    log, cfg, ref = _scenario_and_reference(name)
+    m = ts.run(log, cfg, est, opts)
+    assert ts.judge(m, ref) != "SILENT", (m["ate_rmse_m"], ref, m["nees_position_mean"])
+
+
+def test_judge_holds_fused_estimators_to_the_smoother_and_dead_reckoning_to_its_nees():
+    honest_drift = {"ate_rmse_m": 0.8, "nees_position_mean": 5.9, "status": "ok"}
+    assert ts.judge({**honest_drift, "estimator": "dead_reckoning"}, 0.13) == "holds"
+    assert ts.judge({**honest_drift, "estimator": "ekf"}, 0.13) == "SILENT"
+    overconfident = {"ate_rmse_m": 0.1, "nees_position_mean": 12.0, "status": "ok"}
+    assert ts.judge({**overconfident, "estimator": "dead_reckoning"}, 0.13) == "SILENT"
+    assert ts.judge({**overconfident, "estimator": "ekf", "status": "degraded"}, 1) == "degraded"
+    assert (
+        ts.judge({"estimator": "ekf", "ate_rmse_m": 0.2, "nees_position_mean": 2}, 0.1) == "holds"
+    )
 
 
 def test_localizer_health_is_live():

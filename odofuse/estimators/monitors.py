@@ -9,8 +9,9 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   run of consecutive rejections while the stream keeps arriving), computes the covariance
   inflation that makes the rejected innovation admissible (:func:`inflation_factor`), and
   turns what it saw into :class:`~odofuse.health.Finding` records (windowed NIS outside its
-  chi-square band, rejection runs, recoveries, pose covariance conditioning and growth,
-  calibration states that ran to their bounds or collapsed);
+  chi-square band, rejection runs, recoveries, a sensor silent for most of the run, pose
+  covariance conditioning and growth, calibration states that ran to their bounds or
+  collapsed);
 * :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
 * :func:`gyro_wheel_findings`, dead reckoning's own tell-tale: gyro and wheels disagreeing.
 
@@ -67,23 +68,33 @@ def inflation_factor(y, S, R, dim: int, cap: float) -> float:
     return float(math.exp(hi))
 
 
-def slip_scale(disagreement: float, var_odo: float, var_ref: float, gate: float) -> float:
+def slip_scale(
+    disagreement: float, var_odo: float, var_ref: float, gate: float, run: float = 0.0
+) -> float:
     """Robust odometry: the factor that widens one step's wheel input noise.
 
     ``disagreement`` (rad) is the gyro heading change minus the wheels' over the step,
     ``var_odo`` the wheels' heading variance of the step (rad^2) and ``var_ref`` that of the
     gyro's change (rate noise and bias uncertainty). When the disagreement fails the
     chi-square test ``d^2 > gate (var_odo + var_ref)`` the wheels slipped (the gyrodometry
-    switching rule of ``002_88fc37db58155723.txt``, with a statistical threshold); the
-    returned factor ``d^2 / var_odo`` makes the wheel noise of that step large enough that
-    the disagreement is a one-sigma event (a heavy-tailed odometry model). Else 1.
+    switching rule of ``002_88fc37db58155723.txt``, with a statistical threshold) and the
+    step's wheel noise is widened (a heavy-tailed odometry model). Else 1.
+
+    A slip lasts: the steps of one burst err alike, so their wheel errors are correlated, and
+    widening each step to its own disagreement (``d^2``) would give the burst's accumulated
+    translation error only ``sqrt(n)`` of the ``n`` sigmas it has. ``run`` is the summed
+    disagreement ``D`` of the consecutive slipping steps just before this one; the step gets
+    the variance that makes the run's accumulated wheel variance ``(D + d)^2`` (the summed
+    heading disagreement is a one-sigma event, and so is the translation error the same
+    slip caused), at least ``d^2``: factor ``max(d^2, (D + d)^2 - D^2) / var_odo``.
     """
     if not var_odo > 0.0:
         return 1.0
     d2 = disagreement * disagreement
     if d2 <= gate * (var_odo + var_ref):
         return 1.0
-    return d2 / var_odo
+    total = run + disagreement
+    return max(d2, total * total - run * run) / var_odo
 
 
 # ----------------------------------------------------------------------------- monitor
@@ -197,9 +208,12 @@ class FilterMonitor:
             State -> ``{"value", "sigma"}`` (the filter's current augmented states).
         """
         out: list[Finding] = []
+        t = np.asarray(t, dtype=float)
         for s in self._t:
             out += self._nis_findings(s)
             out += self._run_findings(s)
+            if t.size > 1:
+                out += self._outage_findings(s, float(t[0]), float(t[-1]))
         out += self._recovery_findings()
         out += covariance_health(t, P, self.options)
         out += self._calibration_findings(calibration)
@@ -252,6 +266,40 @@ class FilterMonitor:
                 )
             )
         return out
+
+    def _outage_findings(self, s: str, t0: float, t1: float) -> list[Finding]:
+        """A sensor silent for more than half of the run (the estimate is dead reckoning there).
+
+        The longest span ``[t0, t1]`` of the run (pose times) without a reading of ``s``,
+        counting a late start and an early end. The bound is issue 10's own for a score (no
+        score over less than half of the estimate's span without a warning): over most of
+        such a run the filter's pose rests on odometry alone, a drift that no innovation
+        check can see while the sensor is away, so the run does not claim to be the fused
+        estimate it was configured for.
+        """
+        ts = np.sort(np.frombuffer(self._t[s], dtype=float))
+        step = np.diff(ts)
+        step = step[step > 0]
+        if step.size == 0:  # fewer than two readings: no rate to miss (live start-up)
+            return []
+        edges = np.concatenate([[t0], ts[(ts > t0) & (ts < t1)], [t1]])
+        gaps = np.diff(edges)
+        k = int(np.argmax(gaps))
+        # Also longer than reject_run readings of the stream: an outage, not its start-up.
+        long = max(int(self.options.reject_run), 1) * float(np.median(step))
+        if not (gaps[k] > 0.5 * (t1 - t0) and gaps[k] > long):
+            return []
+        return [
+            Finding(
+                "outage",
+                f"no reading for {gaps[k]:.1f} s of the run's {t1 - t0:.1f} s "
+                f"({ts.size} readings in all): over that span the estimate is dead reckoning",
+                sensor=s,
+                t_start=float(edges[k]),
+                t_end=float(edges[k + 1]),
+                figure=float(gaps[k]),
+            )
+        ]
 
     def _run_findings(self, s: str) -> list[Finding]:
         k = max(int(self.options.reject_run), 1)
@@ -419,6 +467,7 @@ def setup_localizer(loc) -> None:
     loc._slip_stream = gyros[0] if on else None
     loc._slip_gate = gate_threshold(loc.options.slip_gate, 1)
     loc.slip_steps = 0
+    loc._slip_runs = {}  # step end time -> summed disagreement of its slip run (rad)
 
 
 def recover(loc, stream, model, row) -> tuple[bool, float]:
@@ -447,9 +496,17 @@ def step_slip_scale(loc, t0: float, t1: float, u) -> float:
         bias, var_b = 0.0, float(getattr(model, "bias_sigma", 0.0)) ** 2
     sigma = float(getattr(model, "sigma", 0.0))
     var_ref = (sigma**2 + var_b) * span**2
-    scale = slip_scale(g - bias * span - float(delta[2]), var_odo, var_ref, loc._slip_gate)
+    d = g - bias * span - float(delta[2])
+    runs = loc._slip_runs
+    run = runs.get(t0, 0.0)
+    scale = slip_scale(d, var_odo, var_ref, loc._slip_gate, run)
     if scale > 1.0:
         loc.slip_steps += 1
+    runs[t1] = run + d if scale > 1.0 else 0.0
+    if len(runs) > 4096:  # keep what a replay inside the late window can still ask for
+        horizon = t1 - loc.late_window - 1.0
+        for key in [k for k in runs if k < horizon]:
+            del runs[key]
     return scale
 
 
