@@ -127,7 +127,10 @@ def _measurements(loc, log, streams, t, kinds):
         if kind == k.RANGE:
             z[:, 0] = st["range"]
             b = m._beacons
-            aux[:] = [b[int(round(i))] for i in st["id"]] if n else aux
+            keys = np.array(sorted(b), dtype=np.int64)
+            pos = np.array([b[i] for i in keys.tolist()], dtype=float).reshape(-1, 2)
+            ids = np.rint(st["id"]).astype(np.int64)  # round(): half to even, as np.rint
+            aux[:] = pos[np.searchsorted(keys, ids)] if n else aux
             sidx[si] = ci.get("range_scale", -1), ci.get("range_offset", -1)
         elif kind == k.GPS:
             z[:, 0], z[:, 1] = st["x"], st["y"]
@@ -157,6 +160,34 @@ def _measurements(loc, log, streams, t, kinds):
         mR,
         (skind, sidx, sgate, sR),
     )
+
+
+def _record(mon, stream: str, t, ok, nis) -> bool:
+    """Feed one stream's gated updates to the monitor, as ``FilterMonitor.observe`` would one
+    by one; True when a recovery would have been triggered (a run of ``reject_run``
+    rejections with recovery on). Fills the monitor's record arrays directly when they are
+    the ``array`` buffers it keeps (the equality tests compare the findings), else calls
+    ``observe`` per reading."""
+    from array import array
+
+    opts = mon.options
+    k = int(opts.reject_run)
+    if opts.recovery and k >= 1 and ok.size >= k:
+        bad = np.concatenate([[0], np.cumsum(~ok)])
+        if np.any(bad[k:] - bad[:-k] == k):
+            return True
+    bufs = (getattr(mon, "_t", {}).get(stream), getattr(mon, "_nis", {}).get(stream))
+    oks = getattr(mon, "_ok", {}).get(stream)
+    if all(isinstance(b, array) and b.typecode == "d" for b in bufs) and isinstance(oks, array):
+        bufs[0].frombytes(np.ascontiguousarray(t, dtype=float).tobytes())
+        v = np.where(np.isfinite(nis), nis, 1e300)
+        bufs[1].frombytes(v.astype(float).tobytes())
+        oks.frombytes(ok.astype(np.int8).tobytes())
+        return False
+    for tj, okj, nj in zip(t.tolist(), ok.tolist(), nis.tolist(), strict=True):
+        if mon.observe(stream, tj, okj, nj):
+            return True
+    return False
 
 
 def run(log, config):
@@ -208,18 +239,14 @@ def run(log, config):
         mt, ms, mstep, np.ascontiguousarray(mz), np.ascontiguousarray(maux), mR,
         skind, sidx, sgate, sR, traj_x, traj_P, odom, acc, nis,
     )  # fmt: skip
-    counted = acc != 2
-    mon = loc.monitor
-    names = streams
-    for j in np.flatnonzero(counted).tolist():
-        s = names[ms[j]]
-        ok = bool(acc[j] == 1)
-        if mon.observe(s, float(mt[j]), ok, float(nis[j])):
+    for si, s in enumerate(streams):
+        mine = ms == si
+        sel = mine & (acc != 2)  # clone-only first gyro readings are not counted
+        ok = acc[sel] == 1
+        if _record(loc.monitor, s, mt[sel], ok, nis[sel]):
             return None  # a recovery would re-open the filter: the Python path does that
-        if ok:
-            loc.used[s] += 1
-        else:
-            loc.rejected[s] += 1
+        loc.used[s] += int(np.count_nonzero(ok))
+        loc.rejected[s] += int(ok.size - np.count_nonzero(ok))
     loc.backend.x, loc.backend.P = x, P
     loc._traj_t, loc._traj_x, loc._traj_P = t, traj_x, traj_P
     loc._odom = odom

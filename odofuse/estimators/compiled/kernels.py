@@ -34,7 +34,7 @@ def _wrap(a):
     return (a + math.pi) % TWO_PI - math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _increment(integ, w, vx, vy, Jt):
     """Body increment ``(dx, dy, dtheta)`` of twist ``(w, vx, vy)``; fills ``Jt`` (3, 3)."""
     Jt[2, 0], Jt[2, 1], Jt[2, 2] = 1.0, 0.0, 0.0
@@ -113,6 +113,9 @@ def _pose_step(pose, d0, d1, d2, P, Fu, var, with_cov):
 def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
     """Dead reckoning of a drive with ``twist = M u`` and ``var = K |u| + floor``.
 
+    The pose and the six covariance entries live in scalars; each step's ``F_u`` column and
+    input variance are formed on the fly (no per-step arrays).
+
     Parameters
     ----------
     pose0 : (3,), P0 : (3, 3)
@@ -123,14 +126,17 @@ def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
     poses : (N+1, 3) out; covs : (N+1, 3, 3) out (untouched unless ``with_cov``)
     """
     n = U.shape[1]
-    pose = pose0.copy()
-    P = 0.5 * (P0 + P0.T)
+    x, y, th = pose0[0], pose0[1], pose0[2]
+    p00, p11, p22 = P0[0, 0], P0[1, 1], P0[2, 2]
+    p01 = 0.5 * (P0[0, 1] + P0[1, 0])
+    p02 = 0.5 * (P0[0, 2] + P0[2, 0])
+    p12 = 0.5 * (P0[1, 2] + P0[2, 1])
     Jt = np.empty((3, 3))
-    Fu = np.empty((3, n))
-    var = np.empty(n)
-    poses[0] = pose
+    poses[0, 0], poses[0, 1], poses[0, 2] = x, y, th
     if with_cov:
-        covs[0] = P
+        covs[0, 0, 0], covs[0, 0, 1], covs[0, 0, 2] = p00, p01, p02
+        covs[0, 1, 0], covs[0, 1, 1], covs[0, 1, 2] = p01, p11, p12
+        covs[0, 2, 0], covs[0, 2, 1], covs[0, 2, 2] = p02, p12, p22
     for k in range(U.shape[0]):
         w = vx = vy = 0.0
         for j in range(n):
@@ -139,18 +145,42 @@ def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
             vx += M[1, j] * u
             vy += M[2, j] * u
         d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
+        c, s = math.cos(th), math.sin(th)
+        dxw = c * d0 - s * d1
+        dyw = s * d0 + c * d1
         if with_cov:
+            q00 = q01 = q02 = q11 = q12 = q22 = 0.0
             for j in range(n):
-                acc = floor[j]
+                v = floor[j]
                 for i in range(n):
-                    acc += K[j, i] * abs(U[k, i])
-                var[j] = acc
-                for r in range(3):
-                    Fu[r, j] = Jt[r, 0] * M[0, j] + Jt[r, 1] * M[1, j] + Jt[r, 2] * M[2, j]
-        _pose_step(pose, d0, d1, d2, P, Fu, var, with_cov)
-        poses[k + 1] = pose
-        if with_cov:
-            covs[k + 1] = P
+                    v += K[j, i] * abs(U[k, i])
+                m0, m1, m2 = M[0, j], M[1, j], M[2, j]
+                b0 = Jt[0, 0] * m0 + Jt[0, 1] * m1 + Jt[0, 2] * m2
+                b1 = Jt[1, 0] * m0 + Jt[1, 1] * m1 + Jt[1, 2] * m2
+                f0 = c * b0 - s * b1
+                f1 = s * b0 + c * b1
+                f2 = m0  # the theta row of J_delta_twist is (1, 0, 0)
+                q00 += f0 * v * f0
+                q01 += f0 * v * f1
+                q02 += f0 * v * f2
+                q11 += f1 * v * f1
+                q12 += f1 * v * f2
+                q22 += f2 * v * f2
+            e0, e1 = -dyw, dxw
+            n00 = p00 + 2.0 * e0 * p02 + e0 * e0 * p22
+            n01 = p01 + e0 * p12 + e1 * p02 + e0 * e1 * p22
+            n11 = p11 + 2.0 * e1 * p12 + e1 * e1 * p22
+            n02 = p02 + e0 * p22
+            n12 = p12 + e1 * p22
+            p00, p01, p11 = n00 + q00, n01 + q01, n11 + q11
+            p02, p12, p22 = n02 + q02, n12 + q12, p22 + q22
+            covs[k + 1, 0, 0], covs[k + 1, 0, 1], covs[k + 1, 0, 2] = p00, p01, p02
+            covs[k + 1, 1, 0], covs[k + 1, 1, 1], covs[k + 1, 1, 2] = p01, p11, p12
+            covs[k + 1, 2, 0], covs[k + 1, 2, 1], covs[k + 1, 2, 2] = p02, p12, p22
+        x += dxw
+        y += dyw
+        th = _wrap(th + d2)
+        poses[k + 1, 0], poses[k + 1, 1], poses[k + 1, 2] = x, y, th
 
 
 @njit(cache=True)
@@ -182,20 +212,45 @@ def dr_generic(pose, P, twist, J_tu, var, integ, with_cov, poses, covs):
 
 # ----------------------------------------------------------------------------- EKF
 @njit(cache=True)
-def _ekf_predict(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, Jt, Fu, var):
+def _work(n, m):
+    """Scratch buffers of the EKF kernels (allocated once per run, not per step)."""
+    return (
+        np.empty((3, 3)),  # 0 Jt
+        np.empty((3, m)),  # 1 Fu
+        np.empty(m),  # 2 var
+        np.empty(m),  # 3 uc (calibrated input) / u part
+        np.empty(n),  # 4 v
+        np.empty((n, n)),  # 5 F
+        np.empty((n, n)),  # 6 FP / A
+        np.empty((2, n)),  # 7 H
+        np.empty((n, 2)),  # 8 PHT
+        np.empty((n, 2)),  # 9 K
+        np.empty((2, n)),  # 10 HP
+        np.empty((n, 2)),  # 11 AH
+        np.empty((m, 3)),  # 12 Jc (du'/dp)
+        np.empty(m),  # 13 the step's input part
+    )
+
+
+@njit(cache=True)
+def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work):
     """``EkfBackend.predict`` (``cal == 0``) or ``_predict_calibrated`` (1: increments,
-    2: differential / skid-steer) of one (part of a) step."""
+    2: differential / skid-steer) of the fraction ``part`` of a step (input ``u * part``)."""
+    Jt, Fu, var, uc, v, F, FP = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    Jc = work[12]
     n = x.shape[0]
     m = u.shape[0]
-    uc = u.copy()
+    up = work[13]  # the step's input part, u * part (as the Localizer passes it)
+    for j in range(m):
+        up[j] = u[j] * part
+        uc[j] = up[j]
     if cal == 1:
-        a, b, c3 = x[cidx[0]], x[cidx[1]], x[cidx[2]]
-        uc[0] = a * u[0]
-        uc[1] = b * u[1] + c3 * dt
+        uc[0] = x[cidx[0]] * up[0]
+        uc[1] = x[cidx[1]] * up[1] + x[cidx[2]] * dt
     elif cal == 2:
         E, Eb = x[cidx[0]], x[cidx[1]]
-        R = u[1] * 2.0 * E / (1.0 + E)
-        L = u[0] * 2.0 / (1.0 + E)
+        R = up[1] * 2.0 * E / (1.0 + E)
+        L = up[0] * 2.0 / (1.0 + E)
         mm, hh = 0.5 * (R + L), 0.5 * (R - L) / Eb
         uc[0], uc[1] = mm - hh, mm + hh
     w = vx = vy = 0.0
@@ -223,7 +278,6 @@ def _ekf_predict(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, Jt, Fu,
         # F_p P F_p^T = P + B + B^T, B = e v^T, v = P[2] + P22 e / 2 (as EkfBackend.predict)
         e0, e1 = -dyw, dxw
         h = 0.5 * P[2, 2]
-        v = np.empty(n)
         for i in range(n):
             v[i] = P[2, i]
         v[0] += h * e0
@@ -235,24 +289,24 @@ def _ekf_predict(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, Jt, Fu,
             P[i, 0] += e0 * v[i]
             P[i, 1] += e1 * v[i]
     else:
-        # F = I + e_theta-column + the calibration columns F_u du'/dp
+        # F = I + the theta column + the calibration columns F_u du'/dp
         nc = cidx.shape[0]
-        Jc = np.zeros((m, nc))
         if cal == 1:
-            Jc[0, 0] = u[0]
-            Jc[1, 1] = u[1]
-            Jc[1, 2] = dt
+            Jc[0, 0], Jc[0, 1], Jc[0, 2] = up[0], 0.0, 0.0
+            Jc[1, 0], Jc[1, 1], Jc[1, 2] = 0.0, up[1], dt
         else:
             E, Eb = x[cidx[0]], x[cidx[1]]
             g = 2.0 / (1.0 + E) ** 2
-            dR, dL = u[1] * g, -u[0] * g
-            R = u[1] * 2.0 * E / (1.0 + E)
-            L = u[0] * 2.0 / (1.0 + E)
+            dR, dL = up[1] * g, -up[0] * g
+            R = up[1] * 2.0 * E / (1.0 + E)
+            L = up[0] * 2.0 / (1.0 + E)
             dm, dh = 0.5 * (dR + dL), 0.5 * (dR - dL) / Eb
             dh_b = -0.5 * (R - L) / Eb**2
             Jc[0, 0], Jc[0, 1] = dm - dh, -dh_b
             Jc[1, 0], Jc[1, 1] = dm + dh, dh_b
-        F = np.eye(n)
+        for i in range(n):
+            for j in range(n):
+                F[i, j] = 1.0 if i == j else 0.0
         F[0, 2], F[1, 2] = -dyw, dxw
         for r in range(3):
             for q in range(nc):
@@ -260,11 +314,18 @@ def _ekf_predict(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, Jt, Fu,
                 for j in range(m):
                     acc += Fu[r, j] * Jc[j, q]
                 F[r, cidx[q]] = acc
-        FP = F @ P
-        Pn = FP @ F.T
         for i in range(n):
             for j in range(n):
-                P[i, j] = Pn[i, j]
+                acc = 0.0
+                for k in range(n):
+                    acc += F[i, k] * P[k, j]
+                FP[i, j] = acc
+        for i in range(n):
+            for j in range(n):
+                acc = 0.0
+                for k in range(n):
+                    acc += FP[i, k] * F[j, k]
+                P[i, j] = acc
     for a in range(3):
         for b in range(3):
             acc = 0.0
@@ -286,21 +347,23 @@ def _ekf_predict(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, Jt, Fu,
 
 
 @njit(cache=True)
-def _ekf_update(x, P, kind, z, aux, Rm, idx, dt, gate):
-    """filterpy's ``ExtendedKalmanFilter.update`` (Joseph form) with the gate; returns NIS.
-
-    The state is left unchanged when the NIS fails ``nis <= gate``.
-    """
+def _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work):
+    """filterpy's ``ExtendedKalmanFilter.update`` (Joseph form) with the gate; returns
+    ``(nis, accepted)``. The state is left unchanged when the NIS fails ``nis <= gate``.
+    ``R = [[r00, r01], [r01, r11]]`` (its first entry for scalar sensors)."""
+    A, H, PHT, Kg, HP, AH = work[6], work[7], work[8], work[9], work[10], work[11]
     n = x.shape[0]
     d = 2 if kind == GPS else 1
-    H = np.zeros((d, n))
-    hx = np.empty(d)
+    for r in range(d):
+        for i in range(n):
+            H[r, i] = 0.0
+    h0 = h1 = 0.0
     if kind == RANGE:
         dx, dy = x[0] - aux[0], x[1] - aux[1]
         dist = math.hypot(dx, dy)
         scale = x[idx[0]] if idx[0] >= 0 else 1.0
         offset = x[idx[1]] if idx[1] >= 0 else 0.0
-        hx[0] = scale * dist + offset
+        h0 = scale * dist + offset
         dd = max(dist, 1e-9)
         H[0, 0], H[0, 1] = scale * dx / dd, scale * dy / dd
         if idx[0] >= 0:
@@ -310,58 +373,96 @@ def _ekf_update(x, P, kind, z, aux, Rm, idx, dt, gate):
     elif kind == GPS:
         lx, ly = aux[0], aux[1]
         c, s = math.cos(x[2]), math.sin(x[2])
-        hx[0] = x[0] + c * lx - s * ly
-        hx[1] = x[1] + s * lx + c * ly
+        h0 = x[0] + c * lx - s * ly
+        h1 = x[1] + s * lx + c * ly
         H[0, 0] = H[1, 1] = 1.0
         H[0, 2] = -s * lx - c * ly
         H[1, 2] = c * lx - s * ly
     elif kind == COMPASS:
         off = x[idx[0]] if idx[0] >= 0 else 0.0
-        hx[0] = _wrap(x[2] + off)
+        h0 = _wrap(x[2] + off)
         H[0, 2] = 1.0
         if idx[0] >= 0:
             H[0, idx[0]] = 1.0
     else:  # GYRO
         ref = x[idx[0]] if idx[0] >= 0 else x[2]
         bias = x[idx[1]] if idx[1] >= 0 else 0.0
-        hx[0] = _wrap(x[2] - ref) / dt + bias
+        h0 = _wrap(x[2] - ref) / dt + bias
         H[0, 2] = 1.0 / dt
         if idx[0] >= 0:
             H[0, idx[0]] = -1.0 / dt
         if idx[1] >= 0:
             H[0, idx[1]] = 1.0
-    y = np.empty(d)
-    for r in range(d):
-        y[r] = z[r] - hx[r]
+    y0 = z[0] - h0
+    y1 = z[1] - h1 if d == 2 else 0.0
     if kind == COMPASS:
-        y[0] = _wrap(y[0])
-    PHT = P @ H.T
-    S = H @ PHT + Rm
-    SI = np.empty((d, d))
-    if d == 1:
-        SI[0, 0] = 1.0 / S[0, 0]
-    else:
-        det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
-        SI[0, 0], SI[1, 1] = S[1, 1] / det, S[0, 0] / det
-        SI[0, 1], SI[1, 0] = -S[0, 1] / det, -S[1, 0] / det
-    Sy = SI @ y
-    nis = 0.0
-    for r in range(d):
-        nis += y[r] * Sy[r]
-    if not nis <= gate:
-        return nis, False
-    Kg = PHT @ SI
+        y0 = _wrap(y0)
     for i in range(n):
-        acc = 0.0
         for r in range(d):
-            acc += Kg[i, r] * y[r]
-        x[i] += acc
+            acc = 0.0
+            for j in range(n):
+                acc += P[i, j] * H[r, j]
+            PHT[i, r] = acc
+    if d == 1:
+        s00 = r00
+        for i in range(n):
+            s00 += H[0, i] * PHT[i, 0]
+        i00 = 1.0 / s00
+        nis = y0 * i00 * y0
+        if not nis <= gate:
+            return nis, False
+        for i in range(n):
+            Kg[i, 0] = PHT[i, 0] * i00
+    else:
+        s00, s01, s10, s11 = r00, r01, r01, r11
+        for i in range(n):
+            s00 += H[0, i] * PHT[i, 0]
+            s01 += H[0, i] * PHT[i, 1]
+            s10 += H[1, i] * PHT[i, 0]
+            s11 += H[1, i] * PHT[i, 1]
+        det = s00 * s11 - s01 * s10
+        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+        nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i10 * y0 + i11 * y1)
+        if not nis <= gate:
+            return nis, False
+        for i in range(n):
+            Kg[i, 0] = PHT[i, 0] * i00 + PHT[i, 1] * i10
+            Kg[i, 1] = PHT[i, 0] * i01 + PHT[i, 1] * i11
+    for i in range(n):
+        x[i] += Kg[i, 0] * y0 + (Kg[i, 1] * y1 if d == 2 else 0.0)
     # (I - KH) P (I - KH)^T + K R K^T with A = (I - KH) P:  A - (A H^T) K^T + K R K^T
-    A = P - Kg @ (H @ P)
-    Pn = A - (A @ H.T) @ Kg.T + (Kg @ Rm) @ Kg.T
+    for r in range(d):
+        for j in range(n):
+            acc = 0.0
+            for i in range(n):
+                acc += H[r, i] * P[i, j]
+            HP[r, j] = acc
     for i in range(n):
         for j in range(n):
-            P[i, j] = Pn[i, j]
+            acc = P[i, j]
+            for r in range(d):
+                acc -= Kg[i, r] * HP[r, j]
+            A[i, j] = acc
+    for i in range(n):
+        for r in range(d):
+            acc = 0.0
+            for j in range(n):
+                acc += A[i, j] * H[r, j]
+            AH[i, r] = acc
+    for i in range(n):
+        for j in range(n):
+            if d == 1:
+                P[i, j] = A[i, j] - AH[i, 0] * Kg[j, 0] + Kg[i, 0] * r00 * Kg[j, 0]
+            else:
+                k0 = Kg[i, 0] * r00 + Kg[i, 1] * r01
+                k1 = Kg[i, 0] * r01 + Kg[i, 1] * r11
+                P[i, j] = (
+                    A[i, j]
+                    - AH[i, 0] * Kg[j, 0]
+                    - AH[i, 1] * Kg[j, 1]
+                    + k0 * Kg[j, 0]
+                    + k1 * Kg[j, 1]
+                )
     x[2] = _wrap(x[2])
     return nis, True
 
@@ -377,7 +478,7 @@ def _clone(x, P, dst, src):
 
 
 @njit(cache=True)
-def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis):
+def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work):
     s = ms[j]
     kind = skind[s]
     tm = mt[j]
@@ -389,12 +490,13 @@ def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, ni
             acc[j] = 2
             return
         dt = tm - t_ref[s]
-    d = 2 if kind == GPS else 1
     if math.isnan(mR[j]):
-        Rm = sR[s, :d, :d].copy()
+        r00, r01, r11 = sR[s, 0, 0], sR[s, 0, 1], sR[s, 1, 1]
     else:
-        Rm = np.eye(d) * mR[j]
-    v, ok = _ekf_update(x, P, kind, mz[j], maux[j], Rm, sidx[s], dt, sgate[s])
+        r00, r01, r11 = mR[j], 0.0, mR[j]
+    v, ok = _ekf_update(
+        x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s], work
+    )  # fmt: skip
     nis[j] = v
     acc[j] = 1 if ok else 0
     if kind == GYRO:
@@ -426,19 +528,22 @@ def ekf_offline(
     traj_x : (N+1, 3), traj_P : (N+1, 3, 3), odom : (3,), acc : (J,) int8, nis : (J,) out.
         ``acc`` is 1 accepted, 0 rejected, 2 a clone-only first gyro reading.
     """
+    n = x.shape[0]
     m = U.shape[1]
-    Jt = np.empty((3, 3))
-    Fu = np.empty((3, m))
-    var = np.empty(m)
+    work = _work(n, m)
+    Jt = work[0]
     t_ref = np.full(skind.shape[0], np.nan)
     dummy = np.empty((3, m))
+    var0 = np.empty(m)
     zero_P = np.zeros((3, 3))
-    traj_x[0] = x[:3]
-    traj_P[0] = P[:3, :3]
+    for a in range(3):
+        traj_x[0, a] = x[a]
+        for b in range(3):
+            traj_P[0, a, b] = P[a, b]
     J = mt.shape[0]
     j = 0
     while j < J and mstep[j] == -1:
-        _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis)
+        _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work)
         j += 1
     for k in range(U.shape[0]):
         t0, t1 = tt[k], tt[k + 1]
@@ -453,20 +558,20 @@ def ekf_offline(
             if f > done:
                 part = f - done
                 _ekf_predict(
-                    x, P, u * part, span * part, integ, M, K, floor, rate, cal, cidx, walk,
-                    Jt, Fu, var,
+                    x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work
                 )  # fmt: skip
                 done = f
-            _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis)
+            _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work)
             j += 1
         if done < 1.0 or not due:
             part = 1.0 - done
             _ekf_predict(
-                x, P, u * part, span * part, integ, M, K, floor, rate, cal, cidx, walk,
-                Jt, Fu, var,
+                x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work
             )  # fmt: skip
-        traj_x[k + 1] = x[:3]
-        traj_P[k + 1] = P[:3, :3]
+        for a in range(3):
+            traj_x[k + 1, a] = x[a]
+            for b in range(3):
+                traj_P[k + 1, a, b] = P[a, b]
         # The continuous odometry pose (uncalibrated increments), for map_to_odom.
         w = vx = vy = 0.0
         for i in range(m):
@@ -474,4 +579,4 @@ def ekf_offline(
             vx += M[1, i] * u[i]
             vy += M[2, i] * u[i]
         d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
-        _pose_step(odom, d0, d1, d2, zero_P, dummy, var, False)
+        _pose_step(odom, d0, d1, d2, zero_P, dummy, var0, False)
