@@ -291,3 +291,10 @@ def test_config_accepts_the_compiled_option():
         config_from_dict(
             {"log": "x", "robot": {"drive": "increments"}, "options": {"ekf": {"compiled": "x"}}}
         )
+
+
+def test_stream_kind_codes_agree_with_the_kernels():
+    from odofuse.estimators.compiled import kernels
+
+    codes = (compiled_ekf.RANGE, compiled_ekf.GPS, compiled_ekf.COMPASS, compiled_ekf.GYRO)
+    assert codes == (kernels.RANGE, kernels.GPS, kernels.COMPASS, kernels.GYRO)

@@ -30,6 +30,9 @@ from odofuse.estimators import compiled
 from odofuse.estimators.compiled.dead_reckoning import linear_terms
 
 _CAL_DRIVES = {"increments": 1, "differential": 2, "skid_steer": 2}
+#: Stream kinds of the kernels (``kernels.RANGE`` ...; repeated here so that deciding
+#: whether a run is covered does not import numba).
+RANGE, GPS, COMPASS, GYRO = 0, 1, 2, 3
 
 
 class _State:
@@ -53,13 +56,7 @@ class _State:
 def _kinds():
     from odofuse.measurements import BeaconRange, CompassHeading, GpsPosition, GyroYawRate
 
-    k = compiled.load_kernels()
-    return {
-        BeaconRange: k.RANGE,
-        GpsPosition: k.GPS,
-        CompassHeading: k.COMPASS,
-        GyroYawRate: k.GYRO,
-    }
+    return {BeaconRange: RANGE, GpsPosition: GPS, CompassHeading: COMPASS, GyroYawRate: GYRO}
 
 
 def unsupported(loc, log, streams) -> str | None:
@@ -87,16 +84,16 @@ def unsupported(loc, log, streams) -> str | None:
             return f"stream '{s}' has non-finite or out-of-range values"
         cols = set(st.columns)
         kind = kinds[type(m)]
-        need = ({"id", "range"}, {"x", "y"}, {"heading"}, {"wz"})[kind]
+        need = {RANGE: {"id", "range"}, GPS: {"x", "y"}, COMPASS: {"heading"}, GYRO: {"wz"}}[kind]
         if not need <= cols:
             return f"stream '{s}' lacks columns {sorted(need - cols)}"
-        if kind == 3 and "gyro_theta_ref" not in m.calib_index:
+        if kind == GYRO and "gyro_theta_ref" not in m.calib_index:
             return f"stream '{s}': no heading clone state"
         ids = st["id"] if "id" in cols else np.zeros(len(st))
         order = np.lexsort((ids, st.t))
         if len(st) > 1 and np.any((np.diff(st.t[order]) == 0) & (np.diff(ids[order]) == 0)):
             return f"stream '{s}' has repeated readings (same t and id)"
-        if "id" in cols:
+        if kind == RANGE:
             beacons = m._beacons
             if not all(int(round(i)) in beacons for i in np.unique(ids)):
                 return f"stream '{s}' names a beacon that is not in the map"
@@ -105,7 +102,6 @@ def unsupported(loc, log, streams) -> str | None:
 
 def _measurements(loc, log, streams, t, kinds):
     """Flat measurement arrays in the Localizer's order, and the per-stream tables."""
-    k = compiled.load_kernels()
     S = len(streams)
     skind = np.zeros(S, dtype=np.int64)
     sidx = np.full((S, 2), -1, dtype=np.int64)
@@ -124,7 +120,7 @@ def _measurements(loc, log, streams, t, kinds):
         n = len(st)
         z = np.zeros((n, 2))
         aux = np.zeros((n, 2))
-        if kind == k.RANGE:
+        if kind == RANGE:
             z[:, 0] = st["range"]
             b = m._beacons
             keys = np.array(sorted(b), dtype=np.int64)
@@ -132,10 +128,10 @@ def _measurements(loc, log, streams, t, kinds):
             ids = np.rint(st["id"]).astype(np.int64)  # round(): half to even, as np.rint
             aux[:] = pos[np.searchsorted(keys, ids)] if n else aux
             sidx[si] = ci.get("range_scale", -1), ci.get("range_offset", -1)
-        elif kind == k.GPS:
+        elif kind == GPS:
             z[:, 0], z[:, 1] = st["x"], st["y"]
             aux[:] = m.lever_arm
-        elif kind == k.COMPASS:
+        elif kind == COMPASS:
             z[:, 0] = se2.wrap(st["heading"])
             sidx[si, 0] = ci.get("compass_offset", -1)
         else:

@@ -109,12 +109,23 @@ def _pose_step(pose, d0, d1, d2, P, Fu, var, with_cov):
     P[1, 2] = P[2, 1] = n12 + q12
 
 
+@njit(cache=True, inline="always")
+def _dsinc_half(w):
+    """d/dw of sinc(w/2) (``motion._dsinc_half``)."""
+    h = 0.5 * w
+    if abs(h) < 0.05:
+        h2 = h * h
+        return 0.5 * (h * (-1.0 / 3.0 + h2 * (1.0 / 30.0 + h2 * (-1.0 / 840.0 + h2 / 45360.0))))
+    return 0.5 * (h * math.cos(h) - math.sin(h)) / (h * h)
+
+
 @njit(cache=True)
 def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
     """Dead reckoning of a drive with ``twist = M u`` and ``var = K |u| + floor``.
 
-    The pose and the six covariance entries live in scalars; each step's ``F_u`` column and
-    input variance are formed on the fly (no per-step arrays).
+    The chord form of ``motion.dead_reckon`` (``z = g (v_x + i v_y) e^{i phi}``, three
+    transcendental functions per step) with its Jacobian rows for ``F_u``; the pose and the
+    six covariance entries live in scalars (no per-step arrays).
 
     Parameters
     ----------
@@ -131,7 +142,6 @@ def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
     p01 = 0.5 * (P0[0, 1] + P0[1, 0])
     p02 = 0.5 * (P0[0, 2] + P0[2, 0])
     p12 = 0.5 * (P0[1, 2] + P0[2, 1])
-    Jt = np.empty((3, 3))
     poses[0, 0], poses[0, 1], poses[0, 2] = x, y, th
     if with_cov:
         covs[0, 0, 0], covs[0, 0, 1], covs[0, 0, 2] = p00, p01, p02
@@ -144,28 +154,45 @@ def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
             w += M[0, j] * u
             vx += M[1, j] * u
             vy += M[2, j] * u
-        d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
-        c, s = math.cos(th), math.sin(th)
-        dxw = c * d0 - s * d1
-        dyw = s * d0 + c * d1
+        half = 0.5 * w
+        if integ == 0:
+            phi = th
+        elif integ == 3:
+            phi = th + w
+        else:
+            phi = th + half
+        c, s = math.cos(phi), math.sin(phi)
+        g = 1.0
+        if integ == 2 and half != 0.0:
+            g = math.sin(half) / half
+        zr, zi = c * vx - s * vy, s * vx + c * vy
+        dxw, dyw = g * zr, g * zi
         if with_cov:
+            if integ == 2:
+                a, b = _dsinc_half(w), 0.5 * g
+                jw0, jw1 = zr * a - zi * b, zr * b + zi * a
+            elif integ == 1:
+                jw0, jw1 = -0.5 * zi, 0.5 * zr
+            elif integ == 3:
+                jw0, jw1 = -zi, zr
+            else:
+                jw0 = jw1 = 0.0
+            gc, gs = g * c, g * s
             q00 = q01 = q02 = q11 = q12 = q22 = 0.0
             for j in range(n):
                 v = floor[j]
                 for i in range(n):
                     v += K[j, i] * abs(U[k, i])
                 m0, m1, m2 = M[0, j], M[1, j], M[2, j]
-                b0 = Jt[0, 0] * m0 + Jt[0, 1] * m1 + Jt[0, 2] * m2
-                b1 = Jt[1, 0] * m0 + Jt[1, 1] * m1 + Jt[1, 2] * m2
-                f0 = c * b0 - s * b1
-                f1 = s * b0 + c * b1
-                f2 = m0  # the theta row of J_delta_twist is (1, 0, 0)
-                q00 += f0 * v * f0
-                q01 += f0 * v * f1
-                q02 += f0 * v * f2
-                q11 += f1 * v * f1
-                q12 += f1 * v * f2
-                q22 += f2 * v * f2
+                f0 = jw0 * m0 + gc * m1 - gs * m2
+                f1 = jw1 * m0 + gs * m1 + gc * m2
+                f0v, f1v = f0 * v, f1 * v
+                q00 += f0v * f0
+                q01 += f0v * f1
+                q02 += f0v * m0
+                q11 += f1v * f1
+                q12 += f1v * m0
+                q22 += m0 * v * m0
             e0, e1 = -dyw, dxw
             n00 = p00 + 2.0 * e0 * p02 + e0 * e0 * p22
             n01 = p01 + e0 * p12 + e1 * p02 + e0 * e1 * p22
@@ -179,7 +206,7 @@ def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
             covs[k + 1, 2, 0], covs[k + 1, 2, 1], covs[k + 1, 2, 2] = p02, p12, p22
         x += dxw
         y += dyw
-        th = _wrap(th + d2)
+        th = _wrap(th + w)
         poses[k + 1, 0], poses[k + 1, 1], poses[k + 1, 2] = x, y, th
 
 
