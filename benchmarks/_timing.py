@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import math
+import os
+import sys
 import time
+
+# Runnable from any working directory: the repository (this file's parent folder) first.
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def best_of(fn, repeats: int = 3) -> float:

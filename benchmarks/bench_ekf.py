@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 import numpy as np
 from _timing import best_of
@@ -117,7 +118,7 @@ def run_localizer():
     from odofuse.io.builtin import load_builtin
 
     log = load_builtin("builtin:plaza1")
-    cfg = load_config("configs/plaza1-ekf.yaml")
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "plaza1-ekf.yaml")
     n = len(log.streams["odometry"]) + len(log.streams["ranges"])
     return n, best_of(lambda: run(log, cfg), 1)
 

@@ -38,6 +38,7 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
             "odofuse.trajectory",
             "odofuse.plugins",
             "odofuse.health",
+            "odofuse.chi2",
         ),
     ),
     # What the robot's readings mean (drive kinematics, encoder units): needed by io to turn

@@ -7,7 +7,28 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from odofuse.declarations.common import _NONNEG, _POSITIVE, DEFAULT_LATE_WINDOW
+from odofuse.errors import ConfigError
 from odofuse.options import option
+
+
+def _compiled_mode(v, key: str, src: str) -> str:
+    """``auto``/``on``/``off``; YAML's unquoted ``on``/``off`` arrive as true/false."""
+    v = {True: "on", False: "off"}.get(v, v) if isinstance(v, bool) else v
+    if v not in ("auto", "on", "off"):
+        raise ConfigError(f"must be one of auto, on, off, got {v!r}", src, key)
+    return v
+
+
+def _compiled_option():
+    """``compiled``: the numba core (odofuse.estimators.compiled) or the pure-Python path."""
+    return option(
+        "auto",
+        unit="-",
+        doc="numba core of offline runs: auto (if numba imports; dead reckoning from 1e6 "
+        "steps), on, off (pure Python)",
+        parse=_compiled_mode,
+        type_name="auto, on or off",
+    )
 
 
 @dataclass(frozen=True)
@@ -29,6 +50,7 @@ class DeadReckoningOptions:
     bias_sigma: float = option(
         0.01, unit="rad/s", doc="prior sigma of an unmodelled gyro bias in that test", **_NONNEG
     )
+    compiled: str = _compiled_option()
 
 
 @dataclass(frozen=True)
@@ -118,6 +140,8 @@ class FilterOptions:
 @dataclass(frozen=True)
 class EkfOptions(FilterOptions):
     """``options.ekf``: the extended Kalman filter."""
+
+    compiled: str = _compiled_option()
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,8 @@ import numpy as np
 
 from odofuse.estimators import monitors
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
-from odofuse.motion import dead_reckon, motion_model_from_config
+from odofuse.estimators.compiled.dead_reckoning import dead_reckon
+from odofuse.motion import motion_model_from_config
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -31,7 +32,8 @@ def run(log, config) -> EstimateResult:
     model = motion_model_from_config(config)
     t, U = odometry_inputs(log, model)
     pose0, P0 = initial_state(config, log)
-    poses, covs = dead_reckon(model, pose0, P0, U)
+    mode = config.estimator_options("dead_reckoning").compiled
+    poses, covs = dead_reckon(model, pose0, P0, U, mode=mode)  # numba core or numpy
     stream = odometry_stream_name(model)
     findings = []
     gyro = log.streams.get("gyro")

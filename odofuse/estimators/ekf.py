@@ -28,6 +28,7 @@ import numpy as np
 
 from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
+from odofuse.motion import linear_terms
 
 TWO_PI = 2.0 * math.pi
 _SERIES_BELOW = 1e-2
@@ -65,21 +66,10 @@ class FastIncrement:
     def __init__(self, model) -> None:
         drive = model.drive
         self.ok = False
-        if not hasattr(drive, "matrix"):
+        terms = linear_terms(model)
+        if terms is None:
             return
-        self.M = np.asarray(drive.matrix(), dtype=float)
-        self.scale = np.abs(np.asarray(drive.travel_scale(), dtype=float))
-        safe = np.where(self.scale > 0, self.scale, 1.0)
-        # var_i = sum_j K_ij |u_j| + floor_i (+ rate_i dt),
-        # K = (diag(k) + C) diag(scale) / scale_i^2
-        K = np.diag(np.asarray(model.errors.k, dtype=float))
-        if model.errors.cross is not None:
-            K = K + np.asarray(model.errors.cross, dtype=float)
-        K = K * self.scale[None, :] / (safe**2)[:, None]
-        self.K = np.where((self.scale > 0)[:, None], K, 0.0)
-        self.floor = np.asarray(model.errors.floor, dtype=float)
-        rate = model.errors.rate
-        self.rate = np.zeros(len(self.floor)) if rate is None else np.asarray(rate, dtype=float)
+        self.M, self.K, self.floor, self.rate = terms
         self.integrator = model.integrator
         self._K = self.K.tolist()
         self._f = self.floor.tolist()
@@ -417,4 +407,7 @@ def run(log, config):
         One pose per odometry step (plus the initial one) with world-frame covariances;
         ``used``/``rejected`` per sensor; ``extra["calibration"]`` the final augmented states.
     """
-    return run_with(log, config, "ekf", make_backend)
+    from odofuse.estimators.compiled import ekf as compiled_ekf
+
+    result = compiled_ekf.run(log, config)  # numba core, None when not covered or off
+    return result if result is not None else run_with(log, config, "ekf", make_backend)

@@ -220,7 +220,7 @@ class FilterMonitor:
         return out
 
     def _nis_findings(self, s: str) -> list[Finding]:
-        from scipy.stats import chi2
+        from odofuse import chi2
 
         # Accepted readings only: gated outliers are the gate's business (rejection runs and
         # fractions report those); the gate at 0.999 barely truncates the chi-square law.
@@ -533,7 +533,7 @@ def gyro_wheel_findings(t, dtheta_odo, var_odo, gyro_t, gyro_wz, gyro_sigma, opt
         ``heading_window`` seconds fails the chi-square test on
         ``(Delta_gyro - Delta_wheels)^2 / (var_wheels + var_gyro + (bias_sigma T)^2)``.
     """
-    from scipy.stats import chi2
+    from odofuse import chi2
 
     t = np.asarray(t, dtype=float)
     gt, gw = np.asarray(gyro_t, dtype=float), np.asarray(gyro_wz, dtype=float)

@@ -36,7 +36,7 @@ def gate_threshold(probability: float | None, dim: int) -> float:
     """
     if probability is None:
         return math.inf
-    from scipy.stats import chi2
+    from odofuse import chi2
 
     return float(chi2.ppf(float(probability), int(dim)))
 

@@ -35,6 +35,7 @@ from odofuse.motion.model import (
     GEOMETRY_EXCLUDE,
     MotionModel,
     dead_reckon,
+    linear_terms,
     motion_model_from_config,
     side_outliers,
 )
@@ -56,6 +57,7 @@ __all__ = [
     "error_model_from_config",
     "implied_k_theta_ds",
     "integrate",
+    "linear_terms",
     "motion_model_from_config",
     "side_outliers",
 ]

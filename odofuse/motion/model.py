@@ -264,3 +264,31 @@ def motion_model_from_config(config) -> MotionModel:
     drive = make_drive(robot["drive"], **geometry)
     motion = config.motion
     return MotionModel(drive, error_model_from_config(drive, motion), motion.integrator)
+
+
+def linear_terms(model: MotionModel):
+    """``(M, K, floor, rate)`` of a drive with ``twist = M u`` (``drive.matrix()``), whose
+    input variances are ``var = K |u| + floor + rate dt``; None for other drives.
+
+    ``K = (diag(k) + C) diag(scale) / scale_i^2`` on wheel rows (0 on steering rows), the
+    :meth:`OdometryErrorModel.variances` without its quadratic term (callers check ``quadratic``
+    and compare with :meth:`~OdometryErrorModel.variances` before relying on it).
+
+    Returns
+    -------
+    M : ndarray (3, n); K : ndarray (n, n); floor : ndarray (n,); rate : ndarray (n,), per s
+    """
+    drive = model.drive
+    if not hasattr(drive, "matrix"):
+        return None
+    M = np.asarray(drive.matrix(), dtype=float)
+    scale = np.abs(np.asarray(drive.travel_scale(), dtype=float))
+    safe = np.where(scale > 0, scale, 1.0)
+    K = np.diag(np.asarray(model.errors.k, dtype=float))
+    if model.errors.cross is not None:
+        K = K + np.asarray(model.errors.cross, dtype=float)
+    K = np.where((scale > 0)[:, None], K * scale[None, :] / (safe**2)[:, None], 0.0)
+    floor = np.asarray(model.errors.floor, dtype=float)
+    rate = model.errors.rate
+    rate = np.zeros(len(floor)) if rate is None else np.asarray(rate, dtype=float)
+    return M, K, floor, rate

@@ -1,0 +1,250 @@
+"""Compiled offline EKF: a whole log's event array through :func:`~.kernels.ekf_offline`.
+
+The run is assembled exactly as the pure-Python one (:func:`odofuse.estimators.localizer.build`:
+the same models, state layout, prior, random walks and odometry-calibration states), the log's
+rows become flat arrays in the order the streaming Localizer would apply them (measurements
+before the odometry step ending at their time, each step split at the measurement times), the
+kernel runs the filter, and the Localizer is handed the outcome (trajectory, final state,
+used/rejected/dropped counts, the monitor's per-reading NIS record) to build the same
+:class:`~odofuse.trajectory.EstimateResult` and findings.
+
+Covered (else :func:`unsupported` names the reason and the caller runs the Python path):
+drives with ``twist = F u`` (differential, skid-steer, increments, omni, ...) with the
+Siegwart error model (no ``alphas``), every integrator, odometry calibration of the
+increments/differential/skid-steer drives, and the built-in ``BeaconRange``,
+``GpsPosition`` (``x``, ``y`` columns), ``CompassHeading`` and ``GyroYawRate`` models (with
+their calibration and clone states, per-row ``sigma``). Not covered: gyrodometry, robust
+odometry (``slip`` with a gyro), landmark bearing and range-bearing, lat/lon GPS, plug-in
+models, duplicated readings. Recovery: the kernel does not re-open the filter; if the monitor
+says a recovery would have been triggered, the whole run falls back to Python (so the result
+is always the Python one).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from odofuse import se2
+from odofuse.declarations import INTEGRATORS
+from odofuse.estimators import compiled
+from odofuse.estimators.compiled.dead_reckoning import linear_terms
+
+_CAL_DRIVES = {"increments": 1, "differential": 2, "skid_steer": 2}
+#: Stream kinds of the kernels (``kernels.RANGE`` ...; repeated here so that deciding
+#: whether a run is covered does not import numba).
+RANGE, GPS, COMPASS, GYRO = 0, 1, 2, 3
+
+
+class _State:
+    """Backend stand-in holding ``x``/``P`` for the Localizer that receives the result."""
+
+    odo_cal = None
+
+    def __init__(self, model, models, x0, P0, walk, options) -> None:
+        self.model = model
+        self.x = np.array(x0, dtype=float)
+        self.P = np.array(P0, dtype=float)
+        self.walk = np.asarray(walk, dtype=float)
+
+    def mean(self) -> np.ndarray:
+        return self.x
+
+    def cov(self) -> np.ndarray:
+        return self.P
+
+
+def _kinds():
+    from odofuse.measurements import BeaconRange, CompassHeading, GpsPosition, GyroYawRate
+
+    return {BeaconRange: RANGE, GpsPosition: GPS, CompassHeading: COMPASS, GyroYawRate: GYRO}
+
+
+def unsupported(loc, log, streams) -> str | None:
+    """Why this run cannot take the compiled path (None when it can)."""
+    from odofuse.io.csvlog import MAX_MAGNITUDE
+
+    if loc._gyro_stream is not None:
+        return "gyrodometry"
+    if loc._slip_stream is not None:
+        return "robust odometry (slip) with a gyro"
+    model = loc.motion_model
+    if linear_terms(model) is None:
+        return f"drive '{model.drive.name}' or its error model is not linear in u"
+    cal = loc.backend.odo_cal
+    if cal is not None and cal.drive not in _CAL_DRIVES:
+        return f"odometry calibration of '{cal.drive}'"
+    kinds = _kinds()
+    for s in streams:
+        m = loc.models.get(s)
+        if m is None or type(m) not in kinds:
+            return f"stream '{s}' ({type(m).__name__})"
+        st = log.streams[s]
+        v = np.concatenate([st.t[:, None], st.values], axis=1) if len(st) else st.values
+        if not (np.all(np.isfinite(v)) and np.all(np.abs(v) <= MAX_MAGNITUDE)):
+            return f"stream '{s}' has non-finite or out-of-range values"
+        cols = set(st.columns)
+        kind = kinds[type(m)]
+        need = {RANGE: {"id", "range"}, GPS: {"x", "y"}, COMPASS: {"heading"}, GYRO: {"wz"}}[kind]
+        if not need <= cols:
+            return f"stream '{s}' lacks columns {sorted(need - cols)}"
+        if kind == GYRO and "gyro_theta_ref" not in m.calib_index:
+            return f"stream '{s}': no heading clone state"
+        ids = st["id"] if "id" in cols else np.zeros(len(st))
+        order = np.lexsort((ids, st.t))
+        if len(st) > 1 and np.any((np.diff(st.t[order]) == 0) & (np.diff(ids[order]) == 0)):
+            return f"stream '{s}' has repeated readings (same t and id)"
+        if kind == RANGE:
+            beacons = m._beacons
+            if not all(int(round(i)) in beacons for i in np.unique(ids)):
+                return f"stream '{s}' names a beacon that is not in the map"
+    return None
+
+
+def _measurements(loc, log, streams, t, kinds):
+    """Flat measurement arrays in the Localizer's order, and the per-stream tables."""
+    S = len(streams)
+    skind = np.zeros(S, dtype=np.int64)
+    sidx = np.full((S, 2), -1, dtype=np.int64)
+    sgate = np.zeros(S)
+    sR = np.zeros((S, 2, 2))
+    mt, ms, mz, maux, mR = [], [], [], [], []
+    for si, s in enumerate(streams):
+        m = loc.models[s]
+        st = log.streams[s]
+        kind = kinds[type(m)]
+        skind[si] = kind
+        sgate[si] = loc.monitor.gates[s]
+        d = m.dim
+        sR[si, :d, :d] = m.R(None)
+        ci = m.calib_index
+        n = len(st)
+        z = np.zeros((n, 2))
+        aux = np.zeros((n, 2))
+        if kind == RANGE:
+            z[:, 0] = st["range"]
+            b = m._beacons
+            keys = np.array(sorted(b), dtype=np.int64)
+            pos = np.array([b[i] for i in keys.tolist()], dtype=float).reshape(-1, 2)
+            ids = np.rint(st["id"]).astype(np.int64)  # round(): half to even, as np.rint
+            aux[:] = pos[np.searchsorted(keys, ids)] if n else aux
+            sidx[si] = ci.get("range_scale", -1), ci.get("range_offset", -1)
+        elif kind == GPS:
+            z[:, 0], z[:, 1] = st["x"], st["y"]
+            aux[:] = m.lever_arm
+        elif kind == COMPASS:
+            z[:, 0] = se2.wrap(st["heading"])
+            sidx[si, 0] = ci.get("compass_offset", -1)
+        else:
+            z[:, 0] = st["wz"]
+            sidx[si] = ci["gyro_theta_ref"], ci.get("gyro_bias", -1)
+        r = np.square(st["sigma"]) if "sigma" in st.columns else np.full(n, np.nan)
+        mt.append(st.t)
+        ms.append(np.full(n, si, dtype=np.int64))
+        mz.append(z)
+        maux.append(aux)
+        mR.append(r)
+    cat = np.concatenate
+    mt = cat(mt) if mt else np.zeros(0)
+    order = np.argsort(mt, kind="stable")  # events(): by time, then stream order, then row
+    ms, mz, maux, mR = (cat(a)[order] if a else np.zeros((0,)) for a in (ms, mz, maux, mR))
+    mt = mt[order]
+    return (
+        mt,
+        ms.astype(np.int64),
+        mz.reshape(-1, 2),
+        maux.reshape(-1, 2),
+        mR,
+        (skind, sidx, sgate, sR),
+    )
+
+
+def _record(mon, stream: str, t, ok, nis) -> bool:
+    """Feed one stream's gated updates to the monitor, as ``FilterMonitor.observe`` would one
+    by one; True when a recovery would have been triggered (a run of ``reject_run``
+    rejections with recovery on). Fills the monitor's record arrays directly when they are
+    the ``array`` buffers it keeps (the equality tests compare the findings), else calls
+    ``observe`` per reading."""
+    from array import array
+
+    opts = mon.options
+    k = int(opts.reject_run)
+    if opts.recovery and k >= 1 and ok.size >= k:
+        bad = np.concatenate([[0], np.cumsum(~ok)])
+        if np.any(bad[k:] - bad[:-k] == k):
+            return True
+    bufs = (getattr(mon, "_t", {}).get(stream), getattr(mon, "_nis", {}).get(stream))
+    oks = getattr(mon, "_ok", {}).get(stream)
+    if all(isinstance(b, array) and b.typecode == "d" for b in bufs) and isinstance(oks, array):
+        bufs[0].frombytes(np.ascontiguousarray(t, dtype=float).tobytes())
+        v = np.where(np.isfinite(nis), nis, 1e300)
+        bufs[1].frombytes(v.astype(float).tobytes())
+        oks.frombytes(ok.astype(np.int8).tobytes())
+        return False
+    for tj, okj, nj in zip(t.tolist(), ok.tolist(), nis.tolist(), strict=True):
+        if mon.observe(stream, tj, okj, nj):
+            return True
+    return False
+
+
+def run(log, config):
+    """The compiled offline EKF, or None when the run is not covered (see module doc)."""
+    from odofuse.estimators.localizer import build
+
+    opts = config.estimator_options("ekf")
+    kern = compiled.enabled(getattr(opts, "compiled", "auto"), "options.ekf.compiled")
+    if kern is None:
+        return None
+    loc, t, U = build(config, log, "ekf", _State)
+    streams = [s for s in config.sensors if s in log.streams]
+    t = np.asarray(t, dtype=float)
+    U = np.ascontiguousarray(U, dtype=float)
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(U))) or np.any(np.diff(t) < 0):
+        return None
+    if len(t) > 2 and np.any(t[2:] == t[1:-1]):
+        return None  # repeated odometry times: the Localizer's duplicate rules apply
+    if unsupported(loc, log, streams) is not None:
+        return None
+    kinds = _kinds()
+    mt, ms, mz, maux, mR, (skind, sidx, sgate, sR) = _measurements(loc, log, streams, t, kinds)
+    t0 = t[0]
+    late = loc.late_window
+    # The step that applies each reading: the first step ending at or after it; readings at
+    # or before the start are applied to the initial state when inside the late window.
+    mstep = np.searchsorted(t[1:], mt, side="left").astype(np.int64)
+    at_start = mt <= t0
+    mstep[at_start] = -1
+    keep = ~(at_start & (mt < t0 - late)) & (mstep < len(U))
+    dropped = ~keep
+    for si, s in enumerate(streams):
+        loc.dropped_late[s] += int(np.count_nonzero(dropped & (ms == si)))
+    mt, ms, mstep, mz, maux, mR = (a[keep] for a in (mt, ms, mstep, mz, maux, mR))
+    model = loc.motion_model
+    M, K, floor, rate = linear_terms(model)
+    cal = loc.backend.odo_cal
+    cal_code = 0 if cal is None else _CAL_DRIVES[cal.drive]
+    cidx = np.asarray(cal.index if cal is not None else (), dtype=np.int64)
+    x, P = loc.backend.x.copy(), loc.backend.P.copy()
+    N = len(U)
+    traj_x, traj_P = np.empty((N + 1, 3)), np.empty((N + 1, 3, 3))
+    odom = loc._odom.copy()
+    acc = np.zeros(len(mt), dtype=np.int8)
+    nis = np.zeros(len(mt))
+    kern.ekf_offline(
+        x, P, loc.backend.walk, t, U, INTEGRATORS.index(model.integrator),
+        np.ascontiguousarray(M), np.ascontiguousarray(K), floor, rate, cal_code, cidx,
+        mt, ms, mstep, np.ascontiguousarray(mz), np.ascontiguousarray(maux), mR,
+        skind, sidx, sgate, sR, traj_x, traj_P, odom, acc, nis,
+    )  # fmt: skip
+    for si, s in enumerate(streams):
+        mine = ms == si
+        sel = mine & (acc != 2)  # clone-only first gyro readings are not counted
+        ok = acc[sel] == 1
+        if _record(loc.monitor, s, mt[sel], ok, nis[sel]):
+            return None  # a recovery would re-open the filter: the Python path does that
+        loc.used[s] += int(np.count_nonzero(ok))
+        loc.rejected[s] += int(ok.size - np.count_nonzero(ok))
+    loc.backend.x, loc.backend.P = x, P
+    loc._traj_t, loc._traj_x, loc._traj_P = t, traj_x, traj_P
+    loc._odom = odom
+    loc.t = float(t[-1])
+    return loc.result()

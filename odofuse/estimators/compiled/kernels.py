@@ -1,0 +1,609 @@
+"""numba kernels of the compiled offline core (imported only when numba is).
+
+Each kernel is the scalar form of a pure-Python reference, written so that it can be checked
+against it to 1e-9 (``tests/test_compiled.py``):
+
+* :func:`dr_linear` / :func:`dr_generic`: :func:`odofuse.motion.dead_reckon` (``MotionModel``
+  ``predict`` step by step, Siegwart's ``F_p P F_p^T + F_u Sigma_u F_u^T``);
+* :func:`ekf_offline`: the :class:`~odofuse.estimators.localizer.Localizer` event loop with
+  :class:`~odofuse.estimators.ekf.EkfBackend` (odometry prediction, optionally with the
+  odometry-calibration states, step splitting at measurement times, filterpy's Joseph-form
+  update and the chi-square gate) for range-to-beacon, GPS, compass and gyro-rate sensors.
+
+Integrator codes: 0 ``euler``, 1 ``rk2``, 2 ``exact``, 3 ``euler_end``. Compiled with
+``cache=True``: the first run on a machine compiles and stores the machine code next to this
+file (``__pycache__``); later runs load it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+TWO_PI = 2.0 * math.pi
+_SERIES_BELOW = 1e-2
+
+#: Stream kinds of :func:`ekf_offline`.
+RANGE, GPS, COMPASS, GYRO = 0, 1, 2, 3
+
+
+@njit(cache=True, inline="always")
+def _wrap(a):
+    return (a + math.pi) % TWO_PI - math.pi
+
+
+@njit(cache=True, inline="always")
+def _increment(integ, w, vx, vy, Jt):
+    """Body increment ``(dx, dy, dtheta)`` of twist ``(w, vx, vy)``; fills ``Jt`` (3, 3)."""
+    Jt[2, 0], Jt[2, 1], Jt[2, 2] = 1.0, 0.0, 0.0
+    if integ == 2:
+        half = 0.5 * w
+        sh, ch = math.sin(half), math.cos(half)
+        sinc_half = 1.0 if half == 0.0 else sh / half
+        A, B = sinc_half * ch, sinc_half * sh
+        if abs(w) < _SERIES_BELOW:
+            w2 = w * w
+            dA = w * (-1.0 / 3.0 + w2 * (1.0 / 30.0 + w2 * (-1.0 / 840.0 + w2 / 45360.0)))
+            dB = 0.5 + w2 * (-1.0 / 8.0 + w2 * (1.0 / 144.0 + w2 * (-1.0 / 5760.0 + w2 / 403200.0)))
+        else:
+            s2, omc = 2.0 * sh * ch, 2.0 * sh * sh
+            dA = (w * (1.0 - omc) - s2) / (w * w)
+            dB = (w * s2 - omc) / (w * w)
+        Jt[0, 0], Jt[0, 1], Jt[0, 2] = dA * vx - dB * vy, A, -B
+        Jt[1, 0], Jt[1, 1], Jt[1, 2] = dB * vx + dA * vy, B, A
+        return A * vx - B * vy, B * vx + A * vy, w
+    if integ == 0:
+        Jt[0, 0], Jt[0, 1], Jt[0, 2] = 0.0, 1.0, 0.0
+        Jt[1, 0], Jt[1, 1], Jt[1, 2] = 0.0, 0.0, 1.0
+        return vx, vy, w
+    f = 0.5 if integ == 1 else 1.0
+    c, s = math.cos(f * w), math.sin(f * w)
+    Jt[0, 0], Jt[0, 1], Jt[0, 2] = f * (-s * vx - c * vy), c, -s
+    Jt[1, 0], Jt[1, 1], Jt[1, 2] = f * (c * vx - s * vy), s, c
+    return c * vx - s * vy, s * vx + c * vy, w
+
+
+@njit(cache=True)
+def _pose_step(pose, d0, d1, d2, P, Fu, var, with_cov):
+    """``pose <- pose (+) d`` and ``P <- F_p P F_p^T + F_u diag(var) F_u^T`` (body ``F_u``).
+
+    ``Fu`` (3, n) holds ``J_delta_u`` on entry (body frame) and is rotated in place.
+    """
+    th = pose[2]
+    c, s = math.cos(th), math.sin(th)
+    dxw = c * d0 - s * d1
+    dyw = s * d0 + c * d1
+    pose[0] += dxw
+    pose[1] += dyw
+    pose[2] = _wrap(th + d2)
+    if not with_cov:
+        return
+    n = Fu.shape[1]
+    for j in range(n):
+        a, b = Fu[0, j], Fu[1, j]
+        Fu[0, j] = c * a - s * b
+        Fu[1, j] = s * a + c * b
+    # F_p = I + e c^T with e = (-dyw, dxw, 0) on the theta column.
+    e0, e1 = -dyw, dxw
+    p02, p12, p22 = P[0, 2], P[1, 2], P[2, 2]
+    n00 = P[0, 0] + 2.0 * e0 * p02 + e0 * e0 * p22
+    n01 = P[0, 1] + e0 * p12 + e1 * p02 + e0 * e1 * p22
+    n11 = P[1, 1] + 2.0 * e1 * p12 + e1 * e1 * p22
+    n02 = p02 + e0 * p22
+    n12 = p12 + e1 * p22
+    q00 = q01 = q02 = q11 = q12 = q22 = 0.0
+    for j in range(n):
+        v = var[j]
+        f0, f1, f2 = Fu[0, j], Fu[1, j], Fu[2, j]
+        q00 += f0 * v * f0
+        q01 += f0 * v * f1
+        q02 += f0 * v * f2
+        q11 += f1 * v * f1
+        q12 += f1 * v * f2
+        q22 += f2 * v * f2
+    P[0, 0], P[1, 1], P[2, 2] = n00 + q00, n11 + q11, p22 + q22
+    P[0, 1] = P[1, 0] = n01 + q01
+    P[0, 2] = P[2, 0] = n02 + q02
+    P[1, 2] = P[2, 1] = n12 + q12
+
+
+@njit(cache=True, inline="always")
+def _dsinc_half(w):
+    """d/dw of sinc(w/2) (``motion._dsinc_half``)."""
+    h = 0.5 * w
+    if abs(h) < 0.05:
+        h2 = h * h
+        return 0.5 * (h * (-1.0 / 3.0 + h2 * (1.0 / 30.0 + h2 * (-1.0 / 840.0 + h2 / 45360.0))))
+    return 0.5 * (h * math.cos(h) - math.sin(h)) / (h * h)
+
+
+@njit(cache=True)
+def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
+    """Dead reckoning of a drive with ``twist = M u`` and ``var = K |u| + floor``.
+
+    The chord form of ``motion.dead_reckon`` (``z = g (v_x + i v_y) e^{i phi}``, three
+    transcendental functions per step) with its Jacobian rows for ``F_u``; the pose and the
+    six covariance entries live in scalars (no per-step arrays).
+
+    Parameters
+    ----------
+    pose0 : (3,), P0 : (3, 3)
+    U : (N, n) drive inputs; M : (3, n); K : (n, n); floor : (n,)
+    integ : int
+        Integrator code.
+    with_cov : bool
+    poses : (N+1, 3) out; covs : (N+1, 3, 3) out (untouched unless ``with_cov``)
+    """
+    n = U.shape[1]
+    x, y, th = pose0[0], pose0[1], pose0[2]
+    p00, p11, p22 = P0[0, 0], P0[1, 1], P0[2, 2]
+    p01 = 0.5 * (P0[0, 1] + P0[1, 0])
+    p02 = 0.5 * (P0[0, 2] + P0[2, 0])
+    p12 = 0.5 * (P0[1, 2] + P0[2, 1])
+    poses[0, 0], poses[0, 1], poses[0, 2] = x, y, th
+    if with_cov:
+        covs[0, 0, 0], covs[0, 0, 1], covs[0, 0, 2] = p00, p01, p02
+        covs[0, 1, 0], covs[0, 1, 1], covs[0, 1, 2] = p01, p11, p12
+        covs[0, 2, 0], covs[0, 2, 1], covs[0, 2, 2] = p02, p12, p22
+    for k in range(U.shape[0]):
+        w = vx = vy = 0.0
+        for j in range(n):
+            u = U[k, j]
+            w += M[0, j] * u
+            vx += M[1, j] * u
+            vy += M[2, j] * u
+        half = 0.5 * w
+        if integ == 0:
+            phi = th
+        elif integ == 3:
+            phi = th + w
+        else:
+            phi = th + half
+        c, s = math.cos(phi), math.sin(phi)
+        g = 1.0
+        if integ == 2 and half != 0.0:
+            g = math.sin(half) / half
+        zr, zi = c * vx - s * vy, s * vx + c * vy
+        dxw, dyw = g * zr, g * zi
+        if with_cov:
+            if integ == 2:
+                a, b = _dsinc_half(w), 0.5 * g
+                jw0, jw1 = zr * a - zi * b, zr * b + zi * a
+            elif integ == 1:
+                jw0, jw1 = -0.5 * zi, 0.5 * zr
+            elif integ == 3:
+                jw0, jw1 = -zi, zr
+            else:
+                jw0 = jw1 = 0.0
+            gc, gs = g * c, g * s
+            q00 = q01 = q02 = q11 = q12 = q22 = 0.0
+            for j in range(n):
+                v = floor[j]
+                for i in range(n):
+                    v += K[j, i] * abs(U[k, i])
+                m0, m1, m2 = M[0, j], M[1, j], M[2, j]
+                f0 = jw0 * m0 + gc * m1 - gs * m2
+                f1 = jw1 * m0 + gs * m1 + gc * m2
+                f0v, f1v = f0 * v, f1 * v
+                q00 += f0v * f0
+                q01 += f0v * f1
+                q02 += f0v * m0
+                q11 += f1v * f1
+                q12 += f1v * m0
+                q22 += m0 * v * m0
+            e0, e1 = -dyw, dxw
+            n00 = p00 + 2.0 * e0 * p02 + e0 * e0 * p22
+            n01 = p01 + e0 * p12 + e1 * p02 + e0 * e1 * p22
+            n11 = p11 + 2.0 * e1 * p12 + e1 * e1 * p22
+            n02 = p02 + e0 * p22
+            n12 = p12 + e1 * p22
+            p00, p01, p11 = n00 + q00, n01 + q01, n11 + q11
+            p02, p12, p22 = n02 + q02, n12 + q12, p22 + q22
+            covs[k + 1, 0, 0], covs[k + 1, 0, 1], covs[k + 1, 0, 2] = p00, p01, p02
+            covs[k + 1, 1, 0], covs[k + 1, 1, 1], covs[k + 1, 1, 2] = p01, p11, p12
+            covs[k + 1, 2, 0], covs[k + 1, 2, 1], covs[k + 1, 2, 2] = p02, p12, p22
+        x += dxw
+        y += dyw
+        th = _wrap(th + w)
+        poses[k + 1, 0], poses[k + 1, 1], poses[k + 1, 2] = x, y, th
+
+
+@njit(cache=True)
+def dr_generic(pose, P, twist, J_tu, var, integ, with_cov, poses, covs):
+    """Dead reckoning of one block from precomputed twists ``(B, 3)``, ``J_twist_u``
+    ``(B, 3, n)`` and input variances ``(B, n)`` (any drive, any error model).
+
+    ``pose`` (3,) and ``P`` (3, 3) are advanced in place; ``poses`` ``(B, 3)`` and ``covs``
+    ``(B, 3, 3)`` receive the pose after each step.
+    """
+    n = J_tu.shape[2]
+    Jt = np.empty((3, 3))
+    Fu = np.empty((3, n))
+    for k in range(twist.shape[0]):
+        d0, d1, d2 = _increment(integ, twist[k, 0], twist[k, 1], twist[k, 2], Jt)
+        if with_cov:
+            for j in range(n):
+                for r in range(3):
+                    Fu[r, j] = (
+                        Jt[r, 0] * J_tu[k, 0, j]
+                        + Jt[r, 1] * J_tu[k, 1, j]
+                        + Jt[r, 2] * J_tu[k, 2, j]
+                    )
+        _pose_step(pose, d0, d1, d2, P, Fu, var[k if with_cov else 0], with_cov)
+        poses[k] = pose
+        if with_cov:
+            covs[k] = P
+
+
+# ----------------------------------------------------------------------------- EKF
+@njit(cache=True)
+def _work(n, m):
+    """Scratch buffers of the EKF kernels (allocated once per run, not per step)."""
+    return (
+        np.empty((3, 3)),  # 0 Jt
+        np.empty((3, m)),  # 1 Fu
+        np.empty(m),  # 2 var
+        np.empty(m),  # 3 uc (calibrated input) / u part
+        np.empty(n),  # 4 v
+        np.empty((n, n)),  # 5 F
+        np.empty((n, n)),  # 6 FP / A
+        np.empty((2, n)),  # 7 H
+        np.empty((n, 2)),  # 8 PHT
+        np.empty((n, 2)),  # 9 K
+        np.empty((2, n)),  # 10 HP
+        np.empty((n, 2)),  # 11 AH
+        np.empty((m, 3)),  # 12 Jc (du'/dp)
+        np.empty(m),  # 13 the step's input part
+    )
+
+
+@njit(cache=True)
+def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work):
+    """``EkfBackend.predict`` (``cal == 0``) or ``_predict_calibrated`` (1: increments,
+    2: differential / skid-steer) of the fraction ``part`` of a step (input ``u * part``)."""
+    Jt, Fu, var, uc, v, F, FP = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    Jc = work[12]
+    n = x.shape[0]
+    m = u.shape[0]
+    up = work[13]  # the step's input part, u * part (as the Localizer passes it)
+    for j in range(m):
+        up[j] = u[j] * part
+        uc[j] = up[j]
+    if cal == 1:
+        uc[0] = x[cidx[0]] * up[0]
+        uc[1] = x[cidx[1]] * up[1] + x[cidx[2]] * dt
+    elif cal == 2:
+        E, Eb = x[cidx[0]], x[cidx[1]]
+        R = up[1] * 2.0 * E / (1.0 + E)
+        L = up[0] * 2.0 / (1.0 + E)
+        mm, hh = 0.5 * (R + L), 0.5 * (R - L) / Eb
+        uc[0], uc[1] = mm - hh, mm + hh
+    w = vx = vy = 0.0
+    for j in range(m):
+        w += M[0, j] * uc[j]
+        vx += M[1, j] * uc[j]
+        vy += M[2, j] * uc[j]
+    d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
+    for j in range(m):
+        acc = floor[j] + rate[j] * dt
+        for i in range(m):
+            acc += K[j, i] * abs(uc[i])
+        var[j] = acc
+        for r in range(3):
+            Fu[r, j] = Jt[r, 0] * M[0, j] + Jt[r, 1] * M[1, j] + Jt[r, 2] * M[2, j]
+    th = x[2]
+    c, s = math.cos(th), math.sin(th)
+    dxw = c * d0 - s * d1
+    dyw = s * d0 + c * d1
+    for j in range(m):
+        a, b = Fu[0, j], Fu[1, j]
+        Fu[0, j] = c * a - s * b
+        Fu[1, j] = s * a + c * b
+    if cal == 0:
+        # F_p P F_p^T = P + B + B^T, B = e v^T, v = P[2] + P22 e / 2 (as EkfBackend.predict)
+        e0, e1 = -dyw, dxw
+        h = 0.5 * P[2, 2]
+        for i in range(n):
+            v[i] = P[2, i]
+        v[0] += h * e0
+        v[1] += h * e1
+        for i in range(n):
+            P[0, i] += e0 * v[i]
+            P[1, i] += e1 * v[i]
+        for i in range(n):
+            P[i, 0] += e0 * v[i]
+            P[i, 1] += e1 * v[i]
+    else:
+        # F = I + the theta column + the calibration columns F_u du'/dp
+        nc = cidx.shape[0]
+        if cal == 1:
+            Jc[0, 0], Jc[0, 1], Jc[0, 2] = up[0], 0.0, 0.0
+            Jc[1, 0], Jc[1, 1], Jc[1, 2] = 0.0, up[1], dt
+        else:
+            E, Eb = x[cidx[0]], x[cidx[1]]
+            g = 2.0 / (1.0 + E) ** 2
+            dR, dL = up[1] * g, -up[0] * g
+            R = up[1] * 2.0 * E / (1.0 + E)
+            L = up[0] * 2.0 / (1.0 + E)
+            dm, dh = 0.5 * (dR + dL), 0.5 * (dR - dL) / Eb
+            dh_b = -0.5 * (R - L) / Eb**2
+            Jc[0, 0], Jc[0, 1] = dm - dh, -dh_b
+            Jc[1, 0], Jc[1, 1] = dm + dh, dh_b
+        for i in range(n):
+            for j in range(n):
+                F[i, j] = 1.0 if i == j else 0.0
+        F[0, 2], F[1, 2] = -dyw, dxw
+        for r in range(3):
+            for q in range(nc):
+                acc = 0.0
+                for j in range(m):
+                    acc += Fu[r, j] * Jc[j, q]
+                F[r, cidx[q]] = acc
+        for i in range(n):
+            for j in range(n):
+                acc = 0.0
+                for k in range(n):
+                    acc += F[i, k] * P[k, j]
+                FP[i, j] = acc
+        for i in range(n):
+            for j in range(n):
+                acc = 0.0
+                for k in range(n):
+                    acc += FP[i, k] * F[j, k]
+                P[i, j] = acc
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for j in range(m):
+                acc += Fu[a, j] * var[j] * Fu[b, j]
+            P[a, b] += acc
+    if dt > 0:
+        for i in range(n):
+            P[i, i] += walk[i] * dt
+    if cal != 0:
+        for i in range(n):
+            for j in range(i + 1, n):
+                sym = 0.5 * (P[i, j] + P[j, i])
+                P[i, j] = sym
+                P[j, i] = sym
+    x[0] += dxw
+    x[1] += dyw
+    x[2] = _wrap(th + d2)
+
+
+@njit(cache=True)
+def _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work):
+    """filterpy's ``ExtendedKalmanFilter.update`` (Joseph form) with the gate; returns
+    ``(nis, accepted)``. The state is left unchanged when the NIS fails ``nis <= gate``.
+    ``R = [[r00, r01], [r01, r11]]`` (its first entry for scalar sensors)."""
+    A, H, PHT, Kg, HP, AH = work[6], work[7], work[8], work[9], work[10], work[11]
+    n = x.shape[0]
+    d = 2 if kind == GPS else 1
+    for r in range(d):
+        for i in range(n):
+            H[r, i] = 0.0
+    h0 = h1 = 0.0
+    if kind == RANGE:
+        dx, dy = x[0] - aux[0], x[1] - aux[1]
+        dist = math.hypot(dx, dy)
+        scale = x[idx[0]] if idx[0] >= 0 else 1.0
+        offset = x[idx[1]] if idx[1] >= 0 else 0.0
+        h0 = scale * dist + offset
+        dd = max(dist, 1e-9)
+        H[0, 0], H[0, 1] = scale * dx / dd, scale * dy / dd
+        if idx[0] >= 0:
+            H[0, idx[0]] = dist
+        if idx[1] >= 0:
+            H[0, idx[1]] = 1.0
+    elif kind == GPS:
+        lx, ly = aux[0], aux[1]
+        c, s = math.cos(x[2]), math.sin(x[2])
+        h0 = x[0] + c * lx - s * ly
+        h1 = x[1] + s * lx + c * ly
+        H[0, 0] = H[1, 1] = 1.0
+        H[0, 2] = -s * lx - c * ly
+        H[1, 2] = c * lx - s * ly
+    elif kind == COMPASS:
+        off = x[idx[0]] if idx[0] >= 0 else 0.0
+        h0 = _wrap(x[2] + off)
+        H[0, 2] = 1.0
+        if idx[0] >= 0:
+            H[0, idx[0]] = 1.0
+    else:  # GYRO
+        ref = x[idx[0]] if idx[0] >= 0 else x[2]
+        bias = x[idx[1]] if idx[1] >= 0 else 0.0
+        h0 = _wrap(x[2] - ref) / dt + bias
+        H[0, 2] = 1.0 / dt
+        if idx[0] >= 0:
+            H[0, idx[0]] = -1.0 / dt
+        if idx[1] >= 0:
+            H[0, idx[1]] = 1.0
+    y0 = z[0] - h0
+    y1 = z[1] - h1 if d == 2 else 0.0
+    if kind == COMPASS:
+        y0 = _wrap(y0)
+    for i in range(n):
+        for r in range(d):
+            acc = 0.0
+            for j in range(n):
+                acc += P[i, j] * H[r, j]
+            PHT[i, r] = acc
+    if d == 1:
+        s00 = r00
+        for i in range(n):
+            s00 += H[0, i] * PHT[i, 0]
+        i00 = 1.0 / s00
+        nis = y0 * i00 * y0
+        if not nis <= gate:
+            return nis, False
+        for i in range(n):
+            Kg[i, 0] = PHT[i, 0] * i00
+    else:
+        s00, s01, s10, s11 = r00, r01, r01, r11
+        for i in range(n):
+            s00 += H[0, i] * PHT[i, 0]
+            s01 += H[0, i] * PHT[i, 1]
+            s10 += H[1, i] * PHT[i, 0]
+            s11 += H[1, i] * PHT[i, 1]
+        det = s00 * s11 - s01 * s10
+        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+        nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i10 * y0 + i11 * y1)
+        if not nis <= gate:
+            return nis, False
+        for i in range(n):
+            Kg[i, 0] = PHT[i, 0] * i00 + PHT[i, 1] * i10
+            Kg[i, 1] = PHT[i, 0] * i01 + PHT[i, 1] * i11
+    for i in range(n):
+        x[i] += Kg[i, 0] * y0 + (Kg[i, 1] * y1 if d == 2 else 0.0)
+    # (I - KH) P (I - KH)^T + K R K^T with A = (I - KH) P:  A - (A H^T) K^T + K R K^T
+    for r in range(d):
+        for j in range(n):
+            acc = 0.0
+            for i in range(n):
+                acc += H[r, i] * P[i, j]
+            HP[r, j] = acc
+    for i in range(n):
+        for j in range(n):
+            acc = P[i, j]
+            for r in range(d):
+                acc -= Kg[i, r] * HP[r, j]
+            A[i, j] = acc
+    for i in range(n):
+        for r in range(d):
+            acc = 0.0
+            for j in range(n):
+                acc += A[i, j] * H[r, j]
+            AH[i, r] = acc
+    for i in range(n):
+        for j in range(n):
+            if d == 1:
+                P[i, j] = A[i, j] - AH[i, 0] * Kg[j, 0] + Kg[i, 0] * r00 * Kg[j, 0]
+            else:
+                k0 = Kg[i, 0] * r00 + Kg[i, 1] * r01
+                k1 = Kg[i, 0] * r01 + Kg[i, 1] * r11
+                P[i, j] = (
+                    A[i, j]
+                    - AH[i, 0] * Kg[j, 0]
+                    - AH[i, 1] * Kg[j, 1]
+                    + k0 * Kg[j, 0]
+                    + k1 * Kg[j, 1]
+                )
+    x[2] = _wrap(x[2])
+    return nis, True
+
+
+@njit(cache=True)
+def _clone(x, P, dst, src):
+    x[dst] = x[src]
+    for i in range(x.shape[0]):
+        P[dst, i] = P[src, i]
+    for i in range(x.shape[0]):
+        P[i, dst] = P[i, src]
+    P[dst, dst] = P[src, src]
+
+
+@njit(cache=True)
+def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work):
+    s = ms[j]
+    kind = skind[s]
+    tm = mt[j]
+    dt = 0.0
+    if kind == GYRO:
+        if math.isnan(t_ref[s]) or tm <= t_ref[s]:
+            t_ref[s] = tm
+            _clone(x, P, sidx[s, 0], 2)
+            acc[j] = 2
+            return
+        dt = tm - t_ref[s]
+    if math.isnan(mR[j]):
+        r00, r01, r11 = sR[s, 0, 0], sR[s, 0, 1], sR[s, 1, 1]
+    else:
+        r00, r01, r11 = mR[j], 0.0, mR[j]
+    v, ok = _ekf_update(
+        x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s], work
+    )  # fmt: skip
+    nis[j] = v
+    acc[j] = 1 if ok else 0
+    if kind == GYRO:
+        t_ref[s] = tm
+        _clone(x, P, sidx[s, 0], 2)
+
+
+@njit(cache=True)
+def ekf_offline(
+    x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
+    mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
+    traj_x, traj_P, odom, acc, nis,
+):  # fmt: skip
+    """The Localizer's offline event loop with the EKF backend, over a whole log.
+
+    Parameters
+    ----------
+    x : (n,), P : (n, n)
+        Prior state and covariance; updated in place to the final ones.
+    walk : (n,) random-walk variance per second.
+    tt : (N+1,) odometry times (s); U : (N, m) drive inputs.
+    integ, M, K, floor, rate : the motion model (see :func:`dr_linear`; ``rate`` per second).
+    cal : 0 none, 1 increments, 2 differential; cidx : calibration state indices.
+    mt, ms, mstep : (J,) measurement times, stream indices and the step that applies each
+        (-1: applied to the initial state), in the Localizer's order.
+    mz : (J, 2) values; maux : (J, 2) beacon position or lever arm; mR : (J,) a row's own
+        variance (NaN: the stream's ``sR``).
+    skind, sidx (S, 2), sgate, sR (S, 2, 2) : per-stream kind, state columns, gate, R.
+    traj_x : (N+1, 3), traj_P : (N+1, 3, 3), odom : (3,), acc : (J,) int8, nis : (J,) out.
+        ``acc`` is 1 accepted, 0 rejected, 2 a clone-only first gyro reading.
+    """
+    n = x.shape[0]
+    m = U.shape[1]
+    work = _work(n, m)
+    Jt = work[0]
+    t_ref = np.full(skind.shape[0], np.nan)
+    dummy = np.empty((3, m))
+    var0 = np.empty(m)
+    zero_P = np.zeros((3, 3))
+    for a in range(3):
+        traj_x[0, a] = x[a]
+        for b in range(3):
+            traj_P[0, a, b] = P[a, b]
+    J = mt.shape[0]
+    j = 0
+    while j < J and mstep[j] == -1:
+        _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work)
+        j += 1
+    for k in range(U.shape[0]):
+        t0, t1 = tt[k], tt[k + 1]
+        u = U[k]
+        span = t1 - t0
+        done = 0.0
+        due = False
+        while j < J and mstep[j] == k:
+            due = True
+            tm = mt[j]
+            f = 1.0 if span <= 0.0 else min(max((tm - t0) / span, done), 1.0)
+            if f > done:
+                part = f - done
+                _ekf_predict(
+                    x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work
+                )  # fmt: skip
+                done = f
+            _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work)
+            j += 1
+        if done < 1.0 or not due:
+            part = 1.0 - done
+            _ekf_predict(
+                x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work
+            )  # fmt: skip
+        for a in range(3):
+            traj_x[k + 1, a] = x[a]
+            for b in range(3):
+                traj_P[k + 1, a, b] = P[a, b]
+        # The continuous odometry pose (uncalibrated increments), for map_to_odom.
+        w = vx = vy = 0.0
+        for i in range(m):
+            w += M[0, i] * u[i]
+            vx += M[1, i] * u[i]
+            vy += M[2, i] * u[i]
+        d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
+        _pose_step(odom, d0, d1, d2, zero_P, dummy, var0, False)

@@ -1,0 +1,300 @@
+"""The compiled offline core (numba) equals the pure-Python reference paths (issue 17 item 1).
+
+Dead reckoning against :func:`odofuse.motion.dead_reckon` for linear and non-linear drives and
+every integrator; the offline EKF against the streaming Localizer (filterpy backend) on seeded
+simulated logs and a Plaza1 slice, including the gate decisions, counts and findings; the
+fallback without numba; metrics.json of ``odofuse run`` on Plaza1 unchanged; and what an EKF
+run imports.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba")
+
+from graph_sim import excerpt, simulated_run  # noqa: E402
+
+from odofuse.config import RunConfig, config_from_dict  # noqa: E402
+from odofuse.estimators import compiled  # noqa: E402
+from odofuse.estimators.compiled import ekf as compiled_ekf  # noqa: E402
+from odofuse.estimators.compiled.dead_reckoning import dead_reckon  # noqa: E402
+from odofuse.estimators.ekf import make_backend  # noqa: E402
+from odofuse.estimators.localizer import run_with  # noqa: E402
+from odofuse.motion import dead_reckon as dead_reckon_reference  # noqa: E402
+from odofuse.motion import motion_model_from_config  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+INTEGRATORS = ("euler", "rk2", "exact", "euler_end")
+DRIVES = [
+    ("differential", {"wheel_radius": 0.05, "track_width": 0.3}, {"k_r": 2e-4, "k_l": 3e-4}),
+    ("increments", {}, {"k": [1e-3, 1e-4], "k_theta_ds": 2e-5}),
+    ("mecanum4", {"wheel_radius": 0.05, "half_length": 0.2, "half_width": 0.15}, {"k": 1e-4}),
+    ("ackermann", {"wheel_radius": 0.3, "wheelbase": 2.5, "track_width": 1.5}, {"k": 1e-4}),
+    ("twist", {}, {"k": [1e-3, 1e-4], "alphas": [0.01, 0.001, 0.01, 0.001]}),
+]
+
+
+def _inputs(model, n, seed):
+    rng = np.random.default_rng(seed)
+    names = model.drive.input_names
+    U = rng.normal(0.0, 0.05, (n, len(names)))
+    kinds = getattr(model.drive, "input_kinds", ())
+    for j, kind in enumerate(kinds):
+        if kind == "wheel":
+            U[:, j] = 2.0 + rng.normal(0.0, 0.4, n)  # wheels roll forward, unevenly
+        elif kind == "steer":
+            U[:, j] = 0.3 * np.sin(np.arange(n) / 50.0)
+    return U
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+@pytest.mark.parametrize("drive,geometry,motion", DRIVES, ids=[d[0] for d in DRIVES])
+def test_dead_reckoning_equals_the_reference(drive, geometry, motion, integrator):
+    cfg = RunConfig(
+        log="x",
+        robot={"drive": drive, **geometry},
+        motion={"integrator": integrator, "var_floor": 1e-9, **motion},
+    )
+    model = motion_model_from_config(cfg)
+    U = _inputs(model, 3000, 1)
+    pose0 = np.array([1.0, -2.0, 3.1])
+    P0 = np.diag([0.01, 0.02, 0.003])
+    ref_p, ref_c = dead_reckon_reference(model, pose0, P0, U)
+    got_p, got_c = dead_reckon(model, pose0, P0, U, mode="on")
+    np.testing.assert_allclose(got_p, ref_p, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got_c, ref_c, rtol=0, atol=1e-9)
+    only, none = dead_reckon(model, pose0, P0, U, with_cov=False, mode="on")
+    assert none is None
+    np.testing.assert_allclose(only, ref_p, rtol=0, atol=1e-9)
+
+
+SCENARIO = {
+    "seed": 3,
+    "dt": 0.02,
+    "robot": {"drive": "differential", "wheel_radius": 0.04, "track_width": 0.235},
+    "path": {"kind": "figure_eight", "radius": 3.0, "speed": 0.5, "laps": 1},
+    "systematic": {"E_d": 1.004, "E_b": 1.01},
+    "nonsystematic": {"k": 1.0e-5},
+    "sensors": {
+        "gyro": {"sigma": 0.005, "bias": 0.01, "rate": 25.0},
+        "gps": {"sigma": 0.3, "rate": 1.0},
+        "compass": {"sigma": 0.05, "rate": 2.0},
+        "ranges": {"sigma": 0.1, "rate": 5.0, "max_range": 15.0},
+    },
+    "beacons": [[1, 0.0, 6.0], [2, 0.0, -6.0], [3, 8.0, 0.0], [4, -8.0, 0.0]],
+}
+
+
+def _same(res, ref):
+    """Poses and covariances to 1e-9; counts, gate decisions, extras and findings equal."""
+    a, b = res.trajectory, ref.trajectory
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_allclose(a.poses, b.poses, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a.covariances, b.covariances, rtol=0, atol=1e-9)
+    assert res.used == ref.used and res.rejected == ref.rejected
+    ex, ey = dict(res.extra), dict(ref.extra)
+    for s in ex["calibration"]:
+        for k in ("value", "sigma"):
+            assert abs(ex["calibration"][s][k] - ey["calibration"][s][k]) < 1e-9
+    np.testing.assert_allclose(ex.pop("map_to_odom"), ey.pop("map_to_odom"), atol=1e-9)
+    ex.pop("calibration"), ey.pop("calibration")
+    assert ex == ey
+    assert len(res.findings) == len(ref.findings)
+    for f, g in zip(res.findings, ref.findings, strict=True):  # messages print figures
+        assert (f.check, f.message, f.sensor, f.t_start, f.t_end, f.degrades) == (
+            g.check, g.message, g.sensor, g.t_start, g.t_end, g.degrades
+        )  # fmt: skip
+        assert f.figure == pytest.approx(g.figure, rel=1e-9, abs=1e-12)
+
+
+def _python(log, cfg):
+    return run_with(log, cfg, "ekf", make_backend)
+
+
+@pytest.mark.parametrize("odo_cal", [False, True])
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+@pytest.mark.parametrize("sensors", [("ranges", "gps", "compass", "gyro"), ("ranges",)])
+def test_offline_ekf_equals_the_python_path_on_a_simulated_log(odo_cal, integrator, sensors):
+    options = {"odometry_calibration": odo_cal, "slip": False, "compiled": "on"}
+    log, cfg = simulated_run(SCENARIO, 3, "ekf", options)
+    cfg = dataclasses.replace(
+        cfg,
+        sensors={s: o for s, o in cfg.sensors.items() if s in sensors},
+        motion=dataclasses.replace(cfg.motion, integrator=integrator),
+    )
+    res = compiled_ekf.run(log, cfg)
+    assert res is not None, "this run is covered by the compiled core"
+    ref = _python(log, cfg)
+    assert sum(ref.used.values()) > 50
+    _same(res, ref)
+
+
+def test_gate_rejections_are_the_same_decisions():
+    """A tight gate rejects many readings: the compiled path rejects the same ones."""
+    log, cfg = simulated_run(SCENARIO, 4, "ekf", {"slip": False, "recovery": False})
+    sensors = {s: dataclasses.replace(o, gate=0.6) for s, o in cfg.sensors.items()}
+    cfg = dataclasses.replace(cfg, sensors=sensors)
+    res, ref = compiled_ekf.run(log, cfg), _python(log, cfg)
+    assert res is not None and sum(ref.rejected.values()) > 20
+    _same(res, ref)
+
+
+def test_uncovered_runs_fall_back_to_python():
+    """Robust odometry with a gyro (slip) and recoveries are not compiled: same result."""
+    from odofuse.estimators.ekf import run as run_ekf
+
+    log, cfg = simulated_run(SCENARIO, 3, "ekf", {"compiled": "on"})  # slip on by default
+    assert compiled_ekf.run(log, cfg) is None
+    _same(run_ekf(log, cfg), _python(log, cfg))
+
+
+def test_without_numba_the_fallback_gives_the_same_result(monkeypatch):
+    from odofuse.estimators.dead_reckoning import run as run_dr
+    from odofuse.estimators.ekf import run as run_ekf
+
+    log, cfg = simulated_run(SCENARIO, 3, "ekf", {"slip": False})
+    with_numba = run_ekf(log, cfg)
+    dr_cfg = dataclasses.replace(cfg, estimator="dead_reckoning")
+    dr_numba = run_dr(log, dr_cfg)
+    monkeypatch.setitem(sys.modules, "numba", None)  # import numba -> ImportError
+    monkeypatch.delitem(sys.modules, "odofuse.estimators.compiled.kernels", raising=False)
+    assert compiled.load_kernels() is None
+    assert compiled_ekf.run(log, cfg) is None
+    _same(run_ekf(log, cfg), with_numba)
+    dr_py = run_dr(log, dr_cfg)
+    np.testing.assert_allclose(dr_py.trajectory.poses, dr_numba.trajectory.poses, atol=1e-9)
+    np.testing.assert_allclose(
+        dr_py.trajectory.covariances, dr_numba.trajectory.covariances, atol=1e-9
+    )
+    from odofuse.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="needs numba"):
+        compiled.enabled("on", "options.ekf.compiled")
+
+
+def _plaza_config():
+    from odofuse.config import load_config
+
+    return load_config(ROOT / "odofuse" / "default_configs" / "plaza1-ekf.yaml")
+
+
+def test_plaza1_slice_equals_the_python_path():
+    from odofuse.io.builtin import load_builtin
+
+    log = excerpt(load_builtin("builtin:plaza1"), 600.0)
+    cfg = _plaza_config()
+    for odo_cal in (True, False):
+        opts = dataclasses.replace(cfg.estimator_options("ekf"), odometry_calibration=odo_cal)
+        c = dataclasses.replace(cfg, options={**cfg.options, "ekf": opts})
+        res = compiled_ekf.run(log, c)
+        assert res is not None
+        ref = _python(log, c)
+        assert ref.used["ranges"] > 100
+        _same(res, ref)
+
+
+def _metrics(tmp_path, mode):
+    text = (ROOT / "odofuse" / "default_configs" / "plaza1-ekf.yaml").read_text()
+    text = text.replace("  ekf:\n", f"  ekf:\n    compiled: {mode}\n", 1)
+    (tmp_path / f"{mode}.yaml").write_text(text)
+    out = tmp_path / f"out-{mode}"
+    env = {"PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg", "PATH": "/usr/bin:/bin"}
+    cmd = [sys.executable, "-m", "odofuse", "run", str(tmp_path / f"{mode}.yaml"), "-o", str(out)]
+    run = subprocess.run(cmd, check=True, env=env, cwd=tmp_path, capture_output=True, text=True)
+    m = json.loads((out / "metrics.json").read_text())
+    for key in ("runtime_s", "config"):
+        m.pop(key)
+    table = [
+        line.rsplit(maxsplit=2)[0] + line.rsplit(maxsplit=1)[1]
+        for line in run.stdout.splitlines()[:2]
+    ]
+    return m, table
+
+
+def _close(a, b, where=""):
+    """Equal structure; integers, strings and flags identical; floats to 1e-9 relative."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), where
+        for k in a:
+            _close(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _close(x, y, f"{where}[{i}]")
+    elif isinstance(a, float):
+        assert a == pytest.approx(b, rel=1e-9, abs=1e-12), where
+    else:
+        assert a == b and type(a) is type(b), where
+
+
+def test_plaza1_metrics_json_unchanged_to_the_printed_digit(tmp_path):
+    """Counts, findings and status identical; every figure the run prints identical (the
+    summary table without its runtime column); metrics.json floats to 1e-9 relative."""
+    (on, table_on), (off, table_off) = _metrics(tmp_path, "on"), _metrics(tmp_path, "off")
+    assert table_on == table_off
+    assert on["sensors"] == off["sensors"] and on["findings"] == off["findings"]
+    assert on["status"] == off["status"] and on["warnings"] == off["warnings"]
+    _close(on, off)
+
+
+def test_an_ekf_run_imports_only_what_it_needs(tmp_path):
+    """No scipy.stats, pyplot, gtsam, dask or filterpy for a (compiled) EKF run on Plaza1."""
+    code = (
+        "import sys\n"
+        "from odofuse.config import load_config\n"
+        "from odofuse.estimators import run_estimator\n"
+        "from odofuse.io.loader import load_log_for\n"
+        f"cfg = load_config({str(ROOT / 'odofuse/default_configs/plaza1-ekf.yaml')!r})\n"
+        "run_estimator('ekf', load_log_for(cfg), cfg)\n"
+        "bad = ['scipy.stats', 'matplotlib.pyplot', 'gtsam', 'dask', 'filterpy']\n"
+        "print([m for m in bad if m in sys.modules])\n"
+    )
+    env = {"PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg", "PATH": "/usr/bin:/bin"}
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
+def test_chi2_quantiles_equal_scipy_stats():
+    from scipy.stats import chi2 as reference
+
+    from odofuse import chi2
+
+    for p in (1e-6, 0.05, 0.5, 0.999, 1 - 1e-9):
+        for k in (1, 2, 3, 40, 100):
+            assert chi2.ppf(p, k) == reference.ppf(p, k)
+    np.testing.assert_array_equal(chi2.ppf([0.1, 0.9], 3), reference.ppf([0.1, 0.9], 3))
+
+
+def test_config_accepts_the_compiled_option():
+    cfg = config_from_dict(
+        {
+            "log": "x",
+            "robot": {"drive": "increments"},
+            "estimator": "ekf",
+            "options": {"ekf": {"compiled": "off"}, "dead_reckoning": {"compiled": "on"}},
+        }
+    )
+    assert cfg.estimator_options("ekf").compiled == "off"
+    assert cfg.estimator_options("dead_reckoning").compiled == "on"
+    with pytest.raises(ValueError, match="compiled"):
+        config_from_dict(
+            {"log": "x", "robot": {"drive": "increments"}, "options": {"ekf": {"compiled": "x"}}}
+        )
+
+
+def test_stream_kind_codes_agree_with_the_kernels():
+    from odofuse.estimators.compiled import kernels
+
+    codes = (compiled_ekf.RANGE, compiled_ekf.GPS, compiled_ekf.COMPASS, compiled_ekf.GYRO)
+    assert codes == (kernels.RANGE, kernels.GPS, kernels.COMPASS, kernels.GYRO)
