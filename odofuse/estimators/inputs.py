@@ -107,13 +107,28 @@ def check_measurement(stream: str, model, t: float, row: dict, x: np.ndarray) ->
 
 
 def check_odometry(t, u, names) -> tuple[float, np.ndarray]:
-    """Validate one odometry step: time ``t`` (s) and drive input ``u`` of ``len(names)``."""
+    """Validate one odometry step: time ``t`` (s) and drive input ``u`` of ``len(names)``.
+
+    Returns the time and a copy of the input as a float array (the caller may reuse its
+    buffer).
+    """
     t = _number(t, "odometry", "t")
+    if type(u) is np.ndarray and u.dtype == np.float64 and u.shape == (len(names),):
+        arr = u.copy()  # the common case, fast
+    else:
+        arr = _input_array(t, u, names)
+    for j, x in enumerate(arr.tolist()):
+        if not -MAX_MAGNITUDE <= x <= MAX_MAGNITUDE:  # NaN fails too
+            _number(x, "odometry", names[j], t)
+    return t, arr
+
+
+def _input_array(t: float, u, names) -> np.ndarray:
     what = f"odometry at t={t:.6f}"
     if u is None or isinstance(u, str | bytes | Mapping):
         raise InputError(f"{what}: input must be a sequence of numbers, got {type(u).__name__}")
     try:
-        arr = np.asarray(u, dtype=float)
+        arr = np.array(u, dtype=float)
     except (TypeError, ValueError):
         raise InputError(f"{what}: input is not a sequence of numbers", column="u") from None
     if arr.shape != (len(names),):
@@ -122,9 +137,7 @@ def check_odometry(t, u, names) -> tuple[float, np.ndarray]:
             f"got {arr.shape}",
             column="u",
         )
-    for j, x in enumerate(arr.tolist()):
-        _number(x, "odometry", names[j], t)
-    return t, arr
+    return arr
 
 
 class Duplicates:

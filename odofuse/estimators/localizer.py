@@ -40,9 +40,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -51,18 +49,11 @@ from odofuse.declarations import DEFAULT_LATE_WINDOW, EkfOptions
 from odofuse.errors import ConfigError, InputError
 from odofuse.estimators import inputs, monitors
 from odofuse.estimators.common import augmented_prior, state_layout
+from odofuse.estimators.history import Step, Steps, Track
 from odofuse.trajectory import EstimateResult, Trajectory
 
-
-@dataclass(frozen=True)
-class _Step:
-    """One processed odometry step, kept while it is inside the late window."""
-
-    t0: float
-    t1: float
-    u: np.ndarray
-    snapshot: object  # the filter state before the step
-    n_traj: int  # trajectory length before the step
+#: Odometry inputs composed into the ``odom`` pose at once (vectorised dead reckoning).
+_ODOM_BATCH = 512
 
 
 #: Key of the odometry-calibration states in the layout (not a measurement stream).
@@ -89,6 +80,11 @@ class Localizer:
         Estimator name for the result.
     options : odofuse.declarations.FilterOptions, optional
         Monitor, recovery and slip options (defaults: :class:`~odofuse.declarations.EkfOptions`).
+    keep_trajectory : bool
+        Keep every pose for :meth:`trajectory` and :meth:`result` (an offline run). With
+        False (a live Localizer, :meth:`from_config`'s default) only the poses of the late
+        window are kept, so memory stays flat however long it runs; the trajectory, the
+        result and the covariance checks of :meth:`health` then cover that window.
     """
 
     def __init__(
@@ -101,6 +97,7 @@ class Localizer:
         name: str = "filter",
         motion_model=None,
         options=None,
+        keep_trajectory: bool = True,
     ) -> None:
         if not late_window >= 0.0:
             raise ValueError(f"late_window must be >= 0 s, got {late_window}")
@@ -114,7 +111,8 @@ class Localizer:
         self.t_start = float(t0)
         self._seq = 0
         self._pending: list[tuple[float, int, str, dict]] = []
-        self._steps: deque[_Step] = deque()
+        self._steps = Steps(self.late_window)
+        self._book = None  # bookkeeping snapshot, shared by the steps while it holds
         self.used = {s: 0 for s in self.models}
         self.rejected = {s: 0 for s in self.models}
         self.dropped_late = {s: 0 for s in self.models}
@@ -130,17 +128,23 @@ class Localizer:
         self.monitor = monitors.FilterMonitor(self.options, self.models)
         self._init_recovery_and_slip()
         x = backend.mean()
-        self._traj_t = [self.t]
-        self._traj_x = [x[:3].copy()]
-        self._traj_P = [backend.cov()[:3, :3].copy()]
+        self._track = Track(self.t, x, backend.cov(), keep_all=keep_trajectory)
         self._odom = x[:3].copy()
+        self._odom_u: list[np.ndarray] = []  # inputs not yet composed into _odom
+        self._input_names = tuple(self.motion_model.drive.input_names)
         self._duplicates = inputs.Duplicates(self.late_window)
         self._x_probe = np.zeros_like(x)  # any state of the right length, for input checks
         self._watch, self._fate = None, inputs.USED
 
     @classmethod
     def from_config(
-        cls, config, t0: float, landmarks=None, estimator: str | None = None, initial_pose=None
+        cls,
+        config,
+        t0: float,
+        landmarks=None,
+        estimator: str | None = None,
+        initial_pose=None,
+        keep_trajectory: bool = False,
     ) -> Localizer:
         """A live Localizer from a run config, without a log.
 
@@ -156,6 +160,9 @@ class Localizer:
             ``"ekf"``, ``"ukf"`` or ``"particle"`` (default ``config.estimator``).
         initial_pose : array_like (3,), optional
             Start pose when ``config.initial`` has none.
+        keep_trajectory : bool
+            Keep every pose (see the class); by default only the late window's, so a live
+            Localizer's memory stays flat.
         """
         import importlib
         from types import SimpleNamespace
@@ -170,7 +177,7 @@ class Localizer:
         module = importlib.import_module(f"odofuse.estimators.{name}")
         pose = None if initial_pose is None else np.asarray(initial_pose, dtype=float)
         src = SimpleNamespace(landmarks=dict(landmarks or {}), initial_pose=pose, streams={})
-        return assemble(config, name, module.make_backend, t0, src)
+        return assemble(config, name, module.make_backend, t0, src, keep_trajectory)
 
     # ----------------------------------------------------------------- queries
     def pose(self) -> np.ndarray:
@@ -187,11 +194,13 @@ class Localizer:
 
     def odom_pose(self) -> np.ndarray:
         """Continuous wheel-odometry pose in the ``odom`` frame (REP-105), never corrected."""
+        if self._odom_u:
+            self._compose_odom()
         return self._odom.copy()
 
     def map_to_odom(self) -> np.ndarray:
         """``T_map_odom = T_map_base (+) inverse(T_odom_base)`` as ``[x, y, theta]``."""
-        return se2.compose(self.pose(), se2.inverse(self._odom))
+        return se2.compose(self.pose(), se2.inverse(self.odom_pose()))
 
     def calibration(self) -> dict[str, dict[str, float]]:
         """Current estimate and sigma of every augmented state that is not a clone."""
@@ -247,14 +256,15 @@ class Localizer:
             return inputs.BUFFERED
         self._watch, self._fate = item[1], inputs.USED
         try:
-            if not self._steps and self.t == self.t_start and t >= self.t - self.late_window:
+            steps = self._steps
+            if not steps and self.t == self.t_start and t >= self.t - self.late_window:
                 # Before the first odometry step: applied to the initial state as it is.
                 self._apply(item)
             elif (
                 t < self.t - self.late_window
                 or t <= self.t_start
-                or not self._steps
-                or t <= self._steps[0].t0
+                or not steps
+                or t <= steps.first().t0
             ):
                 self.dropped_late[stream] += 1
                 return inputs.DROPPED
@@ -270,7 +280,7 @@ class Localizer:
         Checked as a reading is (one number per drive input); an exact repeat of the previous
         step is dropped (``"duplicate"``), another input at the same time is an error.
         """
-        t, u = inputs.check_odometry(t, u, tuple(self.motion_model.drive.input_names))
+        t, u = inputs.check_odometry(t, u, self._input_names)
         if not t >= self.t:
             raise InputError(
                 f"odometry time {t:.6f} is before the filter time {self.t:.6f}", column="t"
@@ -281,8 +291,18 @@ class Localizer:
         while self._pending and self._pending[0][0] <= t:
             due.append(self._pending.pop(0))
         self._process_step(self.t, t, u, due)
-        self._odom = se2.compose(self._odom, self._increment(u)[0])
+        self._odom_u.append(u)
+        if len(self._odom_u) >= _ODOM_BATCH:
+            self._compose_odom()
         return inputs.USED
+
+    def _compose_odom(self) -> None:
+        """Dead-reckon the waiting inputs onto the ``odom`` pose (the shared motion model)."""
+        from odofuse.motion import dead_reckon
+
+        poses, _ = dead_reckon(self.motion_model, self._odom, None, self._odom_u, with_cov=False)
+        self._odom = poses[-1].copy()
+        self._odom_u.clear()
 
     def _store_gyro(self, t: float, wz: float) -> None:
         bisect.insort(self._gyro, (t, wz))
@@ -294,7 +314,7 @@ class Localizer:
     def _add_gyro_sample(self, row) -> None:
         t = float(row["t"])
         self._store_gyro(t, float(row["wz"]))
-        if t <= self.t and self._steps and t > self._steps[0].t0:
+        if t <= self.t and self._steps and t > self._steps.first().t0:
             self._replay_with(None, since=t)
 
     # ----------------------------------------------------------------- core
@@ -315,7 +335,13 @@ class Localizer:
         return total + rate * (t1 - cursor)
 
     def _process_step(self, t0, t1, u, due) -> None:
-        snap = self._snapshot() if self.late_window > 0 else None
+        keep = self.late_window > 0
+        if keep:
+            snap = self.backend.snapshot()
+            book = self._book
+            if book is None:
+                book = self._book = self._bookkeeping()
+            n_traj = len(self._track)
         dtheta_gyro = None
         if self._gyro_stream is not None:
             g = self._gyro_increment(t0, t1)
@@ -324,9 +350,15 @@ class Localizer:
                 if abs(g - d_odo) > self._gyro_threshold:
                     dtheta_gyro = g
                     self.gyro_switches += 1
+                    self._book = None
         # Gyro heading increment variance: a rate noise sigma (rad/s) held over the step.
         var_g = (self._gyro_sigma * (t1 - t0)) ** 2 if dtheta_gyro is not None else 0.0
-        scale = self._slip_scale(t0, t1, u) if self._slip_stream is not None else 1.0
+        scale = 1.0
+        if self._slip_stream is not None:
+            slips = self.slip_steps
+            scale = self._slip_scale(t0, t1, u)
+            if self.slip_steps != slips:
+                self._book = None
         span = t1 - t0
         done = 0.0
         for item in due:
@@ -338,30 +370,35 @@ class Localizer:
                 )
                 done = f
             self._apply(item)
-        if done < 1.0 or not due:
+        if not due:  # the common case: one prediction over the whole step
+            self._predict(u, span, dtheta_gyro, 1.0, var_g, scale)
+        elif done < 1.0:
             self._predict(
                 u * (1.0 - done), span * (1.0 - done), dtheta_gyro, 1.0 - done, var_g, scale
             )
-        if self.late_window > 0:
-            self._steps.append(_Step(t0, t1, u, (snap, list(due)), len(self._traj_t)))
-            horizon = t1 - self.late_window
-            while len(self._steps) > 1 and self._steps[1].t0 < horizon:
-                self._steps.popleft()
+        track = self._track
+        if keep:
+            steps = self._steps
+            steps.push(Step(t0, t1, u, snap, book, tuple(due), n_traj))
+            track.forget_before(steps.first().n_traj)
+        else:  # nothing can be replayed: only the newest pose matters
+            track.forget_before(len(track))
         self.t = t1
-        x, P = self.backend.mean(), self.backend.cov()
-        self._traj_t.append(t1)
-        self._traj_x.append(x[:3].copy())
-        self._traj_P.append(P[:3, :3].copy())
+        track.append(t1, self.backend.mean(), self.backend.cov())
 
     def _predict(self, u, dt, dtheta_gyro, frac, var_g, scale=1.0) -> None:
-        kw = {} if scale == 1.0 else {"noise_scale": scale}
         if dtheta_gyro is None:
-            self.backend.predict(u, dt, **kw)
+            if scale == 1.0:
+                self.backend.predict(u, dt)
+            else:
+                self.backend.predict(u, dt, noise_scale=scale)
         else:
+            kw = {} if scale == 1.0 else {"noise_scale": scale}
             self.backend.predict(u, dt, dtheta=dtheta_gyro * frac, var_dtheta=var_g * frac, **kw)
 
     def _apply(self, item) -> None:
         tm, _, stream, row = item
+        self._book = None  # counts, clone times and the monitor change below
         model = self.models[stream]
         clones = model.clones() if hasattr(model, "clones") else {}
         if clones:
@@ -391,9 +428,9 @@ class Localizer:
             if s in index:
                 self.backend.clone(index[s], src)
 
-    def _snapshot(self):
+    def _bookkeeping(self) -> tuple:
+        """What a replay restores besides the backend (never mutated once taken)."""
         return (
-            self.backend.snapshot(),
             dict(self.used),
             dict(self.rejected),
             dict(self._t_ref),
@@ -402,30 +439,28 @@ class Localizer:
             self.slip_steps,
         )
 
-    def _restore(self, snap) -> None:
-        b, used, rejected, t_ref, switches, mon, slips = snap
-        self.backend.restore(b)
+    def _restore(self, step: Step) -> None:
+        used, rejected, t_ref, switches, mon, slips = step.book
+        self.backend.restore(step.backend)
         self.used, self.rejected, self._t_ref = dict(used), dict(rejected), dict(t_ref)
         self.gyro_switches = switches
         self.monitor.restore(mon)
         self.slip_steps = slips
+        self._book = step.book  # the state is that bookkeeping again
 
     def _replay_with(self, item, since: float | None = None) -> None:
-        """Roll back to the step covering the late item (or time ``since``) and replay."""
+        """Roll back to the step covering the late item (or time ``since``) and replay.
+
+        Costs the steps from there to now: at most one late window (O(window)).
+        """
         t = item[0] if item is not None else since
-        steps = list(self._steps)
-        k = next(i for i, s in enumerate(steps) if s.t1 >= t)
-        snap0, _ = steps[k].snapshot
-        self._restore(snap0)
-        del self._traj_t[steps[k].n_traj :]
-        del self._traj_x[steps[k].n_traj :]
-        del self._traj_P[steps[k].n_traj :]
-        self.t = steps[k].t0
-        for _ in range(len(steps) - k):
-            self._steps.pop()
+        steps = self._steps.cut(t)
+        self._restore(steps[0])
+        self._track.truncate(steps[0].n_traj)
+        self.t = steps[0].t0
         inserted = item is None
-        for s in steps[k:]:
-            due = list(s.snapshot[1])
+        for s in steps:
+            due = list(s.due)
             if not inserted and item[0] <= s.t1:
                 bisect.insort(due, item)
                 inserted = True
@@ -439,8 +474,11 @@ class Localizer:
         self._pending.clear()
 
     def trajectory(self) -> Trajectory:
-        """Filtered poses at the initial time and after every odometry step."""
-        return Trajectory(np.array(self._traj_t), np.array(self._traj_x), np.array(self._traj_P))
+        """Filtered poses at the initial time and after every odometry step.
+
+        Without ``keep_trajectory`` only the poses of the late window (and the one before it).
+        """
+        return Trajectory(*self._track.arrays())
 
     def result(self) -> EstimateResult:
         """The run's :class:`EstimateResult` (calibration, late drops, gyro switches in extra)."""
@@ -506,7 +544,9 @@ def _gyrodometry(config):
     return ("gyro", opts.threshold)
 
 
-def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Localizer:
+def assemble(
+    config, estimator: str, make_backend, t0: float, log=None, keep_trajectory: bool = True
+) -> Localizer:
     """A :class:`Localizer` for ``config`` starting at time ``t0`` (s).
 
     ``log`` (optional) supplies the landmark map and the dataset's own start pose; for a live
@@ -547,7 +587,7 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
     late = opts.late_window
     if gyro is not None:
         gyro = (gyro[0], gyro[1], float(getattr(models["gyro"], "sigma", 0.0)))
-    return Localizer(backend, filt, float(t0), late, gyro, estimator, motion, opts)
+    return Localizer(backend, filt, float(t0), late, gyro, estimator, motion, opts, keep_trajectory)
 
 
 def build(config, log, estimator: str, make_backend):
