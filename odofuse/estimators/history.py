@@ -9,11 +9,15 @@ This module owns the two growing stores of the Localizer and keeps both bounded:
   runs; with ``keep_all=True`` (an offline run) it keeps every pose for the result.
 * :class:`Step` and :class:`Steps`, the odometry steps inside the late window with the filter
   state before each, from which a late reading is replayed: at most one window of steps, so a
-  replay costs O(window) and memory does not grow with the run.
+  replay costs O(window) and memory does not grow with the run;
+* the gyro rate samples of gyrodometry and robust odometry (:func:`keep_rate_sample`,
+  :func:`held_rate_integral`), also only as far back as a replay can reach.
 """
 
 from __future__ import annotations
 
+import bisect
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -161,3 +165,35 @@ class Steps:
             out.append(steps.pop())
         out.reverse()
         return out
+
+
+# ----------------------------------------------------------------------------- gyro rates
+def keep_rate_sample(samples: list, t: float, wz: float, horizon: float) -> None:
+    """Insert ``(t, wz)`` into the time-sorted ``samples``; forget those before ``horizon``.
+
+    The samples that can still matter for a replay stay, plus the last one before them (its
+    rate is held into the window).
+    """
+    bisect.insort(samples, (t, wz))
+    while len(samples) > 2 and samples[1][0] < horizon:
+        samples.pop(0)
+
+
+def held_rate_integral(samples: list, t0: float, t1: float) -> float | None:
+    """Integral over ``(t0, t1]`` of the rates ``samples`` = ``[(t, rate), ...]`` held
+    (zero-order hold) until the next sample; None before the first sample.
+
+    Before the first sample its rate is held backwards (no gap at the start of a log).
+    """
+    g = samples
+    if not g or g[0][0] > t1:
+        return None
+    total, cursor = 0.0, t0
+    i = bisect.bisect_right(g, (t0, math.inf)) - 1  # last sample at or before t0
+    rate = g[i][1] if i >= 0 else g[0][1]
+    for tj, wj in g[i + 1 :]:
+        if tj > t1:
+            break
+        total += rate * (tj - cursor)
+        cursor, rate = tj, wj
+    return total + rate * (t1 - cursor)

@@ -48,8 +48,19 @@ from odofuse import se2
 from odofuse.declarations import DEFAULT_LATE_WINDOW, EkfOptions
 from odofuse.errors import ConfigError, InputError
 from odofuse.estimators import inputs, monitors
-from odofuse.estimators.common import augmented_prior, state_layout
-from odofuse.estimators.history import Step, Steps, Track
+from odofuse.estimators.common import (
+    augmented_prior,
+    events,  # noqa: F401 - re-exported
+    gyrodometry_of,
+    state_layout,
+)
+from odofuse.estimators.history import (
+    Step,
+    Steps,
+    Track,
+    held_rate_integral,
+    keep_rate_sample,
+)
 from odofuse.trajectory import EstimateResult, Trajectory
 
 #: Odometry inputs composed into the ``odom`` pose at once (vectorised dead reckoning).
@@ -305,11 +316,7 @@ class Localizer:
         self._odom_u.clear()
 
     def _store_gyro(self, t: float, wz: float) -> None:
-        bisect.insort(self._gyro, (t, wz))
-        # Keep samples that can still matter for a replay plus the last one before it.
-        horizon = self.t - self.late_window - 1.0
-        while len(self._gyro) > 2 and self._gyro[1][0] < horizon:
-            self._gyro.pop(0)
+        keep_rate_sample(self._gyro, t, wz, self.t - self.late_window - 1.0)
 
     def _add_gyro_sample(self, row) -> None:
         t = float(row["t"])
@@ -320,19 +327,7 @@ class Localizer:
     # ----------------------------------------------------------------- core
     def _gyro_increment(self, t0: float, t1: float) -> float | None:
         """Heading change over (t0, t1] from the gyro rates (zero-order hold), None if none."""
-        g = self._gyro
-        if not g or g[0][0] > t1:
-            return None
-        total, cursor = 0.0, t0
-        i = bisect.bisect_right(g, (t0, math.inf)) - 1  # last sample at or before t0
-        # Before the first sample its rate is held backwards (no gap at the start of a log).
-        rate = g[i][1] if i >= 0 else g[0][1]
-        for tj, wj in g[i + 1 :]:
-            if tj > t1:
-                break
-            total += rate * (tj - cursor)
-            cursor, rate = tj, wj
-        return total + rate * (t1 - cursor)
+        return held_rate_integral(self._gyro, t0, t1)
 
     def _process_step(self, t0, t1, u, due) -> None:
         keep = self.late_window > 0
@@ -531,19 +526,6 @@ class Localizer:
 
 
 # --------------------------------------------------------------------- building from config
-def _gyrodometry(config):
-    opts = config.sensors.get("gyro")
-    if not getattr(opts, "gyrodometry", False):
-        return None
-    if opts.threshold is None:
-        raise ConfigError(
-            "gyrodometry needs a 'threshold' (rad per odometry step)",
-            config.source,
-            "sensors.gyro.threshold",
-        )
-    return ("gyro", opts.threshold)
-
-
 def assemble(
     config, estimator: str, make_backend, t0: float, log=None, keep_trajectory: bool = True
 ) -> Localizer:
@@ -572,7 +554,7 @@ def assemble(
     motion = motion_model_from_config(config)
     pose0, P0 = initial_state(config, log)
     models = measurement_models(config, log)
-    gyro = _gyrodometry(config)
+    gyro = gyrodometry_of(config)
     # With gyrodometry the gyro feeds the prediction and is not a measurement model.
     filt = {s: m for s, m in models.items() if gyro is None or s != gyro[0]}
     # Odometry calibration states (odofuse.estimators.odocal) are laid out after the sensors'.
@@ -607,26 +589,6 @@ def build(config, log, estimator: str, make_backend):
 
     t, U = odometry_inputs(log, motion_model_from_config(config))
     return assemble(config, estimator, make_backend, float(t[0]), log), t, U
-
-
-def events(log, t, U, streams) -> list[tuple[float, int, str, object]]:
-    """All rows of the odometry and measurement streams, stably sorted by time.
-
-    At equal times measurements come before the odometry step ending there, so they are
-    applied at their own time rather than replayed. Rows of one stream that go back in time
-    (the Plaza range log has two such blocks) simply take their place in time order.
-    """
-    out: list[tuple[float, int, int, str, object]] = []
-    for s in streams:
-        if s not in log.streams:
-            continue
-        st = log.streams[s]
-        for i in range(len(st)):
-            out.append((float(st.t[i]), 0, len(out), s, i))
-    for k in range(len(U)):
-        out.append((float(t[k + 1]), 1, len(out), "__odometry__", k))
-    out.sort(key=lambda e: (e[0], e[1], e[2]))
-    return [(e[0], e[1], e[3], e[4]) for e in out]
 
 
 def feed(loc: Localizer, log, t, U, streams) -> Localizer:
