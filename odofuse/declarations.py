@@ -202,6 +202,15 @@ class LogOptions:
         doc="wheels.csv / JointState holds positions, or wheel speeds integrated per row",
         choices=("position", "velocity"),
     )
+    max_speed: float = option(
+        30.0, unit="m/s", doc="plausibility: a faster odometry step is an error", **_POSITIVE
+    )
+    max_yaw_rate: float = option(
+        4.0 * math.pi,
+        unit="rad/s",
+        doc="plausibility: a faster-turning odometry step is an error",
+        **_POSITIVE,
+    )
 
 
 # ------------------------------------------------------------------------------- sensors

@@ -190,3 +190,32 @@ class Duplicates:
             "only exact duplicates are dropped)",
             column=differs,
         )
+
+
+def dropped_findings(used: dict, rejected: dict, dropped: dict, span=(None, None)) -> list:
+    """A degrading finding per stream of which more than half was dropped unused.
+
+    A reading is dropped when it arrives older than the late window or after the last
+    odometry step; most of a stream dropped means its clock (units, offset) or its latency
+    does not match the odometry's, and the estimate went without it.
+    """
+    from odofuse.health import MOSTLY_REJECTED, Finding
+
+    out = []
+    for s in sorted(dropped):
+        d = int(dropped.get(s, 0))
+        n = d + int(used.get(s, 0)) + int(rejected.get(s, 0))
+        if d and d / n > MOSTLY_REJECTED:
+            out.append(
+                Finding(
+                    "dropped",
+                    f"{d} of {n} readings ({100 * d / n:.0f} %) dropped unused (older than the "
+                    "late window or after the last odometry): is this stream's clock in "
+                    "seconds, on the odometry's time base?",
+                    sensor=s,
+                    t_start=span[0],
+                    t_end=span[1],
+                    figure=d / n,
+                )
+            )
+    return out

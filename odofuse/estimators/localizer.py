@@ -513,7 +513,9 @@ class Localizer:
         return monitors.health_of(assess(result))
 
     def _findings(self, t, P) -> list:
-        return monitors.localizer_findings(self, t, P)
+        span = (float(t[0]), float(t[-1])) if len(t) else (None, None)
+        dropped = inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
+        return monitors.localizer_findings(self, t, P) + dropped
 
     def _init_recovery_and_slip(self) -> None:
         monitors.setup_localizer(self)
