@@ -17,6 +17,7 @@ This module owns the two growing stores of the Localizer and keeps both bounded:
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -47,6 +48,7 @@ class Track:
         self._P = np.empty((_MIN_BLOCK, 3, 3))
         self._n = 0  # stored rows
         self._offset = 0  # absolute index of stored row 0
+        self._dead = 0  # absolute index before which rows may be dropped (live mode)
         self.append(t, x, P)
 
     def __len__(self) -> int:
@@ -57,13 +59,22 @@ class Track:
         """Add the pose after one more step (``x`` (>= 3,), ``P`` (>= 3, >= 3): first 3 used)."""
         n = self._n
         if n == self._t.shape[0]:
-            self._grow()
+            self._make_room()
+            n = self._n
         self._t[n] = t
         self._x[n] = x[:3]
         self._P[n] = P[:3, :3]
         self._n = n + 1
 
-    def _grow(self) -> None:
+    def _make_room(self) -> None:
+        """Full: drop the forgotten rows (live mode) if that frees half, else double."""
+        dead = self._dead - self._offset
+        live = self._n - dead
+        if dead > 0 and 2 * live <= self._t.shape[0]:
+            for a in (self._t, self._x, self._P):
+                a[:live] = a[dead : self._n]
+            self._offset, self._n = self._dead, live
+            return
         cap = 2 * self._t.shape[0]
         for name in ("_t", "_x", "_P"):
             old = getattr(self, name)
@@ -80,26 +91,11 @@ class Track:
     def forget_before(self, n: int) -> None:
         """Live mode: poses before absolute index ``n`` are no longer needed.
 
-        Stored rows are moved to the front only once they are more than half dead and more
-        than one block, so each pose is copied a bounded number of times (amortised O(1)).
+        They are dropped when the blocks are full (:meth:`append`), so the blocks stay at
+        about twice the late window and each pose is copied a bounded number of times.
         """
-        if self.keep_all:
-            return
-        dead = n - self._offset
-        if dead < _MIN_BLOCK or 2 * dead < self._n:
-            return
-        live = self._n - dead
-        for name in ("_t", "_x", "_P"):
-            a = getattr(self, name)
-            a[:live] = a[dead : self._n]
-        self._offset, self._n = n, live
-        cap = max(_MIN_BLOCK, 4 * live)
-        if self._t.shape[0] > cap:  # after a long window shrank: give the memory back
-            self._t, self._x, self._P = (
-                self._t[:cap].copy(),
-                self._x[:cap].copy(),
-                self._P[:cap].copy(),
-            )
+        if not self.keep_all:
+            self._dead = max(self._dead, min(n, len(self)))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copies of the kept times, poses and covariances."""
@@ -153,6 +149,19 @@ class Steps:
         horizon = step.t1 - self.late_window
         while len(steps) > 1 and steps[1].t0 < horizon:
             steps.popleft()
+
+    def rebook(self, update) -> None:
+        """Replace every step's ``book`` by ``update(book)`` (once per shared book)."""
+        new: dict[int, tuple] = {}
+        for i, step in enumerate(self._steps):
+            key = id(step.book)
+            if key not in new:
+                new[key] = update(step.book)
+            self._steps[i] = dataclasses.replace(step, book=new[key])
+
+    def books(self) -> list[tuple]:
+        """The steps' bookkeeping snapshots, oldest first."""
+        return [step.book for step in self._steps]
 
     def cut(self, t: float) -> list[Step]:
         """Remove and return the steps from the one covering time ``t`` (``t1 >= t``) on.

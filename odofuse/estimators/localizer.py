@@ -65,6 +65,9 @@ from odofuse.trajectory import EstimateResult, Trajectory
 
 #: Odometry inputs composed into the ``odom`` pose at once (vectorised dead reckoning).
 _ODOM_BATCH = 512
+#: A live Localizer keeps this many readings per stream for its monitor (at least 4 NIS
+#: windows), trimmed every ``_TRIM_EVERY`` steps, so its memory stays flat.
+_KEEP_READINGS, _TRIM_EVERY = 1000, 4096
 
 
 #: Key of the odometry-calibration states in the layout (not a measurement stream).
@@ -378,6 +381,8 @@ class Localizer:
             track.forget_before(steps.first().n_traj)
         else:  # nothing can be replayed: only the newest pose matters
             track.forget_before(len(track))
+        if not track.keep_all and len(track) % _TRIM_EVERY == 0:
+            self._forget_readings()
         self.t = t1
         track.append(t1, self.backend.mean(), self.backend.cov())
 
@@ -422,6 +427,15 @@ class Localizer:
         for s, src in clones.items():
             if s in index:
                 self.backend.clone(index[s], src)
+
+    def _forget_readings(self) -> None:
+        """Live mode: the monitor keeps its last readings only (memory flat over a long run)."""
+        keep = max(_KEEP_READINGS, 4 * int(self.options.nis_window))
+        books = self._steps.books()
+        tokens = monitors.forget_readings(self.monitor, keep, [b[4] for b in books])
+        new = {id(b): b[:4] + (tok,) + b[5:] for b, tok in zip(books, tokens, strict=True)}
+        self._steps.rebook(lambda b: new[id(b)])
+        self._book = None
 
     def _bookkeeping(self) -> tuple:
         """What a replay restores besides the backend (never mutated once taken)."""
