@@ -50,6 +50,7 @@ from odofuse.errors import ConfigError, InputError
 from odofuse.estimators import inputs, monitors
 from odofuse.estimators.common import (
     augmented_prior,
+    calibration_of,
     events,  # noqa: F401 - re-exported
     gyrodometry_of,
     state_layout,
@@ -131,16 +132,13 @@ class Localizer:
         self.rejected = {s: 0 for s in self.models}
         self.dropped_late = {s: 0 for s in self.models}
         self._t_ref: dict[str, float] = {}
-        self._gyro_stream, self._gyro_threshold, self._gyro_sigma = gyrodometry or (
-            None,
-            math.inf,
-            0.0,
-        )
+        gyro = gyrodometry or (None, math.inf, 0.0)
+        self._gyro_stream, self._gyro_threshold, self._gyro_sigma = gyro
         self._gyro: list[tuple[float, float]] = []  # (t, wz) samples, time-sorted
         self.gyro_switches = 0
         self.options = options if options is not None else EkfOptions()
         self.monitor = monitors.FilterMonitor(self.options, self.models)
-        self._init_recovery_and_slip()
+        monitors.setup_localizer(self)  # recovery indices, slip stream
         x = backend.mean()
         self._track = Track(self.t, x, backend.cov(), keep_all=keep_trajectory)
         self._odom = x[:3].copy()
@@ -218,19 +216,8 @@ class Localizer:
 
     def calibration(self) -> dict[str, dict[str, float]]:
         """Current estimate and sigma of every augmented state that is not a clone."""
-        names, index = state_layout(self.models)
-        clones = {
-            s for m in self.models.values() for s in (m.clones() if hasattr(m, "clones") else {})
-        }
         odo = getattr(self.backend, "odo_cal", None)
-        if odo is not None:
-            index.update(zip(odo.names, odo.index, strict=True))
-        x, P = self.backend.mean(), self.backend.cov()
-        return {
-            s: {"value": float(x[i]), "sigma": float(math.sqrt(max(P[i, i], 0.0)))}
-            for s, i in index.items()
-            if s not in clones
-        }
+        return calibration_of(self.models, odo, self.backend.mean(), self.backend.cov())
 
     # ----------------------------------------------------------------- inputs
     def add(self, stream: str, row: Mapping[str, float]) -> str:
@@ -354,7 +341,7 @@ class Localizer:
         scale = 1.0
         if self._slip_stream is not None:
             slips = self.slip_steps
-            scale = self._slip_scale(t0, t1, u)
+            scale = monitors.step_slip_scale(self, t0, t1, u)
             if self.slip_steps != slips:
                 self._book = None
         span = t1 - t0
@@ -387,14 +374,10 @@ class Localizer:
         track.append(t1, self.backend.mean(), self.backend.cov())
 
     def _predict(self, u, dt, dtheta_gyro, frac, var_g, scale=1.0) -> None:
-        if dtheta_gyro is None:
-            if scale == 1.0:
-                self.backend.predict(u, dt)
-            else:
-                self.backend.predict(u, dt, noise_scale=scale)
-        else:
-            kw = {} if scale == 1.0 else {"noise_scale": scale}
-            self.backend.predict(u, dt, dtheta=dtheta_gyro * frac, var_dtheta=var_g * frac, **kw)
+        kw = {} if scale == 1.0 else {"noise_scale": scale}
+        if dtheta_gyro is not None:
+            kw.update(dtheta=dtheta_gyro * frac, var_dtheta=var_g * frac)
+        self.backend.predict(u, dt, **kw)
 
     def _apply(self, item) -> None:
         tm, _, stream, row = item
@@ -411,7 +394,7 @@ class Localizer:
             row["dt"] = tm - t_ref
         accepted, nis = self.backend.update(model, row)
         if self.monitor.observe(stream, tm, accepted, nis):
-            accepted, nis = self._recover(stream, model, row)
+            accepted, nis = monitors.recover(self, stream, model, row)
         if item[1] == self._watch:
             self._fate = inputs.USED if accepted else inputs.REJECTED
         if accepted:
@@ -530,15 +513,6 @@ class Localizer:
         span = (float(t[0]), float(t[-1])) if len(t) else (None, None)
         dropped = inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
         return monitors.localizer_findings(self, t, P) + dropped
-
-    def _init_recovery_and_slip(self) -> None:
-        monitors.setup_localizer(self)
-
-    def _recover(self, stream, model, row) -> tuple[bool, float]:
-        return monitors.recover(self, stream, model, row)
-
-    def _slip_scale(self, t0: float, t1: float, u) -> float:
-        return monitors.step_slip_scale(self, t0, t1, u)
 
 
 # --------------------------------------------------------------------- building from config
