@@ -274,7 +274,7 @@ def _gps(log, config, max_speed: float) -> list[Finding]:
             d_swapped = math.hypot(lo0 - datum[0], la0 - datum[1])
             if d_as_is > 1.0 and d_swapped < 0.1 * d_as_is:
                 raise InputError(
-                    f"the fixes (median lat {la0:.6g}, lon {lon[0]:.6g}) are {d_as_is:.3g} "
+                    f"the fixes (median lat {la0:.6g}, lon {lo0:.6g}) are {d_as_is:.3g} "
                     f"degrees from the datum {tuple(datum[:2])} but match it with lat and lon "
                     "swapped: swap the columns",
                     s.source,
