@@ -166,7 +166,7 @@ class Duplicates:
                 "(as in a CSV log, only exact duplicates are dropped)",
                 column="u",
             )
-        self.last_odometry = (t, u.copy())
+        self.last_odometry = (t, u)  # check_odometry's own copy, never changed
         return False
 
     def check(self, stream: str, t: float, row: dict, now: float) -> bool:
