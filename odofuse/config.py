@@ -163,6 +163,9 @@ def _resolve_log(v, src: str, base_dir: Path | None) -> tuple[str, dict]:
             opts["repair"] = {"sort": block.repair.sort, "duplicates": block.repair.duplicates}
         if block.wheel_inputs != "position":
             opts["wheel_inputs"] = block.wheel_inputs
+        limits = {"max_speed": block.max_speed, "max_yaw_rate": block.max_yaw_rate}
+        if limits != {k: LogOptions.__dataclass_fields__[k].default for k in limits}:
+            opts["limits"] = limits  # plausibility limits (odofuse.io.plausibility)
     else:
         path = _string(v, "log", src)
     if path.startswith("builtin:"):

@@ -299,3 +299,57 @@ def test_gyro_zero_order_hold_integral_and_late_gyro_samples():
     a, b = in_order.result(), late.result()
     assert a.extra["gyrodometry_switches"] == b.extra["gyrodometry_switches"] == 1
     np.testing.assert_allclose(b.trajectory.poses, a.trajectory.poses, atol=1e-12)
+
+
+def test_live_localizer_memory_is_flat_after_the_first_window(monkeypatch):
+    # Issue 16: the Localizer kept its whole history (~330 bytes per step, never released).
+    # A live Localizer keeps the late window's poses and its monitor's last readings only;
+    # here the monitor keeps 50 readings, trimmed every 256 steps, so the steady state is
+    # reached within the first 1,000 steps of a fix every other step.
+    import tracemalloc
+
+    import odofuse.estimators.localizer as localizer_module
+    from odofuse.config import RunConfig
+
+    monkeypatch.setattr(localizer_module, "_KEEP_READINGS", 50)
+    monkeypatch.setattr(localizer_module, "_TRIM_EVERY", 256)
+    cfg = RunConfig(
+        log="live",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
+        estimator="ekf",
+        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
+        sensors={"gps": {"sigma": 0.5}},
+        options={"ekf": {"late_window": 0.5, "nis_window": 10}},
+    )
+    loc = localizer_module.Localizer.from_config(cfg, 0.0)
+    u = np.array([0.02, 0.0])  # 0.2 m/s along x
+    noise = np.random.default_rng(5).normal(0.0, 0.5, 4001).tolist()
+    used = {}
+
+    def run(k0, k1):
+        for k in range(k0, k1):
+            t = 0.1 * k
+            loc.add_odometry(t, u)
+            if k % 2 == 0:  # every other fix 0.25 s late: buffered or replayed
+                late = 0.25 if k % 4 == 0 else -0.05
+                fix = {"t": t - late, "x": 0.2 * (t - late) + noise[k], "y": 0.0}
+                out = loc.add_measurement("gps", fix)
+                used[out] = used.get(out, 0) + 1
+
+    run(1, 1000)
+    tracemalloc.start()
+    try:
+        run(1000, 2000)
+        first = tracemalloc.get_traced_memory()[0]
+        run(2000, 4000)
+        second = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+    # 2,000 more steps and 1,000 more fixes: the old history would add ~660 kB here.
+    assert second - first < 4096, (first, second)
+    assert used == {"used": 999, "buffered": 1000}  # the late ones replayed at once
+    assert loc.used["gps"] >= 1998 and loc.rejected["gps"] == 0
+    assert len(loc.trajectory()) <= 512 and len(loc._steps) <= 7
+    assert all(len(a) <= 50 + 256 for a in loc.monitor._t.values())
+    loc.health()  # the windowed findings still work

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from odofuse.declarations.common import _NONNEG, _POSITIVE, DEFAULT_INITIAL_SIGMA, INTEGRATORS
@@ -124,6 +125,15 @@ class LogOptions:
         unit="-",
         doc="wheels.csv / JointState holds positions, or wheel speeds integrated per row",
         choices=("position", "velocity"),
+    )
+    max_speed: float = option(
+        30.0, unit="m/s", doc="plausibility: a faster odometry step is an error", **_POSITIVE
+    )
+    max_yaw_rate: float = option(
+        4.0 * math.pi,
+        unit="rad/s",
+        doc="plausibility: a faster-turning odometry step is an error",
+        **_POSITIVE,
     )
 
 

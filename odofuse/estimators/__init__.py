@@ -34,11 +34,17 @@ def get_estimator(name: str):
 def run_estimator(name: str, log, config):
     """Run estimator ``name`` on ``log`` with ``config``; returns an ``EstimateResult``.
 
-    A log with loop closures (``loop_closures`` stream) that the estimator did not use gets
+    The log's plausibility findings (``log.findings``) join the result's. A log with loop
+    closures (``loop_closures`` stream) that the estimator did not use gets
     a non-degrading finding saying so (only the graph estimators use them, with
     ``sensors: {loop_closures: {}}``).
     """
     result = get_estimator(name)(log, config)
+    noted = tuple(getattr(log, "findings", ()) or ())  # the log's plausibility findings
+    if noted:
+        import dataclasses
+
+        result = dataclasses.replace(result, findings=tuple(result.findings) + noted)
     streams = getattr(log, "streams", {}) or {}
     n = len(streams["loop_closures"]) if "loop_closures" in streams else 0
     if n and "loop_closures" not in result.used:

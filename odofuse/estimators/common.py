@@ -164,3 +164,54 @@ def augmented_prior(models, names, pose0, P0) -> tuple[np.ndarray, np.ndarray, n
             P[:, i] = P[:, src]
             P[i, i] = P[src, src]
     return x0, P, walk
+
+
+def events(log, t, U, streams) -> list[tuple[float, int, str, object]]:
+    """All rows of the odometry and measurement streams, stably sorted by time.
+
+    At equal times measurements come before the odometry step ending there, so they are
+    applied at their own time rather than replayed. Rows of one stream that go back in time
+    (the Plaza range log has two such blocks) simply take their place in time order.
+    """
+    out: list[tuple[float, int, int, str, object]] = []
+    for s in streams:
+        if s not in log.streams:
+            continue
+        st = log.streams[s]
+        for i in range(len(st)):
+            out.append((float(st.t[i]), 0, len(out), s, i))
+    for k in range(len(U)):
+        out.append((float(t[k + 1]), 1, len(out), "__odometry__", k))
+    out.sort(key=lambda e: (e[0], e[1], e[2]))
+    return [(e[0], e[1], e[3], e[4]) for e in out]
+
+
+def gyrodometry_of(config) -> tuple[str, float] | None:
+    """``("gyro", threshold)`` when the gyro sensor block asks for gyrodometry, else None."""
+    opts = config.sensors.get("gyro")
+    if not getattr(opts, "gyrodometry", False):
+        return None
+    if opts.threshold is None:
+        raise ConfigError(
+            "gyrodometry needs a 'threshold' (rad per odometry step)",
+            config.source,
+            "sensors.gyro.threshold",
+        )
+    return ("gyro", opts.threshold)
+
+
+def calibration_of(models, odo_cal, x, P) -> dict[str, dict[str, float]]:
+    """``{state: {"value", "sigma"}}`` of every augmented state of ``x`` (n,), ``P`` (n, n)
+    that is not a clone: the models' calibration states, then the odometry calibration's
+    (``odo_cal``, :mod:`odofuse.estimators.odocal`, or None)."""
+    import math
+
+    _, index = state_layout(models)
+    clones = {s for m in models.values() for s in (m.clones() if hasattr(m, "clones") else {})}
+    if odo_cal is not None:
+        index.update(zip(odo_cal.names, odo_cal.index, strict=True))
+    return {
+        s: {"value": float(x[i]), "sigma": float(math.sqrt(max(P[i, i], 0.0)))}
+        for s, i in index.items()
+        if s not in clones
+    }

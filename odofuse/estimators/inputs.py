@@ -107,13 +107,28 @@ def check_measurement(stream: str, model, t: float, row: dict, x: np.ndarray) ->
 
 
 def check_odometry(t, u, names) -> tuple[float, np.ndarray]:
-    """Validate one odometry step: time ``t`` (s) and drive input ``u`` of ``len(names)``."""
+    """Validate one odometry step: time ``t`` (s) and drive input ``u`` of ``len(names)``.
+
+    Returns the time and a copy of the input as a float array (the caller may reuse its
+    buffer).
+    """
     t = _number(t, "odometry", "t")
+    if type(u) is np.ndarray and u.dtype == np.float64 and u.shape == (len(names),):
+        arr = u.copy()  # the common case, fast
+    else:
+        arr = _input_array(t, u, names)
+    for j, x in enumerate(arr.tolist()):
+        if not -MAX_MAGNITUDE <= x <= MAX_MAGNITUDE:  # NaN fails too
+            _number(x, "odometry", names[j], t)
+    return t, arr
+
+
+def _input_array(t: float, u, names) -> np.ndarray:
     what = f"odometry at t={t:.6f}"
     if u is None or isinstance(u, str | bytes | Mapping):
         raise InputError(f"{what}: input must be a sequence of numbers, got {type(u).__name__}")
     try:
-        arr = np.asarray(u, dtype=float)
+        arr = np.array(u, dtype=float)
     except (TypeError, ValueError):
         raise InputError(f"{what}: input is not a sequence of numbers", column="u") from None
     if arr.shape != (len(names),):
@@ -122,9 +137,7 @@ def check_odometry(t, u, names) -> tuple[float, np.ndarray]:
             f"got {arr.shape}",
             column="u",
         )
-    for j, x in enumerate(arr.tolist()):
-        _number(x, "odometry", names[j], t)
-    return t, arr
+    return arr
 
 
 class Duplicates:
@@ -153,7 +166,7 @@ class Duplicates:
                 "(as in a CSV log, only exact duplicates are dropped)",
                 column="u",
             )
-        self.last_odometry = (t, u.copy())
+        self.last_odometry = (t, u)  # check_odometry's own copy, never changed
         return False
 
     def check(self, stream: str, t: float, row: dict, now: float) -> bool:
@@ -177,3 +190,32 @@ class Duplicates:
             "only exact duplicates are dropped)",
             column=differs,
         )
+
+
+def dropped_findings(used: dict, rejected: dict, dropped: dict, span=(None, None)) -> list:
+    """A degrading finding per stream of which more than half was dropped unused.
+
+    A reading is dropped when it arrives older than the late window or after the last
+    odometry step; most of a stream dropped means its clock (units, offset) or its latency
+    does not match the odometry's, and the estimate went without it.
+    """
+    from odofuse.health import MOSTLY_REJECTED, Finding
+
+    out = []
+    for s in sorted(dropped):
+        d = int(dropped.get(s, 0))
+        n = d + int(used.get(s, 0)) + int(rejected.get(s, 0))
+        if d and d / n > MOSTLY_REJECTED:
+            out.append(
+                Finding(
+                    "dropped",
+                    f"{d} of {n} readings ({100 * d / n:.0f} %) dropped unused (older than the "
+                    "late window or after the last odometry): is this stream's clock in "
+                    "seconds, on the odometry's time base?",
+                    sensor=s,
+                    t_start=span[0],
+                    t_end=span[1],
+                    figure=d / n,
+                )
+            )
+    return out

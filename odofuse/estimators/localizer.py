@@ -40,9 +40,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -50,19 +48,27 @@ from odofuse import se2
 from odofuse.declarations import DEFAULT_LATE_WINDOW, EkfOptions
 from odofuse.errors import ConfigError, InputError
 from odofuse.estimators import inputs, monitors
-from odofuse.estimators.common import augmented_prior, state_layout
+from odofuse.estimators.common import (
+    augmented_prior,
+    calibration_of,
+    events,  # noqa: F401 - re-exported
+    gyrodometry_of,
+    state_layout,
+)
+from odofuse.estimators.history import (
+    Step,
+    Steps,
+    Track,
+    held_rate_integral,
+    keep_rate_sample,
+)
 from odofuse.trajectory import EstimateResult, Trajectory
 
-
-@dataclass(frozen=True)
-class _Step:
-    """One processed odometry step, kept while it is inside the late window."""
-
-    t0: float
-    t1: float
-    u: np.ndarray
-    snapshot: object  # the filter state before the step
-    n_traj: int  # trajectory length before the step
+#: Odometry inputs composed into the ``odom`` pose at once (vectorised dead reckoning).
+_ODOM_BATCH = 512
+#: A live Localizer keeps this many readings per stream for its monitor (at least 4 NIS
+#: windows), trimmed every ``_TRIM_EVERY`` steps, so its memory stays flat.
+_KEEP_READINGS, _TRIM_EVERY = 1000, 4096
 
 
 #: Key of the odometry-calibration states in the layout (not a measurement stream).
@@ -89,6 +95,11 @@ class Localizer:
         Estimator name for the result.
     options : odofuse.declarations.FilterOptions, optional
         Monitor, recovery and slip options (defaults: :class:`~odofuse.declarations.EkfOptions`).
+    keep_trajectory : bool
+        Keep every pose for :meth:`trajectory` and :meth:`result` (an offline run). With
+        False (a live Localizer, :meth:`from_config`'s default) only the poses of the late
+        window are kept, so memory stays flat however long it runs; the trajectory, the
+        result and the covariance checks of :meth:`health` then cover that window.
     """
 
     def __init__(
@@ -101,6 +112,7 @@ class Localizer:
         name: str = "filter",
         motion_model=None,
         options=None,
+        keep_trajectory: bool = True,
     ) -> None:
         if not late_window >= 0.0:
             raise ValueError(f"late_window must be >= 0 s, got {late_window}")
@@ -114,33 +126,37 @@ class Localizer:
         self.t_start = float(t0)
         self._seq = 0
         self._pending: list[tuple[float, int, str, dict]] = []
-        self._steps: deque[_Step] = deque()
+        self._steps = Steps(self.late_window)
+        self._book = None  # bookkeeping snapshot, shared by the steps while it holds
         self.used = {s: 0 for s in self.models}
         self.rejected = {s: 0 for s in self.models}
         self.dropped_late = {s: 0 for s in self.models}
         self._t_ref: dict[str, float] = {}
-        self._gyro_stream, self._gyro_threshold, self._gyro_sigma = gyrodometry or (
-            None,
-            math.inf,
-            0.0,
-        )
+        gyro = gyrodometry or (None, math.inf, 0.0)
+        self._gyro_stream, self._gyro_threshold, self._gyro_sigma = gyro
         self._gyro: list[tuple[float, float]] = []  # (t, wz) samples, time-sorted
         self.gyro_switches = 0
         self.options = options if options is not None else EkfOptions()
         self.monitor = monitors.FilterMonitor(self.options, self.models)
-        self._init_recovery_and_slip()
+        monitors.setup_localizer(self)  # recovery indices, slip stream
         x = backend.mean()
-        self._traj_t = [self.t]
-        self._traj_x = [x[:3].copy()]
-        self._traj_P = [backend.cov()[:3, :3].copy()]
+        self._track = Track(self.t, x, backend.cov(), keep_all=keep_trajectory)
         self._odom = x[:3].copy()
+        self._odom_u: list[np.ndarray] = []  # inputs not yet composed into _odom
+        self._input_names = tuple(self.motion_model.drive.input_names)
         self._duplicates = inputs.Duplicates(self.late_window)
         self._x_probe = np.zeros_like(x)  # any state of the right length, for input checks
         self._watch, self._fate = None, inputs.USED
 
     @classmethod
     def from_config(
-        cls, config, t0: float, landmarks=None, estimator: str | None = None, initial_pose=None
+        cls,
+        config,
+        t0: float,
+        landmarks=None,
+        estimator: str | None = None,
+        initial_pose=None,
+        keep_trajectory: bool = False,
     ) -> Localizer:
         """A live Localizer from a run config, without a log.
 
@@ -156,6 +172,9 @@ class Localizer:
             ``"ekf"``, ``"ukf"`` or ``"particle"`` (default ``config.estimator``).
         initial_pose : array_like (3,), optional
             Start pose when ``config.initial`` has none.
+        keep_trajectory : bool
+            Keep every pose (see the class); by default only the late window's, so a live
+            Localizer's memory stays flat.
         """
         import importlib
         from types import SimpleNamespace
@@ -170,7 +189,7 @@ class Localizer:
         module = importlib.import_module(f"odofuse.estimators.{name}")
         pose = None if initial_pose is None else np.asarray(initial_pose, dtype=float)
         src = SimpleNamespace(landmarks=dict(landmarks or {}), initial_pose=pose, streams={})
-        return assemble(config, name, module.make_backend, t0, src)
+        return assemble(config, name, module.make_backend, t0, src, keep_trajectory)
 
     # ----------------------------------------------------------------- queries
     def pose(self) -> np.ndarray:
@@ -187,27 +206,18 @@ class Localizer:
 
     def odom_pose(self) -> np.ndarray:
         """Continuous wheel-odometry pose in the ``odom`` frame (REP-105), never corrected."""
+        if self._odom_u:
+            self._compose_odom()
         return self._odom.copy()
 
     def map_to_odom(self) -> np.ndarray:
         """``T_map_odom = T_map_base (+) inverse(T_odom_base)`` as ``[x, y, theta]``."""
-        return se2.compose(self.pose(), se2.inverse(self._odom))
+        return se2.compose(self.pose(), se2.inverse(self.odom_pose()))
 
     def calibration(self) -> dict[str, dict[str, float]]:
         """Current estimate and sigma of every augmented state that is not a clone."""
-        names, index = state_layout(self.models)
-        clones = {
-            s for m in self.models.values() for s in (m.clones() if hasattr(m, "clones") else {})
-        }
         odo = getattr(self.backend, "odo_cal", None)
-        if odo is not None:
-            index.update(zip(odo.names, odo.index, strict=True))
-        x, P = self.backend.mean(), self.backend.cov()
-        return {
-            s: {"value": float(x[i]), "sigma": float(math.sqrt(max(P[i, i], 0.0)))}
-            for s, i in index.items()
-            if s not in clones
-        }
+        return calibration_of(self.models, odo, self.backend.mean(), self.backend.cov())
 
     # ----------------------------------------------------------------- inputs
     def add(self, stream: str, row: Mapping[str, float]) -> str:
@@ -247,14 +257,15 @@ class Localizer:
             return inputs.BUFFERED
         self._watch, self._fate = item[1], inputs.USED
         try:
-            if not self._steps and self.t == self.t_start and t >= self.t - self.late_window:
+            steps = self._steps
+            if not steps and self.t == self.t_start and t >= self.t - self.late_window:
                 # Before the first odometry step: applied to the initial state as it is.
                 self._apply(item)
             elif (
                 t < self.t - self.late_window
                 or t <= self.t_start
-                or not self._steps
-                or t <= self._steps[0].t0
+                or not steps
+                or t <= steps.first().t0
             ):
                 self.dropped_late[stream] += 1
                 return inputs.DROPPED
@@ -270,7 +281,7 @@ class Localizer:
         Checked as a reading is (one number per drive input); an exact repeat of the previous
         step is dropped (``"duplicate"``), another input at the same time is an error.
         """
-        t, u = inputs.check_odometry(t, u, tuple(self.motion_model.drive.input_names))
+        t, u = inputs.check_odometry(t, u, self._input_names)
         if not t >= self.t:
             raise InputError(
                 f"odometry time {t:.6f} is before the filter time {self.t:.6f}", column="t"
@@ -281,41 +292,41 @@ class Localizer:
         while self._pending and self._pending[0][0] <= t:
             due.append(self._pending.pop(0))
         self._process_step(self.t, t, u, due)
-        self._odom = se2.compose(self._odom, self._increment(u)[0])
+        self._odom_u.append(u)
+        if len(self._odom_u) >= _ODOM_BATCH:
+            self._compose_odom()
         return inputs.USED
 
+    def _compose_odom(self) -> None:
+        """Dead-reckon the waiting inputs onto the ``odom`` pose (the shared motion model)."""
+        from odofuse.motion import dead_reckon
+
+        poses, _ = dead_reckon(self.motion_model, self._odom, None, self._odom_u, with_cov=False)
+        self._odom = poses[-1].copy()
+        self._odom_u.clear()
+
     def _store_gyro(self, t: float, wz: float) -> None:
-        bisect.insort(self._gyro, (t, wz))
-        # Keep samples that can still matter for a replay plus the last one before it.
-        horizon = self.t - self.late_window - 1.0
-        while len(self._gyro) > 2 and self._gyro[1][0] < horizon:
-            self._gyro.pop(0)
+        keep_rate_sample(self._gyro, t, wz, self.t - self.late_window - 1.0)
 
     def _add_gyro_sample(self, row) -> None:
         t = float(row["t"])
         self._store_gyro(t, float(row["wz"]))
-        if t <= self.t and self._steps and t > self._steps[0].t0:
+        if t <= self.t and self._steps and t > self._steps.first().t0:
             self._replay_with(None, since=t)
 
     # ----------------------------------------------------------------- core
     def _gyro_increment(self, t0: float, t1: float) -> float | None:
         """Heading change over (t0, t1] from the gyro rates (zero-order hold), None if none."""
-        g = self._gyro
-        if not g or g[0][0] > t1:
-            return None
-        total, cursor = 0.0, t0
-        i = bisect.bisect_right(g, (t0, math.inf)) - 1  # last sample at or before t0
-        # Before the first sample its rate is held backwards (no gap at the start of a log).
-        rate = g[i][1] if i >= 0 else g[0][1]
-        for tj, wj in g[i + 1 :]:
-            if tj > t1:
-                break
-            total += rate * (tj - cursor)
-            cursor, rate = tj, wj
-        return total + rate * (t1 - cursor)
+        return held_rate_integral(self._gyro, t0, t1)
 
     def _process_step(self, t0, t1, u, due) -> None:
-        snap = self._snapshot() if self.late_window > 0 else None
+        keep = self.late_window > 0
+        if keep:
+            snap = self.backend.snapshot()
+            book = self._book
+            if book is None:
+                book = self._book = self._bookkeeping()
+            n_traj = len(self._track)
         dtheta_gyro = None
         if self._gyro_stream is not None:
             g = self._gyro_increment(t0, t1)
@@ -324,9 +335,15 @@ class Localizer:
                 if abs(g - d_odo) > self._gyro_threshold:
                     dtheta_gyro = g
                     self.gyro_switches += 1
+                    self._book = None
         # Gyro heading increment variance: a rate noise sigma (rad/s) held over the step.
         var_g = (self._gyro_sigma * (t1 - t0)) ** 2 if dtheta_gyro is not None else 0.0
-        scale = self._slip_scale(t0, t1, u) if self._slip_stream is not None else 1.0
+        scale = 1.0
+        if self._slip_stream is not None:
+            slips = self.slip_steps
+            scale = monitors.step_slip_scale(self, t0, t1, u)
+            if self.slip_steps != slips:
+                self._book = None
         span = t1 - t0
         done = 0.0
         for item in due:
@@ -338,30 +355,33 @@ class Localizer:
                 )
                 done = f
             self._apply(item)
-        if done < 1.0 or not due:
+        if not due:  # the common case: one prediction over the whole step
+            self._predict(u, span, dtheta_gyro, 1.0, var_g, scale)
+        elif done < 1.0:
             self._predict(
                 u * (1.0 - done), span * (1.0 - done), dtheta_gyro, 1.0 - done, var_g, scale
             )
-        if self.late_window > 0:
-            self._steps.append(_Step(t0, t1, u, (snap, list(due)), len(self._traj_t)))
-            horizon = t1 - self.late_window
-            while len(self._steps) > 1 and self._steps[1].t0 < horizon:
-                self._steps.popleft()
+        track = self._track
+        if keep:
+            steps = self._steps
+            steps.push(Step(t0, t1, u, snap, book, tuple(due), n_traj))
+            track.forget_before(steps.first().n_traj)
+        else:  # nothing can be replayed: only the newest pose matters
+            track.forget_before(len(track))
+        if not track.keep_all and len(track) % _TRIM_EVERY == 0:
+            self._forget_readings()
         self.t = t1
-        x, P = self.backend.mean(), self.backend.cov()
-        self._traj_t.append(t1)
-        self._traj_x.append(x[:3].copy())
-        self._traj_P.append(P[:3, :3].copy())
+        track.append(t1, self.backend.mean(), self.backend.cov())
 
     def _predict(self, u, dt, dtheta_gyro, frac, var_g, scale=1.0) -> None:
         kw = {} if scale == 1.0 else {"noise_scale": scale}
-        if dtheta_gyro is None:
-            self.backend.predict(u, dt, **kw)
-        else:
-            self.backend.predict(u, dt, dtheta=dtheta_gyro * frac, var_dtheta=var_g * frac, **kw)
+        if dtheta_gyro is not None:
+            kw.update(dtheta=dtheta_gyro * frac, var_dtheta=var_g * frac)
+        self.backend.predict(u, dt, **kw)
 
     def _apply(self, item) -> None:
         tm, _, stream, row = item
+        self._book = None  # counts, clone times and the monitor change below
         model = self.models[stream]
         clones = model.clones() if hasattr(model, "clones") else {}
         if clones:
@@ -374,7 +394,7 @@ class Localizer:
             row["dt"] = tm - t_ref
         accepted, nis = self.backend.update(model, row)
         if self.monitor.observe(stream, tm, accepted, nis):
-            accepted, nis = self._recover(stream, model, row)
+            accepted, nis = monitors.recover(self, stream, model, row)
         if item[1] == self._watch:
             self._fate = inputs.USED if accepted else inputs.REJECTED
         if accepted:
@@ -391,9 +411,18 @@ class Localizer:
             if s in index:
                 self.backend.clone(index[s], src)
 
-    def _snapshot(self):
+    def _forget_readings(self) -> None:
+        """Live mode: the monitor keeps its last readings only (memory flat over a long run)."""
+        keep = max(_KEEP_READINGS, 4 * int(self.options.nis_window))
+        books = self._steps.books()
+        tokens = monitors.forget_readings(self.monitor, keep, [b[4] for b in books])
+        new = {id(b): b[:4] + (tok,) + b[5:] for b, tok in zip(books, tokens, strict=True)}
+        self._steps.rebook(lambda b: new[id(b)])
+        self._book = None
+
+    def _bookkeeping(self) -> tuple:
+        """What a replay restores besides the backend (never mutated once taken)."""
         return (
-            self.backend.snapshot(),
             dict(self.used),
             dict(self.rejected),
             dict(self._t_ref),
@@ -402,30 +431,28 @@ class Localizer:
             self.slip_steps,
         )
 
-    def _restore(self, snap) -> None:
-        b, used, rejected, t_ref, switches, mon, slips = snap
-        self.backend.restore(b)
+    def _restore(self, step: Step) -> None:
+        used, rejected, t_ref, switches, mon, slips = step.book
+        self.backend.restore(step.backend)
         self.used, self.rejected, self._t_ref = dict(used), dict(rejected), dict(t_ref)
         self.gyro_switches = switches
         self.monitor.restore(mon)
         self.slip_steps = slips
+        self._book = step.book  # the state is that bookkeeping again
 
     def _replay_with(self, item, since: float | None = None) -> None:
-        """Roll back to the step covering the late item (or time ``since``) and replay."""
+        """Roll back to the step covering the late item (or time ``since``) and replay.
+
+        Costs the steps from there to now: at most one late window (O(window)).
+        """
         t = item[0] if item is not None else since
-        steps = list(self._steps)
-        k = next(i for i, s in enumerate(steps) if s.t1 >= t)
-        snap0, _ = steps[k].snapshot
-        self._restore(snap0)
-        del self._traj_t[steps[k].n_traj :]
-        del self._traj_x[steps[k].n_traj :]
-        del self._traj_P[steps[k].n_traj :]
-        self.t = steps[k].t0
-        for _ in range(len(steps) - k):
-            self._steps.pop()
+        steps = self._steps.cut(t)
+        self._restore(steps[0])
+        self._track.truncate(steps[0].n_traj)
+        self.t = steps[0].t0
         inserted = item is None
-        for s in steps[k:]:
-            due = list(s.snapshot[1])
+        for s in steps:
+            due = list(s.due)
             if not inserted and item[0] <= s.t1:
                 bisect.insort(due, item)
                 inserted = True
@@ -439,8 +466,11 @@ class Localizer:
         self._pending.clear()
 
     def trajectory(self) -> Trajectory:
-        """Filtered poses at the initial time and after every odometry step."""
-        return Trajectory(np.array(self._traj_t), np.array(self._traj_x), np.array(self._traj_P))
+        """Filtered poses at the initial time and after every odometry step.
+
+        Without ``keep_trajectory`` only the poses of the late window (and the one before it).
+        """
+        return Trajectory(*self._track.arrays())
 
     def result(self) -> EstimateResult:
         """The run's :class:`EstimateResult` (calibration, late drops, gyro switches in extra)."""
@@ -480,33 +510,15 @@ class Localizer:
         return monitors.health_of(assess(result))
 
     def _findings(self, t, P) -> list:
-        return monitors.localizer_findings(self, t, P)
-
-    def _init_recovery_and_slip(self) -> None:
-        monitors.setup_localizer(self)
-
-    def _recover(self, stream, model, row) -> tuple[bool, float]:
-        return monitors.recover(self, stream, model, row)
-
-    def _slip_scale(self, t0: float, t1: float, u) -> float:
-        return monitors.step_slip_scale(self, t0, t1, u)
+        span = (float(t[0]), float(t[-1])) if len(t) else (None, None)
+        dropped = inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
+        return monitors.localizer_findings(self, t, P) + dropped
 
 
 # --------------------------------------------------------------------- building from config
-def _gyrodometry(config):
-    opts = config.sensors.get("gyro")
-    if not getattr(opts, "gyrodometry", False):
-        return None
-    if opts.threshold is None:
-        raise ConfigError(
-            "gyrodometry needs a 'threshold' (rad per odometry step)",
-            config.source,
-            "sensors.gyro.threshold",
-        )
-    return ("gyro", opts.threshold)
-
-
-def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Localizer:
+def assemble(
+    config, estimator: str, make_backend, t0: float, log=None, keep_trajectory: bool = True
+) -> Localizer:
     """A :class:`Localizer` for ``config`` starting at time ``t0`` (s).
 
     ``log`` (optional) supplies the landmark map and the dataset's own start pose; for a live
@@ -532,7 +544,7 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
     motion = motion_model_from_config(config)
     pose0, P0 = initial_state(config, log)
     models = measurement_models(config, log)
-    gyro = _gyrodometry(config)
+    gyro = gyrodometry_of(config)
     # With gyrodometry the gyro feeds the prediction and is not a measurement model.
     filt = {s: m for s, m in models.items() if gyro is None or s != gyro[0]}
     # Odometry calibration states (odofuse.estimators.odocal) are laid out after the sensors'.
@@ -547,7 +559,7 @@ def assemble(config, estimator: str, make_backend, t0: float, log=None) -> Local
     late = opts.late_window
     if gyro is not None:
         gyro = (gyro[0], gyro[1], float(getattr(models["gyro"], "sigma", 0.0)))
-    return Localizer(backend, filt, float(t0), late, gyro, estimator, motion, opts)
+    return Localizer(backend, filt, float(t0), late, gyro, estimator, motion, opts, keep_trajectory)
 
 
 def build(config, log, estimator: str, make_backend):
@@ -567,26 +579,6 @@ def build(config, log, estimator: str, make_backend):
 
     t, U = odometry_inputs(log, motion_model_from_config(config))
     return assemble(config, estimator, make_backend, float(t[0]), log), t, U
-
-
-def events(log, t, U, streams) -> list[tuple[float, int, str, object]]:
-    """All rows of the odometry and measurement streams, stably sorted by time.
-
-    At equal times measurements come before the odometry step ending there, so they are
-    applied at their own time rather than replayed. Rows of one stream that go back in time
-    (the Plaza range log has two such blocks) simply take their place in time order.
-    """
-    out: list[tuple[float, int, int, str, object]] = []
-    for s in streams:
-        if s not in log.streams:
-            continue
-        st = log.streams[s]
-        for i in range(len(st)):
-            out.append((float(st.t[i]), 0, len(out), s, i))
-    for k in range(len(U)):
-        out.append((float(t[k + 1]), 1, len(out), "__odometry__", k))
-    out.sort(key=lambda e: (e[0], e[1], e[2]))
-    return [(e[0], e[1], e[3], e[4]) for e in out]
 
 
 def feed(loc: Localizer, log, t, U, streams) -> Localizer:

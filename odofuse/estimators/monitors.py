@@ -574,3 +574,45 @@ def gyro_wheel_findings(t, dtheta_odo, var_odo, gyro_t, gyro_wz, gyro_sigma, opt
             figure=dis,
         )
     ]
+
+
+# ----------------------------------------------------------------------------- bounded memory
+def forget_readings(monitor: FilterMonitor, keep: int, snapshots) -> list:
+    """Drop all but the last ``keep`` readings of each stream (and recoveries) of ``monitor``.
+
+    For a live Localizer whose memory must stay flat: its findings then cover the readings
+    kept. Readings that a snapshot still refers to (a replay may restore it) are kept too.
+
+    Parameters
+    ----------
+    monitor : FilterMonitor
+    keep : int
+        Readings to keep per stream.
+    snapshots : iterable
+        :meth:`FilterMonitor.snapshot` tokens still in use.
+
+    Returns
+    -------
+    list
+        The same tokens, re-expressed for the shortened records (same order).
+    """
+    snaps = list(snapshots)
+    drop = {}
+    for s, a in monitor._t.items():
+        lowest = min((lengths[s] for lengths, _, _ in snaps), default=len(a))
+        drop[s] = max(0, min(len(a) - keep, lowest))
+    for s, k in drop.items():
+        if k:
+            del monitor._t[s][:k], monitor._nis[s][:k], monitor._ok[s][:k]
+            monitor._floor[s] = max(0, monitor._floor[s] - k)
+    n_rec = min((n for _, _, n in snaps), default=len(monitor.recoveries))
+    gone = max(0, min(len(monitor.recoveries) - keep, n_rec))
+    del monitor.recoveries[:gone]
+    return [
+        (
+            {s: n - drop[s] for s, n in lengths.items()},
+            {s: max(0, f - drop[s]) for s, f in floor.items()},
+            n - gone,
+        )
+        for lengths, floor, n in snaps
+    ]

@@ -191,7 +191,9 @@ def load_log_for(config, groundtruth: bool = True) -> SensorLog:
     if velocity and "wheels" in log.streams:
         wheels = integrate_wheel_velocities(log.streams["wheels"], cols)
         log = dataclasses.replace(log, streams={**log.streams, "wheels": wheels})
-    return log
+    from odofuse.io.plausibility import check_log
+
+    return check_log(log, config, **options.get("limits", {}))
 
 
 def integrate_wheel_velocities(stream: Stream, columns) -> Stream:

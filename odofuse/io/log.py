@@ -78,6 +78,8 @@ class SensorLog:
     repairs: dict[str, int] = field(default_factory=dict)
     initial_pose: np.ndarray | None = None
     ros: dict = field(default_factory=dict)
+    #: Plausibility findings about the data (odofuse.io.plausibility): ``warnings`` lines.
+    findings: tuple = ()
 
     def has(self, name: str) -> bool:
         return name in self.streams and len(self.streams[name]) > 0

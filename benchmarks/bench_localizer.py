@@ -1,0 +1,151 @@
+"""Streaming Localizer: steps/s and memory over a long live run (issues 16 and 17).
+
+A live EKF Localizer (``Localizer.from_config``, so it keeps only the late window) is fed
+odometry at 50 Hz and a GPS fix each second, 0.3 s late (so the filter rolls back and replays
+15 steps) or, for the speed table, also on time; inputs are generated on the fly (nothing of
+the run is kept outside the Localizer). Printed:
+
+* steps/s over the whole run, and the process's resident memory (RSS) at eight checkpoints:
+  flat after the first window means the Localizer's memory does not grow with the run;
+* with ``--against REV`` (a git revision, e.g. the merge base), the same run through that
+  revision's ``odofuse/estimators/localizer.py`` and ``inputs.py`` in the same process
+  (interleaved, best of three), and the ratio.
+
+Run from anywhere: ``python benchmarks/bench_localizer.py [--steps N] [--against REV]``
+(``nice -n 10`` on a shared machine; 10^7 steps take about half an hour there).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from odofuse.config import RunConfig  # noqa: E402
+from odofuse.estimators.localizer import Localizer  # noqa: E402
+
+RATE, GPS_EVERY = 50, 50  # odometry Hz; one fix per second
+
+
+def config() -> RunConfig:
+    return RunConfig(
+        log="live",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
+        estimator="ekf",
+        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
+        sensors={"gps": {"sigma": 0.5}},
+        source="bench.yaml",
+    )
+
+
+def rss_mib() -> float:
+    """Resident set size of this process, MiB (Linux /proc)."""
+    try:
+        pages = int(Path("/proc/self/statm").read_text().split()[1])
+    except OSError:
+        return float("nan")
+    import os
+
+    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def feed(cls, n: int, marks=(), delay: float = 0.3) -> tuple[object, dict]:
+    """Feed ``n`` steps to a live ``cls`` Localizer, each GPS fix ``delay`` s late (negative:
+    early, buffered); RSS (MiB) at the step counts ``marks``."""
+    loc = cls.from_config(config(), 0.0)
+    noise = np.random.default_rng(0).normal(0.0, 0.5, (n // GPS_EVERY + 1, 2)).tolist()
+    dt = 1.0 / RATE
+    ds, dth = 0.5 * dt, 0.05 * dt  # 0.5 m/s, 0.05 rad/s
+    u = np.array([ds, dth])
+    th, x, y = 0.0, 0.0, 0.0
+    rss = {}
+    marks = set(marks)
+    for k in range(1, n + 1):
+        t = k * dt
+        loc.add_odometry(t, u)
+        th += dth
+        x += ds * math.cos(th)
+        y += ds * math.sin(th)
+        if k % GPS_EVERY == 0:
+            ex, ey = noise[k // GPS_EVERY]
+            loc.add_measurement("gps", {"t": t - delay, "x": x + ex, "y": y + ey})
+        if k in marks:
+            rss[k] = rss_mib()
+    return loc, rss
+
+
+def base_localizer(rev: str):
+    """``Localizer`` of revision ``rev`` (its localizer.py and inputs.py), loaded beside ours."""
+    folder = Path(tempfile.mkdtemp())
+
+    def load(path: str, name: str):
+        text = subprocess.run(
+            ["git", "-C", str(ROOT), "show", f"{rev}:{path}"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        (folder / f"{name}.py").write_text(text)
+        spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+        return mod
+
+    inputs = load("odofuse/estimators/inputs.py", "_base_inputs")
+    mod = load("odofuse/estimators/localizer.py", "_base_localizer")
+    mod.inputs = inputs
+    return mod.Localizer
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=200_000)
+    ap.add_argument("--against", help="git revision to compare with (same process)")
+    ap.add_argument("--speed-steps", type=int, default=20_000)
+    args = ap.parse_args()
+
+    n = args.steps
+    marks = [n * i // 8 for i in range(1, 9)]
+    start = time.perf_counter()
+    _, rss = feed(Localizer, n, marks)
+    wall = time.perf_counter() - start
+    rate = n / wall
+    print(f"live EKF Localizer, odometry {RATE} Hz + GPS 1 Hz, {n:,} steps: {rate:,.0f} steps/s")
+    print("RSS [MiB] at " + ", ".join(f"{k:,}: {v:.1f}" for k, v in rss.items()))
+    growth = rss[marks[-1]] - rss[marks[0]]
+    print(f"RSS growth from step {marks[0]:,} to {marks[-1]:,}: {growth:+.1f} MiB")
+    if args.against:
+        old = base_localizer(args.against)
+        m = args.speed_steps
+        print(f"\nsteps/s, {m:,} steps, best of 3 interleaved runs in this process")
+        print(f"| GPS fixes | {args.against} | this tree | ratio | same final pose |")
+        print("| --- | --- | --- | --- | --- |")
+        for label, delay in (("0.3 s late (replayed)", 0.3), ("on time (buffered)", -0.01)):
+            best = {"before": 0.0, "after": 0.0}
+            for _ in range(3):
+                for name, cls in (("before", old), ("after", Localizer)):
+                    t0 = time.perf_counter()
+                    feed(cls, m, delay=delay)
+                    best[name] = max(best[name], m / (time.perf_counter() - t0))
+            a = feed(old, 2000, delay=delay)[0].pose()
+            b = feed(Localizer, 2000, delay=delay)[0].pose()
+            print(
+                f"| {label} | {best['before']:,.0f} | {best['after']:,.0f} | "
+                f"{best['after'] / best['before']:.2f} | {bool((a == b).all())} |"
+            )
+
+
+if __name__ == "__main__":
+    main()
