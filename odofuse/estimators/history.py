@@ -50,6 +50,15 @@ class Track:
         self._dead = 0  # absolute index before which rows may be dropped (live mode)
         self.append(t, x, P)
 
+    @classmethod
+    def from_arrays(cls, t, x, P) -> Track:
+        """An offline track holding times (N,), poses (N, 3) and covariances (N, 3, 3) as given
+        (the compiled core's whole-run output)."""
+        track = cls(float(t[0]), x[0], P[0])
+        track._t, track._x, track._P = (np.array(a, dtype=float) for a in (t, x, P))
+        track._n = len(track._t)
+        return track
+
     def __len__(self) -> int:
         """Absolute number of poses so far (forgotten ones included)."""
         return self._offset + self._n

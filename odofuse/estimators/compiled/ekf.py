@@ -28,6 +28,7 @@ from odofuse import se2
 from odofuse.declarations import INTEGRATORS
 from odofuse.estimators import compiled
 from odofuse.estimators.compiled.dead_reckoning import linear_terms
+from odofuse.estimators.history import Track
 
 _CAL_DRIVES = {"increments": 1, "differential": 2, "skid_steer": 2}
 #: Stream kinds of the kernels (``kernels.RANGE`` ...; repeated here so that deciding
@@ -244,7 +245,7 @@ def run(log, config):
         loc.used[s] += int(np.count_nonzero(ok))
         loc.rejected[s] += int(ok.size - np.count_nonzero(ok))
     loc.backend.x, loc.backend.P = x, P
-    loc._traj_t, loc._traj_x, loc._traj_P = t, traj_x, traj_P
+    loc._track = Track.from_arrays(t, traj_x, traj_P)
     loc._odom = odom
     loc.t = float(t[-1])
     return loc.result()
