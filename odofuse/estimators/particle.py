@@ -21,24 +21,30 @@ Resampling is low-variance (systematic: one uniform draw, N evenly spaced pointe
 "Probabilistic Robotics" table 4.4) when the effective sample size drops below
 ``resample_threshold * N``. All randomness comes from ``numpy.random.default_rng(seed)``.
 
-Against collapse (issue 10):
+Against collapse (issue 10). With only wheels and a precise gyro, nothing measures the
+absolute pose, so its covariance must grow; a cloud that is reweighted and resampled at every
+step by weights unrelated to the pose loses spread at every resampling instead (a random
+thinning: the weighted covariance is low by ``1 - sum w^2`` and the copies add genetic drift),
+which drove 20 particles from 1e-4 to 1e-14 over 10^6 gyro steps. Hence:
 
-* **Regularised resampling**: the pose is spread again after each resampling with the same
-  Liu-West shrinkage kernel, bandwidth ``h`` = ``bandwidth_scale`` times Silverman's optimal
-  ``(4 / (N (d + 2)))^(1 / (d + 4))`` (``d = 3``; Musso, Oudjane & Le Gland's regularised
-  particle filter), so duplicated particles separate while the cloud's mean and covariance
-  are kept (no variance inflation from the jitter). Heading clones move with the heading so
-  the gyro's ``theta - theta_ref`` is untouched.
-* **Relative measurements too sharp for the cloud**: when reweighting by a measurement of
-  the change since a cloned state (the gyro rate) would leave fewer than ``min_ess * N``
-  effective particles (a precise gyro, whose rate noise is far below the cloud's heading
-  spread over one sample interval, does this on every sample, and would force a resampling
-  at every step) the measurement is assimilated by *moving* the particles with the
-  ensemble Kalman update with perturbed observations (Evensen 1994):
-  ``x_i += K (z + v_i - h(x_i))``, ``v_i ~ N(0, R)``, ``K = C_xz S^-1`` from the cloud,
-  weights unchanged. For a linear model such as the gyro
-  rate this is the exact Bayes update of a Gaussian cloud; the cloud keeps its spread instead
-  of degenerating onto a few particles.
+* **Relative measurements without degeneracy** (the gyro rate, a measurement of the heading
+  change since a cloned heading): each particle's heading noise since the clone is known (it
+  was drawn by :meth:`ParticleBackend.predict`), so the update uses the optimal proposal
+  (Doucet, Godsill & Andrieu 2000) of this linear-Gaussian part: the particle's heading is
+  redrawn from its posterior given the reading (a per-particle Kalman move with the
+  *known* prior variance, not the cloud's sample covariance) and the weight is the
+  predictive likelihood, whose variance includes the wheels' heading noise. The weights then
+  carry what the gyro says about the bias and calibration, not a sharp selection of heading
+  increments, so the effective sample size stays high and resampling is rare.
+* **Unbiased kernel moments**: resampling is low-variance (systematic) and only below
+  ``resample_threshold * N`` effective particles; its kernels (Liu-West for the augmented
+  states, regularised for the pose: bandwidth ``h`` = ``bandwidth_scale`` times Silverman's
+  ``(4 / (N (d + 2)))^(1 / (d + 4))``, ``d = 3``, Musso, Oudjane & Le Gland) use the
+  reliability-weights covariance :func:`weighted_cov`, unbiased for a state the weights say
+  nothing about. Heading clones move with the heading so ``theta - theta_ref`` is untouched.
+* **Covariance**: :meth:`ParticleBackend.cov` is the same estimator, symmetric positive
+  semi-definite by construction; a cloud that has collapsed anyway is reported by the
+  Localizer's ``collapse`` check (:func:`odofuse.estimators.monitors.collapse_findings`).
 * **Recovery**: :meth:`ParticleBackend.inflate` spreads the pose about its mean.
 """
 
@@ -109,7 +115,7 @@ def weighted_cov(D: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def psd_root(C: np.ndarray) -> np.ndarray:
-    """A square root ``L`` with ``L L^T = C`` of a symmetric PSD ``C`` (eigenvalues clipped at 0)."""
+    """A square root ``L`` (``L L^T = C``) of a symmetric PSD ``C``, eigenvalues clipped at 0."""
     vals, vecs = np.linalg.eigh(0.5 * (C + C.T))
     return vecs * np.sqrt(np.clip(vals, 0.0, None))
 
@@ -128,7 +134,7 @@ class ParticleBackend:
         Random-walk variance per second of each state.
     options : ParticleOptions or dict, optional
         ``particles``, ``seed``, ``resample_threshold``, ``roughening`` (the Liu-West kernel
-        width ``h``), ``regularise``, ``bandwidth_scale``, ``min_ess``; a mapping is validated
+        width ``h``), ``regularise``, ``bandwidth_scale``; a mapping is validated
         into :class:`~odofuse.declarations.ParticleOptions`.
     """
 
@@ -320,9 +326,10 @@ class ParticleBackend:
             # again, so resampling alone does not collapse a constant parameter onto one value.
             h2 = self.roughening**2
             a = math.sqrt(1.0 - h2)
-            noise = self.rng.standard_normal((self.N, len(cols))) @ psd_root(
-                C[np.ix_(cols, cols)] * h2
-            ).T
+            noise = (
+                self.rng.standard_normal((self.N, len(cols)))
+                @ psd_root(C[np.ix_(cols, cols)] * h2).T
+            )
             self.X[:, cols] = a * self.X[:, cols] + (1.0 - a) * m[cols] + noise
         if h > 0:
             # Regularised resampling of the pose: the same shrinkage kernel with Silverman's
