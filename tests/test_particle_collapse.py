@@ -97,9 +97,14 @@ def test_pose_variance_grows_with_wheels_and_a_gyro_like_the_ekfs():
     P, Pe = pf.trajectory().covariances, ekf.trajectory().covariances
     pos = P[:, 0, 0] + P[:, 1, 1]
     for k0, k1 in ((1, 5000), (5000, 10_000), (10_000, steps)):
-        assert pos[k1] > pos[k0] and P[k1, 2, 2] > P[k0, 2, 2]
+        assert P[k1, 2, 2] > P[k0, 2, 2]
+    assert pos[10_000:].max() > 100 * pos[1]  # 1e-4 m^2 at the start
     # The cloud's spread follows the EKF's over the run (20 particles: sampling error ~ 30 %).
+    # (The position variance is not monotone, for the EKF neither: a heading error rotates the
+    # path about where it began, and the robot wanders back towards it.)
     ratio = pos[1000::1000] / (Pe[1000::1000, 0, 0] + Pe[1000::1000, 1, 1])
+    assert 0.3 < ratio.min() and ratio.max() < 3.0, ratio
+    ratio = P[1000::1000, 2, 2] / Pe[1000::1000, 2, 2]
     assert 0.3 < ratio.min() and ratio.max() < 3.0, ratio
     assert np.linalg.eigvalsh(P[1:]).min() > 0
     assert pf.backend.resamples < steps / 20  # the gyro no longer forces a resampling per step
@@ -112,7 +117,7 @@ def test_a_collapsed_cloud_is_reported_as_degraded():
     h = loc.health()
     found = [f for f in h.findings if f.check == "collapse"]
     assert h.status == "degraded" and found, h.findings
-    assert found[0].t_start == pytest.approx(6.02) and found[0].figure < 1e-4
+    assert found[0].t_start == pytest.approx(6.02) and found[0].figure < 0.01
     assert "no absolute measurement" in found[0].line()
     healthy = _gyro_loc(ParticleBackend, 600)
     assert not [f for f in healthy.health().findings if f.check == "collapse"]
@@ -127,5 +132,5 @@ def test_collapse_check_restarts_at_every_accepted_absolute_reading():
     loc = SimpleNamespace(models={"gps": gps, "gyro": gyro}, monitor=mon)
     assert monitors.collapse_findings(loc, t, P) == []  # the GPS fix at 2.5 s explains it
     mon._ok["gps"] = [0]  # rejected: nothing absolute was used
-    (f,) = [f for f in monitors.collapse_findings(loc, t, P) if f.message.startswith("pos")]
+    (f,) = monitors.collapse_findings(loc, t, P)
     assert (f.t_start, f.t_end, f.figure) == (3.0, 5.0, pytest.approx(1e-3))

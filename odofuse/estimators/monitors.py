@@ -521,22 +521,22 @@ def gyro_wheel_findings(t, dtheta_odo, var_odo, gyro_t, gyro_wz, gyro_sigma, opt
 
 
 # ----------------------------------------------------------------------------- collapse
-#: A pose variance below this fraction of its running maximum since the last accepted
-#: absolute measurement is a collapse. Odometry and relative sensors (a gyro's heading change)
-#: can only let the pose covariance grow; the largest honest drop without an absolute fix is a
-#: relative update's share of one step's noise, and the sample variance of even 10 particles
-#: falls below 0.1 of the true one with probability ~1e-5 (chi-square, 9 degrees of freedom).
+#: A heading variance below this fraction of its running maximum since the last accepted
+#: absolute measurement is a collapse (chosen a priori). Odometry and relative sensors (a
+#: gyro's heading change) only let the heading variance grow, except for what a learnt gyro
+#: bias takes back of the bias's share; and the sample variance of even 10 particles falls
+#: below 0.1 of the true one with probability ~1e-5 (chi-square, 9 degrees of freedom). The
+#: position variance is not checked this way: it honestly shrinks when the robot returns
+#: towards where a heading error began (the error rotates the path about that point).
 COLLAPSE_RATIO = 0.1
 
 
 def collapse_findings(loc, t, P) -> list[Finding]:
-    """Pose variances that shrank with no absolute measurement to shrink them.
+    """A heading variance that shrank with no absolute measurement to shrink it.
 
-    Without a measurement of the absolute pose, a consistent filter's position and heading
-    variances never fall far below what they already were; a sample-based filter whose cloud
-    loses its spread (resampling thinning a particle cloud the weights say nothing about)
-    shows exactly that. Checked per span between accepted readings of the absolute streams
-    (every stream without cloned states).
+    A sample-based filter whose cloud loses its spread (resampling thinning a particle cloud
+    the weights say nothing about) shows exactly that. Checked per span between accepted
+    readings of the absolute streams (every stream without cloned states).
 
     Parameters
     ----------
@@ -559,28 +559,24 @@ def collapse_findings(loc, t, P) -> list[Finding]:
         if ok
     )
     seg = np.searchsorted(np.asarray(fixes, dtype=float), t, side="right")
-    out = []
-    for label, unit, v in (
-        ("position", "m^2", P[:, 0, 0] + P[:, 1, 1]),
-        ("heading", "rad^2", P[:, 2, 2]),
-    ):
-        log_v = np.log(np.clip(np.nan_to_num(v, nan=0.0), 1e-300, 1e300))
-        offset = seg * 2000.0  # larger than any spread of log_v: a running max per span
-        peak = np.maximum.accumulate(log_v + offset) - offset
-        bad = log_v < peak + math.log(COLLAPSE_RATIO)
-        if not bad.any():
-            continue
-        idx = np.flatnonzero(bad)
-        k = idx[int(np.argmin(log_v[idx] - peak[idx]))]
-        out.append(
-            Finding(
-                "collapse",
-                f"{label} variance fell to {_s(v[k])} {unit}, {_s(math.exp(log_v[k] - peak[k]))} "
-                f"of its {_s(math.exp(peak[k]))} {unit} earlier, with no absolute measurement "
-                "in between: the covariance collapsed and claims more than the sensors told",
-                t_start=float(t[idx[0]]),
-                t_end=float(t[idx[-1]]),
-                figure=float(math.exp(log_v[k] - peak[k])),
-            )
+    v = P[:, 2, 2]
+    log_v = np.log(np.clip(np.nan_to_num(v, nan=0.0), 1e-300, 1e300))
+    offset = seg * 2000.0  # larger than any spread of log_v: a running max per span
+    peak = np.maximum.accumulate(log_v + offset) - offset
+    bad = log_v < peak + math.log(COLLAPSE_RATIO)
+    if not bad.any():
+        return []
+    idx = np.flatnonzero(bad)
+    k = idx[int(np.argmin(log_v[idx] - peak[idx]))]
+    drop = math.exp(log_v[k] - peak[k])
+    return [
+        Finding(
+            "collapse",
+            f"heading variance fell to {_s(v[k])} rad^2, {_s(drop)} of its "
+            f"{_s(math.exp(peak[k]))} rad^2 earlier, with no absolute measurement in between: "
+            "the covariance collapsed and claims more than the sensors told",
+            t_start=float(t[idx[0]]),
+            t_end=float(t[idx[-1]]),
+            figure=drop,
         )
-    return out
+    ]
