@@ -183,10 +183,3 @@ class ParticleOptions(FilterOptions):
         doc="multiplier of Silverman's kernel bandwidth for the pose jitter",
         **_NONNEG,
     )
-    min_ess: float = option(
-        0.1,
-        unit="-",
-        doc="a gyro update keeping fewer effective particles moves them instead",
-        minimum=0,
-        maximum=1,
-    )

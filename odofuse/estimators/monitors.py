@@ -436,6 +436,7 @@ def localizer_findings(loc, t, P) -> list:
     from odofuse.health import Finding
 
     out = loc.monitor.findings(t, P, loc.calibration())
+    out += collapse_findings(loc, t, P)
     if loc.slip_steps:
         out.append(
             Finding(
@@ -615,4 +616,66 @@ def forget_readings(monitor: FilterMonitor, keep: int, snapshots) -> list:
             n - gone,
         )
         for lengths, floor, n in snaps
+    ]
+
+
+# ----------------------------------------------------------------------------- collapse
+#: A heading variance below this fraction of its running maximum since the last accepted
+#: absolute measurement is a collapse (chosen a priori). Odometry and relative sensors (a
+#: gyro's heading change) only let the heading variance grow, except for what a learnt gyro
+#: bias takes back of the bias's share; and the sample variance of even 10 particles falls
+#: below 0.1 of the true one with probability ~1e-5 (chi-square, 9 degrees of freedom). The
+#: position variance is not checked this way: it honestly shrinks when the robot returns
+#: towards where a heading error began (the error rotates the path about that point).
+COLLAPSE_RATIO = 0.1
+
+
+def collapse_findings(loc, t, P) -> list[Finding]:
+    """A heading variance that shrank with no absolute measurement to shrink it.
+
+    A sample-based filter whose cloud loses its spread (resampling thinning a particle cloud
+    the weights say nothing about) shows exactly that. Checked per span between accepted
+    readings of the absolute streams (every stream without cloned states).
+
+    Parameters
+    ----------
+    loc : Localizer
+        Its models (which streams are absolute) and monitor (accepted reading times).
+    t : ndarray (N,)
+        Pose times (s).
+    P : ndarray (N, 3, 3)
+        Pose covariances (world frame).
+    """
+    t, P = np.asarray(t, dtype=float), np.asarray(P, dtype=float)
+    if t.size < 2:
+        return []
+    mon = loc.monitor
+    fixes = sorted(
+        tm
+        for s, m in loc.models.items()
+        if not (m.clones() if hasattr(m, "clones") else {}) and s in mon._t
+        for tm, ok in zip(mon._t[s], mon._ok[s], strict=True)
+        if ok
+    )
+    seg = np.searchsorted(np.asarray(fixes, dtype=float), t, side="right")
+    v = P[:, 2, 2]
+    log_v = np.log(np.clip(np.nan_to_num(v, nan=0.0), 1e-300, 1e300))
+    offset = seg * 2000.0  # larger than any spread of log_v: a running max per span
+    peak = np.maximum.accumulate(log_v + offset) - offset
+    bad = log_v < peak + math.log(COLLAPSE_RATIO)
+    if not bad.any():
+        return []
+    idx = np.flatnonzero(bad)
+    k = idx[int(np.argmin(log_v[idx] - peak[idx]))]
+    drop = math.exp(log_v[k] - peak[k])
+    return [
+        Finding(
+            "collapse",
+            f"heading variance fell to {_s(v[k])} rad^2, {_s(drop)} of its "
+            f"{_s(math.exp(peak[k]))} rad^2 earlier, with no absolute measurement in between: "
+            "the covariance collapsed and claims more than the sensors told",
+            t_start=float(t[idx[0]]),
+            t_end=float(t[idx[-1]]),
+            figure=drop,
+        )
     ]

@@ -21,24 +21,30 @@ Resampling is low-variance (systematic: one uniform draw, N evenly spaced pointe
 "Probabilistic Robotics" table 4.4) when the effective sample size drops below
 ``resample_threshold * N``. All randomness comes from ``numpy.random.default_rng(seed)``.
 
-Against collapse (issue 10):
+Against collapse (issue 10). With only wheels and a precise gyro, nothing measures the
+absolute pose, so its covariance must grow; a cloud that is reweighted and resampled at every
+step by weights unrelated to the pose loses spread at every resampling instead (a random
+thinning: the weighted covariance is low by ``1 - sum w^2`` and the copies add genetic drift),
+which drove 20 particles from 1e-4 to 1e-14 over 10^6 gyro steps. Hence:
 
-* **Regularised resampling**: the pose is spread again after each resampling with the same
-  Liu-West shrinkage kernel, bandwidth ``h`` = ``bandwidth_scale`` times Silverman's optimal
-  ``(4 / (N (d + 2)))^(1 / (d + 4))`` (``d = 3``; Musso, Oudjane & Le Gland's regularised
-  particle filter), so duplicated particles separate while the cloud's mean and covariance
-  are kept (no variance inflation from the jitter). Heading clones move with the heading so
-  the gyro's ``theta - theta_ref`` is untouched.
-* **Relative measurements too sharp for the cloud**: when reweighting by a measurement of
-  the change since a cloned state (the gyro rate) would leave fewer than ``min_ess * N``
-  effective particles (a precise gyro, whose rate noise is far below the cloud's heading
-  spread over one sample interval, does this on every sample, and would force a resampling
-  at every step) the measurement is assimilated by *moving* the particles with the
-  ensemble Kalman update with perturbed observations (Evensen 1994):
-  ``x_i += K (z + v_i - h(x_i))``, ``v_i ~ N(0, R)``, ``K = C_xz S^-1`` from the cloud,
-  weights unchanged. For a linear model such as the gyro
-  rate this is the exact Bayes update of a Gaussian cloud; the cloud keeps its spread instead
-  of degenerating onto a few particles.
+* **Relative measurements without degeneracy** (the gyro rate, a measurement of the heading
+  change since a cloned heading): each particle's heading noise since the clone is known (it
+  was drawn by :meth:`ParticleBackend.predict`), so the update uses the optimal proposal
+  (Doucet, Godsill & Andrieu 2000) of this linear-Gaussian part: the particle's heading is
+  redrawn from its posterior given the reading (a per-particle Kalman move with the
+  *known* prior variance, not the cloud's sample covariance) and the weight is the
+  predictive likelihood, whose variance includes the wheels' heading noise. The weights then
+  carry what the gyro says about the bias and calibration, not a sharp selection of heading
+  increments, so the effective sample size stays high and resampling is rare.
+* **Unbiased kernel moments**: resampling is low-variance (systematic) and only below
+  ``resample_threshold * N`` effective particles; its kernels (Liu-West for the augmented
+  states, regularised for the pose: bandwidth ``h`` = ``bandwidth_scale`` times Silverman's
+  ``(4 / (N (d + 2)))^(1 / (d + 4))``, ``d = 3``, Musso, Oudjane & Le Gland) use the
+  reliability-weights covariance :func:`weighted_cov`, unbiased for a state the weights say
+  nothing about. Heading clones move with the heading so ``theta - theta_ref`` is untouched.
+* **Covariance**: :meth:`ParticleBackend.cov` is the same estimator, symmetric positive
+  semi-definite by construction; a cloud that has collapsed anyway is reported by the
+  Localizer's ``collapse`` check (:func:`odofuse.estimators.monitors.collapse_findings`).
 * **Recovery**: :meth:`ParticleBackend.inflate` spreads the pose about its mean.
 """
 
@@ -51,6 +57,7 @@ import numpy as np
 from odofuse.declarations import ParticleOptions
 from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
+from odofuse.motion import body_increment
 from odofuse.options import coerce
 from odofuse.se2 import wrap
 
@@ -76,6 +83,43 @@ def low_variance_resample(weights: np.ndarray, rng: np.random.Generator) -> np.n
     return np.searchsorted(cum, pointers, side="right").clip(max=n - 1)
 
 
+def weighted_cov(D: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Unbiased (reliability-weights) covariance of centred rows ``D`` with weights ``w``.
+
+    ``C = sum_i w_i D_i D_i^T / (1 - sum_i w_i^2)``: for rows independent of their weights
+    (a state the measurements say nothing about) ``E[C]`` is the rows' covariance, while the
+    plain weighted sum is low by the factor ``1 - sum w^2`` (``(N - 1) / N`` for equal
+    weights), a loss that repeated resampling would compound. Built from the eigenvalues of
+    the Gram matrix of ``sqrt(w_i) D_i`` clipped at 0 (a rounding guard only), so ``C`` is
+    symmetric positive semi-definite. A cloud with a single effective particle (``sum w^2 =
+    1``) has no spread: zeros.
+
+    Parameters
+    ----------
+    D : ndarray (N, n)
+        Rows minus their weighted mean (angles wrapped).
+    w : ndarray (N,)
+        Normalised weights.
+
+    Returns
+    -------
+    ndarray (n, n)
+    """
+    A = D * np.sqrt(w)[:, None]
+    G = A.T @ A
+    denom = 1.0 - float(w @ w)
+    if not denom > 1e-12:
+        return np.zeros_like(G)
+    vals, vecs = np.linalg.eigh(0.5 * (G + G.T))
+    return (vecs * (np.clip(vals, 0.0, None) / denom)) @ vecs.T
+
+
+def psd_root(C: np.ndarray) -> np.ndarray:
+    """A square root ``L`` (``L L^T = C``) of a symmetric PSD ``C``, eigenvalues clipped at 0."""
+    vals, vecs = np.linalg.eigh(0.5 * (C + C.T))
+    return vecs * np.sqrt(np.clip(vals, 0.0, None))
+
+
 class ParticleBackend:
     """Particle cloud ``X`` (N, n) with weights ``w`` (N,).
 
@@ -90,7 +134,7 @@ class ParticleBackend:
         Random-walk variance per second of each state.
     options : ParticleOptions or dict, optional
         ``particles``, ``seed``, ``resample_threshold``, ``roughening`` (the Liu-West kernel
-        width ``h``), ``regularise``, ``bandwidth_scale``, ``min_ess``; a mapping is validated
+        width ``h``), ``regularise``, ``bandwidth_scale``; a mapping is validated
         into :class:`~odofuse.declarations.ParticleOptions`.
     """
 
@@ -115,9 +159,7 @@ class ParticleBackend:
         self.walk = np.asarray(walk, dtype=float)
         P0 = np.asarray(P0, dtype=float)
         # Draw from N(x0, P0); P0 may be singular (clone states): use an eigen square root.
-        vals, vecs = np.linalg.eigh(0.5 * (P0 + P0.T))
-        root = vecs * np.sqrt(np.clip(vals, 0.0, None))
-        self.X = x0 + self.rng.standard_normal((self.N, self.n)) @ root.T
+        self.X = x0 + self.rng.standard_normal((self.N, self.n)) @ psd_root(P0).T
         self.X[:, 2] = wrap(self.X[:, 2])
         self.w = np.full(self.N, 1.0 / self.N)
         self.angles = [2]
@@ -128,12 +170,15 @@ class ParticleBackend:
                     self.angles.append(idx[s])
                     self.X[:, idx[s]] = self.X[:, 2]
         clone_cols = set(self.angles[1:])
+        # Heading clone column -> [e (N,), var_e]: the heading noise each particle was given
+        # since the clone was taken, and its variance (the relative update's prior).
+        self._heading_noise = {c: [np.zeros(self.N), 0.0] for c in clone_cols}
         self._kernel_cols = [i for i in range(3, self.n) if i not in clone_cols]
         self._gates = {
             id(m): gate_threshold(getattr(m, "gate", None), m.dim) for m in models.values()
         }
         self.resamples = 0
-        self.moves = 0  # updates assimilated by the ensemble move
+        self.moves = 0  # relative (gyro) updates assimilated by moving the heading
 
     # -- motion -----------------------------------------------------------------------------
     def increment(self, u):
@@ -152,15 +197,28 @@ class ParticleBackend:
         ``noise_scale`` multiplies the input variances (robust odometry during wheel slip).
         """
         u = np.asarray(u, dtype=float)
-        var = self.model.errors.variances(self.model.drive, u, dt) * noise_scale
+        drive = self.model.drive
+        var = self.model.errors.variances(drive, u, dt) * noise_scale
         U = u + self.rng.standard_normal((self.N, u.size)) * np.sqrt(var)
+        U0 = u
         cal = self.odo_cal
         if cal is not None:  # each particle's own odometry calibration
-            U = cal.apply(U, self.X[:, list(cal.index)], dt)
-        delta, _ = self.model.increment(U)
+            p = self.X[:, list(cal.index)]
+            U, U0 = cal.apply(U, p, dt), cal.apply(np.broadcast_to(u, U.shape), p, dt)
+        twist = drive.twist(U)
+        delta, _ = body_increment(twist, self.model.integrator, jacobian=False)
         if dtheta is not None:
             delta = delta.copy()
-            delta[:, 2] = dtheta + self.rng.standard_normal(self.N) * math.sqrt(var_dtheta)
+            noise = self.rng.standard_normal(self.N) * math.sqrt(var_dtheta)
+            delta[:, 2] = dtheta + noise
+            e, var_e = noise, float(var_dtheta)
+        elif self._heading_noise:
+            # The heading change is the twist's rotation for every integrator.
+            e = twist[:, 0] - drive.twist(U0)[..., 0]
+            var_e = float(np.square(drive.J_twist_u(u)[0]) @ var)
+        for acc in self._heading_noise.values():
+            acc[0] += e
+            acc[1] += var_e
         X = self.X
         c, s = np.cos(X[:, 2]), np.sin(X[:, 2])
         X[:, 0] += c * delta[:, 0] - s * delta[:, 1]
@@ -198,74 +256,89 @@ class ParticleBackend:
             gate = self._gates[id(model)] = gate_threshold(getattr(model, "gate", None), model.dim)
         if not nis <= gate:
             return False, nis
-        Ri = np.linalg.inv(R)
-        logl = -0.5 * np.einsum("ni,ij,nj->n", E, Ri, E)
+        rel = self._relative_column(model)
+        if rel is not None:
+            logl = self._relative_update(model, row, E, R, rel)
+        else:
+            logl = -0.5 * np.einsum("ni,ij,nj->n", E, np.linalg.inv(R), E)
         logw = np.log(np.maximum(w, 1e-300)) + logl
         logw -= logw.max()
         wn = np.exp(logw)
-        wn /= wn.sum()
-        relative = bool(model.clones()) if hasattr(model, "clones") else False
-        if relative and 1.0 / np.sum(wn**2) < self.options.min_ess * self.N:
-            self._ensemble_move(E, D, S, R, rows)
-        else:
-            self.w = wn
+        self.w = wn / wn.sum()
         if 1.0 / np.sum(self.w**2) < self.resample_threshold * self.N:
             self._resample()
         return True, nis
 
-    def _ensemble_move(self, E, D, S, R, rows) -> None:
-        """Ensemble Kalman update with perturbed observations (weights unchanged)."""
-        w = self.w
-        m = self.mean()
-        DX = self.X - m
-        DX[:, self.angles] = wrap(DX[:, self.angles])
-        # D holds mean(h) - h_i, so C_xz = -sum_i w_i DX_i D_i^T.
-        K = -np.linalg.solve(S, ((DX * w[:, None]).T @ D).T).T  # C_xz S^-1, (n, dim)
-        V = self.rng.standard_normal(E.shape) @ np.linalg.cholesky(R).T
-        innov = E + V
-        if rows:
-            innov[:, rows] = wrap(innov[:, rows])
-        self.X += innov @ K.T
-        self.X[:, self.angles] = wrap(self.X[:, self.angles])
-        self.moves += 1
+    def _relative_column(self, model) -> int | None:
+        """The heading clone a measurement of the heading change since it refers to, or None."""
+        clones = model.clones() if hasattr(model, "clones") else {}
+        index = getattr(model, "calib_index", {})
+        for name, src in clones.items():
+            if src == 2 and index.get(name) in self._heading_noise:
+                return index[name]
+        return None
+
+    def _relative_update(self, model, row, E, R, col) -> np.ndarray:
+        """Optimal-proposal update by a measurement of the heading change since clone ``col``.
+
+        Each particle's heading noise since the clone, ``e_i ~ N(0, s2)``, was drawn by
+        :meth:`predict`. With ``H`` the measurement's (linear) sensitivity to the heading,
+        ``c_i = z - h(x_i) + H e_i`` is the innovation of the particle without that noise, so
+        the weight is the predictive likelihood ``N(c_i; 0, S)``, ``S = s2 H H^T + R`` (wide:
+        the wheels' heading noise is in it), and ``e_i`` is redrawn from its posterior given
+        ``z`` by the perturbed-observation Kalman move ``theta_i += K (z + v_i - h(x_i))``,
+        ``K = s2 H^T S^-1``, ``v_i ~ N(0, R)`` (mean ``K c_i``, variance ``(1 - K H) s2``: exact
+        for a linear ``h``). The position's (second-order) correlation with ``e_i`` is not
+        moved. Returns the log-likelihoods (N,).
+        """
+        e, s2 = self._heading_noise[col]
+        H = np.asarray(model.H(self.mean(), row), dtype=float)[:, 2]  # (dim,)
+        C = E + e[:, None] * H
+        S = s2 * np.outer(H, H) + R
+        Si = np.linalg.inv(S)
+        if s2 > 0:
+            K = s2 * (Si @ H)  # (dim,)
+            V = self.rng.standard_normal(E.shape) @ np.linalg.cholesky(R).T
+            step = (E + V) @ K
+            self.X[:, 2] = wrap(self.X[:, 2] + step)
+            e += step
+            self.moves += 1
+        return -0.5 * np.einsum("ni,ij,nj->n", C, Si, C)
 
     def _resample(self) -> None:
         cols = self._kernel_cols
         h = self.bandwidth
-        if h > 0:
-            P = self.X[:, :3]
-            mp = self.mean()[:3]
-            DP = P - mp
-            DP[:, 2] = wrap(DP[:, 2])
-            VP = (DP * self.w[:, None]).T @ DP
+        # Kernel moments: the weighted mean and the unbiased (reliability-weights) covariance,
+        # so a state the weights say nothing about keeps its spread in expectation.
+        m = self.mean()
+        D = self.X - m
+        D[:, self.angles] = wrap(D[:, self.angles])
+        C = weighted_cov(D, self.w)
+        idx = low_variance_resample(self.w, self.rng)
+        self.X = self.X[idx]
+        for acc in self._heading_noise.values():
+            acc[0] = acc[0][idx]
+        self.w = np.full(self.N, 1.0 / self.N)
+        self.resamples += 1
         if cols and self.roughening > 0:
             # Liu & West kernel shrinkage for the (static) augmented states: the weighted
             # posterior mean m and covariance V are kept, while duplicated particles are spread
             # again, so resampling alone does not collapse a constant parameter onto one value.
-            Z = self.X[:, cols]
-            m = self.w @ Z
-            D = Z - m
-            V = (D * self.w[:, None]).T @ D
-        idx = low_variance_resample(self.w, self.rng)
-        self.X = self.X[idx]
-        self.w = np.full(self.N, 1.0 / self.N)
-        self.resamples += 1
-        if cols and self.roughening > 0:
             h2 = self.roughening**2
             a = math.sqrt(1.0 - h2)
-            vals, vecs = np.linalg.eigh(0.5 * (V + V.T))
-            root = vecs * np.sqrt(np.clip(vals, 0.0, None) * h2)
-            noise = self.rng.standard_normal((self.N, len(cols))) @ root.T
-            self.X[:, cols] = a * self.X[:, cols] + (1.0 - a) * m + noise
+            noise = (
+                self.rng.standard_normal((self.N, len(cols)))
+                @ psd_root(C[np.ix_(cols, cols)] * h2).T
+            )
+            self.X[:, cols] = a * self.X[:, cols] + (1.0 - a) * m[cols] + noise
         if h > 0:
             # Regularised resampling of the pose: the same shrinkage kernel with Silverman's
             # bandwidth; heading clones get the heading's shift so theta - clone is kept.
             a = math.sqrt(1.0 - h * h)
-            vals, vecs = np.linalg.eigh(0.5 * (VP + VP.T))
-            root = vecs * np.sqrt(np.clip(vals, 0.0, None) * h * h)
-            D = self.X[:, :3] - mp
+            D = self.X[:, :3] - m[:3]
             D[:, 2] = wrap(D[:, 2])
-            shift = (a - 1.0) * D + self.rng.standard_normal((self.N, 3)) @ root.T
+            noise = self.rng.standard_normal((self.N, 3)) @ psd_root(C[:3, :3] * h * h).T
+            shift = (a - 1.0) * D + noise
             self.X[:, :3] += shift
             for i in self.angles:
                 if i != 2:
@@ -275,6 +348,8 @@ class ParticleBackend:
     # -- bookkeeping ------------------------------------------------------------------------
     def clone(self, dst: int, src: int) -> None:
         self.X[:, dst] = self.X[:, src]
+        if dst in self._heading_noise:
+            self._heading_noise[dst] = [np.zeros(self.N), 0.0]
 
     def inflate(self, factor: float, idx) -> None:
         """Spread states ``idx`` about their weighted mean by ``sqrt(factor)`` (recovery)."""
@@ -293,11 +368,13 @@ class ParticleBackend:
             self.rng.bit_generator.state,
             self.resamples,
             self.moves,
+            {c: [e.copy(), v] for c, (e, v) in self._heading_noise.items()},
         )
 
     def restore(self, snap) -> None:
-        X, w, state, resamples, moves = snap
+        X, w, state, resamples, moves, noise = snap
         self.X, self.w = X.copy(), w.copy()
+        self._heading_noise = {c: [e.copy(), v] for c, (e, v) in noise.items()}
         self.rng.bit_generator.state = state
         self.resamples, self.moves = resamples, moves
 
@@ -309,17 +386,19 @@ class ParticleBackend:
         return m
 
     def cov(self) -> np.ndarray:
-        """Weighted covariance about :meth:`mean` (angle residuals wrapped)."""
+        """Unbiased weighted covariance about :meth:`mean` (angle residuals wrapped).
+
+        See :func:`weighted_cov`: symmetric positive semi-definite by construction.
+        """
         D = self.X - self.mean()
         D[:, self.angles] = wrap(D[:, self.angles])
-        C = (D * self.w[:, None]).T @ D
-        return 0.5 * (C + C.T)
+        return weighted_cov(D, self.w)
 
     def extra(self) -> dict:
         return {
             "particles": self.N,
             "resamples": int(self.resamples),
-            "ensemble_moves": int(self.moves),
+            "relative_moves": int(self.moves),
         }
 
 
