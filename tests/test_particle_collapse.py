@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from odofuse.config import config_from_dict
-from odofuse.estimators import monitors
+from odofuse.estimators import pose_checks
 from odofuse.estimators.particle import ParticleBackend, weighted_cov
 
 
@@ -130,7 +130,7 @@ def test_collapse_check_restarts_at_every_accepted_absolute_reading():
     gyro = SimpleNamespace(clones=lambda: {"gyro_theta_ref": 2})
     mon = SimpleNamespace(_t={"gps": [2.5], "gyro": [1.0, 2.0]}, _ok={"gps": [1], "gyro": [1, 1]})
     loc = SimpleNamespace(models={"gps": gps, "gyro": gyro}, monitor=mon)
-    assert monitors.collapse_findings(loc, t, P) == []  # the GPS fix at 2.5 s explains it
+    assert pose_checks.collapse_findings(loc, t, P) == []  # the GPS fix at 2.5 s explains it
     mon._ok["gps"] = [0]  # rejected: nothing absolute was used
-    (f,) = monitors.collapse_findings(loc, t, P)
+    (f,) = pose_checks.collapse_findings(loc, t, P)
     assert (f.t_start, f.t_end, f.figure) == (3.0, 5.0, pytest.approx(1e-3))

@@ -1,7 +1,8 @@
 """Dead reckoning: the motion model alone, with the Siegwart covariance growth.
 
 Its own tell-tale (issue 10): where the log has a gyro, the gyro's and the wheels' heading
-changes are compared over short windows (:func:`odofuse.estimators.monitors.gyro_wheel_findings`);
+changes are compared over short windows
+(:func:`odofuse.estimators.pose_checks.gyro_wheel_findings`);
 a disagreement the error models cannot explain (wheel slip, a stuck encoder, a gyro fault)
 becomes a finding, since dead reckoning keeps every such error.
 """
@@ -10,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from odofuse.estimators import monitors
+from odofuse.estimators import pose_checks
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.compiled.dead_reckoning import dead_reckon
 from odofuse.motion import motion_model_from_config
@@ -41,7 +42,7 @@ def run(log, config) -> EstimateResult:
         opts = config.estimator_options("dead_reckoning")
         sigma = float(getattr(config.sensors.get("gyro"), "sigma", 0.0) or 0.0)
         d, v = _heading_steps(model, U)
-        findings = monitors.gyro_wheel_findings(t, d, v, gyro.t, gyro["wz"], sigma, opts)
+        findings = pose_checks.gyro_wheel_findings(t, d, v, gyro.t, gyro["wz"], sigma, opts)
     return EstimateResult(
         "dead_reckoning",
         Trajectory(t, poses, covs),

@@ -190,7 +190,7 @@ def run(log, config, estimator: str, options: dict | None = None) -> dict:
 
 #: Estimators that fuse no absolute sensor: their drift is expected, their covariance is the
 #: promise (dead reckoning integrates the wheels; a gyro only checks it, see
-#: :func:`odofuse.estimators.monitors.gyro_wheel_findings`).
+#: :func:`odofuse.estimators.pose_checks.gyro_wheel_findings`).
 UNAIDED = frozenset({"dead_reckoning"})
 
 

@@ -13,6 +13,10 @@ against it to 1e-9 (``tests/test_compiled.py``):
 Integrator codes: 0 ``euler``, 1 ``rk2``, 2 ``exact``, 3 ``euler_end``. Compiled with
 ``cache=True``: the first run on a machine compiles and stores the machine code next to this
 file (``__pycache__``); later runs load it.
+
+It is a little over 600 lines on purpose: it is the only module that imports numba, so a run
+that does not compile never pays numba's import, and the kernels that call each other are
+compiled together.
 """
 
 from __future__ import annotations

@@ -1,0 +1,209 @@
+"""Checks of a pose track without ground truth: covariance health, particle-cloud collapse, and
+dead reckoning's gyro-vs-wheels tell-tale.
+
+:mod:`odofuse.estimators.monitors` owns the per-reading monitor of the filters (NIS windows,
+rejection runs, recovery) and calls these on the filter's track; dead reckoning calls
+:func:`gyro_wheel_findings` directly. Thresholds are chosen a priori from statistics, never
+from ground truth.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from odofuse.declarations import FilterOptions
+from odofuse.health import Finding
+
+
+def _spans(flags: np.ndarray) -> list[tuple[int, int]]:
+    """``[(i0, i1), ...]`` index ranges (inclusive) of the runs of True in ``flags``."""
+    if not flags.any():
+        return []
+    d = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1, strict=True))
+
+
+def _s(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def covariance_health(t, P, options: FilterOptions) -> list[Finding]:
+    """Conditioning and growth of the pose covariances (SPD is :mod:`odofuse.health`'s).
+
+    The condition number is that of the correlation matrix (unit-free: metres and radians
+    do not mix); growth is the position sigma over its running minimum, reported once it
+    exceeds ``options.growth_factor``.
+    """
+    P = np.asarray(P, dtype=float)
+    t = np.asarray(t, dtype=float)
+    if P.size == 0:
+        return []
+    out = []
+    d = np.sqrt(np.clip(np.einsum("nii->ni", P), 1e-300, None))
+    finite = np.isfinite(P).all(axis=(1, 2)) & (np.einsum("nii->ni", P) > 0).all(axis=1)
+    if finite.any():
+        C = P[finite] / (d[finite, :, None] * d[finite, None, :])
+        eig = np.linalg.eigvalsh(0.5 * (C + np.swapaxes(C, 1, 2)))
+        cond = eig[:, -1] / np.maximum(eig[:, 0], 1e-300)
+        bad = cond > options.max_condition
+        if bad.any():
+            idx = np.flatnonzero(finite)[bad]
+            out.append(
+                Finding(
+                    "covariance",
+                    f"{idx.size} pose covariance(s) ill-conditioned (correlation condition "
+                    f"up to {_s(cond.max())} > {_s(options.max_condition)})",
+                    t_start=float(t[idx[0]]),
+                    t_end=float(t[idx[-1]]),
+                    figure=float(cond.max()),
+                )
+            )
+    sig = np.sqrt(np.clip(P[:, 0, 0] + P[:, 1, 1], 0.0, None))
+    sig = np.where(np.isfinite(sig), sig, np.inf)
+    floored = np.maximum(sig, 1e-12)
+    run_min = np.minimum.accumulate(floored)
+    ratio = sig / run_min
+    if ratio.size and ratio.max() > options.growth_factor:
+        k = int(np.argmax(ratio))
+        k0 = int(np.flatnonzero(floored[: k + 1] == run_min[k])[-1])
+        out.append(
+            Finding(
+                "covariance_growth",
+                f"position sigma grew {_s(ratio[k])}-fold ({_s(sig[k0])} -> {_s(sig[k])} m): "
+                "the sensors stopped constraining the position",
+                t_start=float(t[k0]),
+                t_end=float(t[k]),
+                figure=float(ratio[k]),
+            )
+        )
+    return out
+
+
+# ----------------------------------------------------------------------------- dead reckoning
+def gyro_wheel_findings(t, dtheta_odo, var_odo, gyro_t, gyro_wz, gyro_sigma, options):
+    """Windows in which the gyro and the wheels disagree about the heading change.
+
+    Parameters
+    ----------
+    t : ndarray (N+1,)
+        Odometry pose times (s).
+    dtheta_odo, var_odo : ndarray (N,)
+        Wheel heading change of each step (rad) and its variance (rad^2, error model).
+    gyro_t, gyro_wz : ndarray (M,)
+        Gyro times (s) and yaw rates (rad/s).
+    gyro_sigma : float
+        Gyro rate noise (rad/s per sample).
+    options : DeadReckoningOptions
+
+    Returns
+    -------
+    list of Finding
+        One finding (the worst window, the count and the time covered) when any window of
+        ``heading_window`` seconds fails the chi-square test on
+        ``(Delta_gyro - Delta_wheels)^2 / (var_wheels + var_gyro + (bias_sigma T)^2)``.
+    """
+    from odofuse import chi2
+
+    t = np.asarray(t, dtype=float)
+    gt, gw = np.asarray(gyro_t, dtype=float), np.asarray(gyro_wz, dtype=float)
+    if gt.size < 2 or t.size < 2:
+        return []
+    T = float(options.heading_window)
+    edges = np.arange(max(t[0], gt[0]), min(t[-1], gt[-1]), T)
+    if edges.size < 2:
+        return []
+    # Gyro heading (zero-order hold of each rate until the next sample) at the window edges.
+    cum_g = np.concatenate([[0.0], np.cumsum(gw[:-1] * np.diff(gt))])
+    k = np.clip(np.searchsorted(gt, edges, side="right") - 1, 0, gt.size - 1)
+    th_g = cum_g[k] + gw[k] * (edges - gt[k])
+    cum_o = np.concatenate([[0.0], np.cumsum(dtheta_odo)])
+    cum_v = np.concatenate([[0.0], np.cumsum(var_odo)])
+    th_o = np.interp(edges, t, cum_o)
+    v_o = np.interp(edges, t, cum_v)
+    rate = (gt.size - 1) / max(gt[-1] - gt[0], 1e-12)
+    var = np.diff(v_o) + gyro_sigma**2 * T / rate + (options.bias_sigma * T) ** 2
+    stat = np.diff(th_g - th_o) ** 2 / np.maximum(var, 1e-300)
+    bound = chi2.ppf(1.0 - options.heading_alpha / stat.size, 1)
+    flags = stat > bound
+    spans = _spans(flags)
+    if not spans:
+        return []
+    worst = int(np.argmax(stat))
+    dis = float(np.diff(th_g - th_o)[worst])
+    return [
+        Finding(
+            "gyro_wheels",
+            f"gyro and wheel heading changes disagree in {int(flags.sum())} window(s) of "
+            f"{T:g} s ({len(spans)} span(s)); worst {dis:+.3g} rad at {edges[worst]:.2f} s "
+            f"({math.sqrt(stat[worst]):.1f} sigma): wheel slip or a gyro fault, dead reckoning "
+            "keeps the error",
+            sensor="gyro",
+            t_start=float(edges[spans[0][0]]),
+            t_end=float(edges[spans[-1][1] + 1]),
+            figure=dis,
+        )
+    ]
+
+
+# ----------------------------------------------------------------------------- collapse
+#: A heading variance below this fraction of its running maximum since the last accepted
+#: absolute measurement is a collapse (chosen a priori). Odometry and relative sensors (a
+#: gyro's heading change) only let the heading variance grow, except for what a learnt gyro
+#: bias takes back of the bias's share; and the sample variance of even 10 particles falls
+#: below 0.1 of the true one with probability ~1e-5 (chi-square, 9 degrees of freedom). The
+#: position variance is not checked this way: it honestly shrinks when the robot returns
+#: towards where a heading error began (the error rotates the path about that point).
+COLLAPSE_RATIO = 0.1
+
+
+def collapse_findings(loc, t, P) -> list[Finding]:
+    """A heading variance that shrank with no absolute measurement to shrink it.
+
+    A sample-based filter whose cloud loses its spread (resampling thinning a particle cloud
+    the weights say nothing about) shows exactly that. Checked per span between accepted
+    readings of the absolute streams (every stream without cloned states).
+
+    Parameters
+    ----------
+    loc : Localizer
+        Its models (which streams are absolute) and monitor (accepted reading times).
+    t : ndarray (N,)
+        Pose times (s).
+    P : ndarray (N, 3, 3)
+        Pose covariances (world frame).
+    """
+    t, P = np.asarray(t, dtype=float), np.asarray(P, dtype=float)
+    if t.size < 2:
+        return []
+    mon = loc.monitor
+    fixes = sorted(
+        tm
+        for s, m in loc.models.items()
+        if not (m.clones() if hasattr(m, "clones") else {}) and s in mon._t
+        for tm, ok in zip(mon._t[s], mon._ok[s], strict=True)
+        if ok
+    )
+    seg = np.searchsorted(np.asarray(fixes, dtype=float), t, side="right")
+    v = P[:, 2, 2]
+    log_v = np.log(np.clip(np.nan_to_num(v, nan=0.0), 1e-300, 1e300))
+    offset = seg * 2000.0  # larger than any spread of log_v: a running max per span
+    peak = np.maximum.accumulate(log_v + offset) - offset
+    bad = log_v < peak + math.log(COLLAPSE_RATIO)
+    if not bad.any():
+        return []
+    idx = np.flatnonzero(bad)
+    k = idx[int(np.argmin(log_v[idx] - peak[idx]))]
+    drop = math.exp(log_v[k] - peak[k])
+    return [
+        Finding(
+            "collapse",
+            f"heading variance fell to {_s(v[k])} rad^2, {_s(drop)} of its "
+            f"{_s(math.exp(peak[k]))} rad^2 earlier, with no absolute measurement in between: "
+            "the covariance collapsed and claims more than the sensors told",
+            t_start=float(t[idx[0]]),
+            t_end=float(t[idx[-1]]),
+            figure=drop,
+        )
+    ]
