@@ -116,7 +116,17 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
 #: against the smoother's 0.054 m; gps_outage: 0.308 m against 0.132 m. On seeds 11 and 12
 #: the EKF holds on both (EKF/smoother: gyro_bias_walk 0.181/0.144 and 0.207/0.111 m,
 #: gps_outage 0.083/0.054 and 0.485/0.481 m).
-KNOWN_SILENT = {("gyro_bias_walk", "ekf"), ("gps_outage", "ekf")}
+#: Measured silent failures (docs/trust.md), each a strict xfail so that a fix shows. The same
+#: start-up effect in both filters: the gyro bias is learnt from the wheels while the heading
+#: runs ~0.1 rad off inside the filter's own covariance, and 1 m GPS cannot reveal it. Particle
+#: filter since its collapse fix (one lap, seed 7): gyro_bias_walk 0.291 m vs the smoother's
+#: 0.054 m, NEES 2.9; gps_outage 0.361 m vs 0.132 m, NEES 3.1 (before the fix it collapsed).
+KNOWN_SILENT = {
+    ("gyro_bias_walk", "ekf"),
+    ("gps_outage", "ekf"),
+    ("gyro_bias_walk", "particle"),
+    ("gps_outage", "particle"),
+}
 
 _TRUST_ESTIMATORS = (("dead_reckoning", None), ("ekf", None), ("particle", {"particles": 200}))
 _SCENARIO_CACHE: dict = {}
