@@ -202,6 +202,11 @@ def test_log_defaults_precedence(bags):
         float(log.streams["gps"]["lon"][0]),
     ]
     assert l3.ros["defaults"]["sensors.gps.datum"] == list(c3.sensors["gps"].datum)
+    # a bag's GPS gets Huber in the graph estimators unless the config names a loss
+    assert c2.sensors["gps"].robust == ("huber", 1.345)
+    assert c2.estimator_options("isam2").robust["gps"] == ("huber", 1.345)
+    cfg = dataclasses.replace(cfg, sensors={"gps": {"datum": [45.0, 9.0], "robust": "none"}})
+    assert apply_log_defaults(cfg, log)[0].sensors["gps"].robust == ("none", 0.0)
 
 
 def test_increments_take_odometry_covariance(bags):
@@ -306,6 +311,33 @@ def test_mcap_read_back(ekf_run):
     cfg, log = apply_log_defaults(cfg, load_log_for(cfg))
     dr = dead_reckoning_at(cfg, log, traj.t)
     np.testing.assert_allclose(odom_base[:, :2], dr[:, :2], atol=1e-9)
+
+
+@pytest.mark.parametrize("estimator", ["isam2", "fixed_lag"])
+def test_incremental_smoothers_on_the_bag(bags, robot, tmp_path, estimator):
+    """Issue 14's judged bound: iSAM2 within 0.40 m of the simulated truth, 100 Hz gyro.
+
+    The config without ``compass_2`` (bag path, joints, geometry, datum): the 50 Hz AHRS yaw
+    would make every reading a keyframe (7,834 keyframes, minutes). Measured: iSAM2 0.067 m
+    (position NEES mean 1.3 of 2), fixed-lag 0.105 m, 159 keyframes; without the bag's default
+    GPS robust loss the two 25 m outliers shift the rigid trajectory ~0.3 m east (0.376 m).
+    """
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(
+        CONFIG.format(bag=bags["mcap"], estimator=estimator).replace("  compass_2: {}\n", "")
+    )
+    assert cli.main(["run", str(cfg), "-o", str(tmp_path / "out")]) == 0
+    traj = read_trajectory_csv(tmp_path / "out" / "trajectory.csv")
+    err = rmse(traj, robot)
+    print(f"{estimator} RMSE on the simulated bag: {err:.3f} m")
+    assert err < 0.20  # judged: 0.40 m
+    m = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert m["status"] == "ok" and m["extra"]["keyframes"] < 200  # the gyro pre-integrated
+    assert m["log_defaults"]["sensors.gps.robust"] == ["huber", 1.345]
+    truth = interpolate_poses(Trajectory(robot.t + T0, robot.truth), traj.t)
+    e = traj.poses[:, :2] - truth[:, :2]
+    nees = np.einsum("ni,nij,nj->n", e, np.linalg.inv(traj.covariances[:, :2, :2]), e)
+    assert np.mean(nees) < 4.0  # 2 position dof: the covariance is not overconfident
 
 
 @pytest.mark.slow
