@@ -154,6 +154,26 @@ _SLOW_BYTES = frozenset(range(128, 256)) | {ord("_"), 0x0B, 0x0C, 0x1C, 0x1D, 0x
 _BLOCK = MAX_LINE_BYTES // 2
 
 
+def _check_line_lengths(chunk: bytes, tail: int, name: str, line: int) -> tuple[int, int]:
+    """Raise the error of the first line longer than :data:`MAX_LINE_BYTES` in ``chunk``.
+
+    ``tail`` is the number of bytes since the last newline before ``chunk`` and ``line`` the
+    (1-based) line that ``chunk`` starts in. Returns ``(newlines in chunk, new tail)``.
+    """
+    nl = np.flatnonzero(np.frombuffer(chunk, dtype=np.uint8) == 10)
+    starts = np.concatenate(([-tail - 1], nl))
+    ends = np.concatenate((nl, [len(chunk)]))
+    lengths = ends - starts - 1
+    long = np.flatnonzero(lengths > MAX_LINE_BYTES)
+    if long.size:
+        raise InputError(
+            f"line longer than {MAX_LINE_BYTES} bytes (binary or corrupt file?)",
+            name,
+            line + int(long[0]),
+        )
+    return nl.size, int(lengths[-1])
+
+
 def _scan(path: Path, name: str) -> tuple[int, bool]:
     """One pass over the file's bytes in chunks of ``_CHUNK``.
 
@@ -178,20 +198,7 @@ def _scan(path: Path, name: str) -> tuple[int, bool]:
                 last = chunk.rfind(b"\n")
                 new_tail = len(chunk) - last - 1
             else:
-                arr = np.frombuffer(chunk, dtype=np.uint8)
-                nl = np.flatnonzero(arr == 10)
-                starts = np.concatenate(([-tail - 1], nl))
-                ends = np.concatenate((nl, [len(chunk)]))
-                lengths = ends - starts - 1
-                long = np.flatnonzero(lengths > MAX_LINE_BYTES)
-                if long.size:
-                    k = int(long[0])
-                    raise InputError(
-                        f"line longer than {MAX_LINE_BYTES} bytes (binary or corrupt file?)",
-                        name,
-                        line + k,
-                    )
-                nl_count, new_tail = nl.size, int(lengths[-1])
+                nl_count, new_tail = _check_line_lengths(chunk, tail, name, line)
             line += nl_count
             tail = new_tail
             if not plain:
@@ -244,21 +251,8 @@ def _read_bounded(path: Path, name: str) -> bytes:
     chunks, line, tail = [], 1, 0  # tail: bytes since the last newline
     with open(path, "rb") as fh:
         while chunk := fh.read(_CHUNK):
-            arr = np.frombuffer(chunk, dtype=np.uint8)
-            nl = np.flatnonzero(arr == 10)
-            starts = np.concatenate(([-tail - 1], nl))
-            ends = np.concatenate((nl, [len(chunk)]))
-            lengths = ends - starts - 1
-            long = np.flatnonzero(lengths > MAX_LINE_BYTES)
-            if long.size:
-                k = int(long[0])
-                raise InputError(
-                    f"line longer than {MAX_LINE_BYTES} bytes (binary or corrupt file?)",
-                    name,
-                    line + k,
-                )
-            line += nl.size
-            tail = int(lengths[-1])
+            nl_count, tail = _check_line_lengths(chunk, tail, name, line)
+            line += nl_count
             chunks.append(chunk)
     return b"".join(chunks)
 
