@@ -11,7 +11,7 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   turns what it saw into :class:`~odofuse.health.Finding` records (windowed NIS outside its
   chi-square band, rejection runs, recoveries, a sensor silent for most of the run, pose
   covariance conditioning and growth, calibration states that ran to their bounds or
-  collapsed);
+  collapsed, a heading that rested on a gyro bias still being learnt over most of the run);
 * :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
 * the track checks it calls live in :mod:`odofuse.estimators.pose_checks` (covariance
   health, collapse, and dead reckoning's gyro-vs-wheels tell-tale).
