@@ -7,8 +7,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from gyro_sim import gyro_localizer
 
-from odofuse.config import config_from_dict
 from odofuse.estimators import pose_checks
 from odofuse.estimators.particle import ParticleBackend, weighted_cov
 
@@ -52,48 +52,12 @@ def test_covariance_of_a_rank_deficient_cloud_has_no_negative_eigenvalue():
     assert np.array_equal(weighted_cov(D, np.eye(20)[3]), np.zeros((3, 3)))  # one particle
 
 
-def _gyro_loc(backend_cls, steps, particles=20, shrink_at=None):
-    """Wheels + a precise gyro at every step (no absolute sensor), as in tests/test_trust.py."""
-    from odofuse.estimators.common import augmented_prior, state_layout
-    from odofuse.estimators.localizer import Localizer
-    from odofuse.measurements import GyroYawRate
-    from odofuse.motion import motion_model_from_config
-
-    cfg = config_from_dict(
-        {
-            "log": "x",
-            "robot": {"drive": "differential", "wheel_radius": 0.04, "track_width": 0.235},
-            "motion": {"k_r": 1e-5, "k_l": 1e-5},
-        }
-    )
-    motion = motion_model_from_config(cfg)
-    gyro = GyroYawRate("gyro", 0.005, gate=0.999)
-    names, index = state_layout({"gyro": gyro})
-    gyro = gyro.bind(index)
-    x0, P0, walk = augmented_prior({"gyro": gyro}, names, np.zeros(3), np.eye(3) * 1e-4)
-    opts = {"particles": particles} if backend_cls is ParticleBackend else None
-    args = (motion, {"gyro": gyro}, x0, P0, walk) + ((opts,) if opts else ())
-    backend = backend_cls(*args)
-    loc = Localizer(backend, {"gyro": gyro}, 0.0, late_window=0.0, name="f")
-    rng = np.random.default_rng(1)
-    dt, w = 0.02, 0.0
-    for k in range(1, steps + 1):
-        w = 0.99 * w + rng.normal(0, 0.05)
-        u = np.array([0.2 - 0.1175 * w, 0.2 + 0.1175 * w]) * dt / 0.04
-        loc.add_measurement("gyro", {"t": k * dt, "wz": w + 0.002 + rng.normal(0, 0.005)})
-        loc.add_odometry(k * dt, u)
-        if k == shrink_at:  # a collapsed cloud (seen from the next pose on, t = k dt + dt)
-            m = backend.mean()
-            backend.X[:, :3] = m[:3] + 1e-3 * (backend.X[:, :3] - m[:3])
-    return loc
-
-
 def test_pose_variance_grows_with_wheels_and_a_gyro_like_the_ekfs():
     from odofuse.estimators.ekf import EkfBackend
 
     steps = 20_000
-    pf = _gyro_loc(ParticleBackend, steps)
-    ekf = _gyro_loc(EkfBackend, steps)
+    pf = gyro_localizer(ParticleBackend, steps)
+    ekf = gyro_localizer(EkfBackend, steps)
     P, Pe = pf.trajectory().covariances, ekf.trajectory().covariances
     pos = P[:, 0, 0] + P[:, 1, 1]
     for k0, k1 in ((1, 5000), (5000, 10_000), (10_000, steps)):
@@ -113,13 +77,13 @@ def test_pose_variance_grows_with_wheels_and_a_gyro_like_the_ekfs():
 
 
 def test_a_collapsed_cloud_is_reported_as_degraded():
-    loc = _gyro_loc(ParticleBackend, 600, shrink_at=300)
+    loc = gyro_localizer(ParticleBackend, 600, shrink_at=300)
     h = loc.health()
     found = [f for f in h.findings if f.check == "collapse"]
     assert h.status == "degraded" and found, h.findings
     assert found[0].t_start == pytest.approx(6.02) and found[0].figure < 0.01
     assert "no absolute measurement" in found[0].line()
-    healthy = _gyro_loc(ParticleBackend, 600)
+    healthy = gyro_localizer(ParticleBackend, 600)
     assert not [f for f in healthy.health().findings if f.check == "collapse"]
 
 

@@ -11,7 +11,7 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   turns what it saw into :class:`~odofuse.health.Finding` records (windowed NIS outside its
   chi-square band, rejection runs, recoveries, a sensor silent for most of the run, pose
   covariance conditioning and growth, calibration states that ran to their bounds or
-  collapsed);
+  collapsed, a heading that rested on a gyro bias still being learnt over most of the run);
 * :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
 * the track checks it calls live in :mod:`odofuse.estimators.pose_checks` (covariance
   health, collapse, and dead reckoning's gyro-vs-wheels tell-tale).
@@ -31,7 +31,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse.declarations import FilterOptions
-from odofuse.estimators.pose_checks import _s, _spans, collapse_findings, covariance_health
+from odofuse.estimators.pose_checks import (
+    _s,
+    _spans,
+    collapse_findings,
+    covariance_health,
+    learning_findings,
+    record_learning,
+)
 from odofuse.health import Finding, status_of
 from odofuse.measurements import gate_threshold
 
@@ -375,6 +382,16 @@ def localizer_findings(loc, t, P) -> list:
 
     out = loc.monitor.findings(t, P, loc.calibration())
     out += collapse_findings(loc, t, P)
+    if loc._bias_idx is not None and len(t) > 1:
+        i = loc._bias_idx
+        out += learning_findings(
+            "gyro_bias",
+            loc._slip_stream,
+            loc._bias_record,
+            float(t[0]),
+            float(t[-1]),
+            float(loc.backend.cov()[i, i]),
+        )
     if loc.slip_steps:
         out.append(
             Finding(
@@ -407,6 +424,9 @@ def setup_localizer(loc) -> None:
     loc._slip_gate = gate_threshold(loc.options.slip_gate, 1)
     loc.slip_steps = 0
     loc._slip_runs = {}  # step end time -> summed disagreement of its slip run (rad)
+    # Heading and gyro-bias covariance over the run (pose_checks.record_learning), read where
+    # robust odometry reads the bias: the ``learning`` check.
+    loc._bias_record = tuple(array("d") for _ in range(4))
 
 
 def recover(loc, stream, model, row) -> tuple[bool, float]:
@@ -430,7 +450,9 @@ def step_slip_scale(loc, t0: float, t1: float, u) -> float:
     span = t1 - t0
     if loc._bias_idx is not None:
         bias = float(loc.backend.mean()[loc._bias_idx])
-        var_b = float(loc.backend.cov()[loc._bias_idx, loc._bias_idx])
+        cov = loc.backend.cov()
+        var_b = float(cov[loc._bias_idx, loc._bias_idx])
+        record_learning(loc._bias_record, t0, cov, loc._bias_idx)
     else:
         bias, var_b = 0.0, float(getattr(model, "bias_sigma", 0.0)) ** 2
     sigma = float(getattr(model, "sigma", 0.0))

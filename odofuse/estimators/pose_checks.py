@@ -1,5 +1,6 @@
-"""Checks of a pose track without ground truth: covariance health, particle-cloud collapse, and
-dead reckoning's gyro-vs-wheels tell-tale.
+"""Checks of a pose track without ground truth: covariance health, particle-cloud collapse,
+dead reckoning's gyro-vs-wheels tell-tale, and a calibration state still being learnt over
+most of the run (``learning``).
 
 :mod:`odofuse.estimators.monitors` owns the per-reading monitor of the filters (NIS windows,
 rejection runs, recovery) and calls these on the filter's track; dead reckoning calls
@@ -205,5 +206,104 @@ def collapse_findings(loc, t, P) -> list[Finding]:
             t_start=float(t[idx[0]]),
             t_end=float(t[idx[-1]]),
             figure=drop,
+        )
+    ]
+
+
+# ----------------------------------------------------------------------------- learning
+#: A heading sigma more than this multiple of what it would be with the gyro bias known as well
+#: as at the end of the run: issue 10's own ratio for holding (within 2x of the smoother).
+LEARNING_RATIO = 2.0
+#: ... for more than this fraction of the run: issue 10's own bound for a score (nothing over
+#: less than half of the estimate's span without a warning), as for an ``outage``.
+LEARNING_FRACTION = 0.5
+#: Relative change that starts a new record (one entry per 1 % of change of a variance, not
+#: one per odometry step, so the record stays short; the span is found to that precision).
+LEARNING_STEP = 0.01
+
+
+def record_learning(rec, t: float, P, i: int) -> None:
+    """Append the heading / bias covariance terms of ``P`` at ``t`` (s) to ``rec``.
+
+    ``rec`` is four ``array("d")``: times, heading variance ``P_tt`` (rad^2), the part of it
+    the bias explains ``P_tb^2 / P_bb`` (rad^2) and the bias variance ``P_bb`` (bias state
+    ``i``). Piecewise constant: a new entry only when a term moved by more than
+    :data:`LEARNING_STEP` (``P_tt`` and the explained part relative to ``P_tt``, ``P_bb``
+    relative to itself). A replay (``t`` at or before the last entry, the Localizer's
+    late-measurement window) first drops the entries it re-does.
+    """
+    times, ptt, expl, pbb = rec
+    while times and times[-1] >= t:
+        for a in rec:
+            a.pop()
+    vt, vb = float(P[2, 2]), float(P[i, i])
+    ve = float(P[2, i]) ** 2 / vb if vb > 0.0 else 0.0
+    if times:
+        tol = LEARNING_STEP * ptt[-1]
+        if (
+            abs(vt - ptt[-1]) <= tol
+            and abs(ve - expl[-1]) <= tol
+            and abs(vb - pbb[-1]) <= LEARNING_STEP * pbb[-1]
+        ):
+            return
+    times.append(t)
+    ptt.append(vt)
+    expl.append(ve)
+    pbb.append(vb)
+
+
+def learning_findings(state, sensor, rec, t0, t1, var_end) -> list[Finding]:
+    """A heading that rested on a gyro bias the filter was still learning over most of the run.
+
+    For a constant bias the batch smoother's variance of it is, at every time, the filter's
+    final one (``var_end``: the smoothed estimate of a constant uses all the log, what the
+    filter has at the end; with a random walk the smoothed variance inside the run is below
+    it). Had the filter known the bias that well at time ``t``, its heading variance would
+    have been (Gaussian conditioning on the bias)::
+
+        P_tt - (P_tb^2 / P_bb) (1 - var_end / P_bb)
+
+    Where its own ``P_tt`` exceeds that by :data:`LEARNING_RATIO` in sigma, the smoother of
+    the same log knows the heading at least that much better through the bias alone, and the
+    filter's pose there is expected to fall short of the smoother's, however consistent its
+    innovations are (they are: the information was not there yet). A gyro bias learnt from
+    the wheels and a coarse GPS is the case in point. Degrades when that holds for more than
+    :data:`LEARNING_FRACTION` of the run ``[t0, t1]`` (s); from the filter's own covariance.
+
+    Parameters
+    ----------
+    state, sensor : str
+        Bias state name (``"gyro_bias"``) and its stream.
+    rec : tuple of four sequences
+        :func:`record_learning`'s record.
+    t0, t1 : float
+        The run's span (s).
+    var_end : float
+        The bias variance at ``t1`` ((rad/s)^2).
+    """
+    tr, ptt, expl, pbb = (np.asarray(a, dtype=float) for a in rec)
+    if tr.size == 0 or not (t1 > t0) or not (var_end > 0.0) or not math.isfinite(var_end):
+        return []
+    gain = np.clip(1.0 - var_end / np.maximum(pbb, 1e-300), 0.0, 1.0)
+    known = np.maximum(ptt - expl * gain, 0.0)
+    above = ptt > LEARNING_RATIO**2 * known
+    ends = np.append(tr[1:], t1)
+    length = float(np.sum(np.clip(ends, t0, t1)[above] - np.clip(tr, t0, t1)[above]))
+    if not length > LEARNING_FRACTION * (t1 - t0):
+        return []
+    last = float(ends[np.flatnonzero(above)[-1]])
+    worst = float(np.sqrt(np.max(ptt[above] / np.maximum(known[above], 1e-300))))
+    return [
+        Finding(
+            "learning",
+            f"heading sigma above {LEARNING_RATIO:g}x (up to {worst:.3g}x) what it would be "
+            f"with {state} known as at the end (sigma {_s(math.sqrt(var_end))}) for "
+            f"{length:.1f} s of the run's {t1 - t0:.1f} s (until {last:.1f} s): the heading "
+            "rested on a bias still being learnt, which a smoother of this log knows "
+            "throughout; expect the pose there to fall well short of a smoother's",
+            sensor=sensor,
+            t_start=float(max(tr[0], t0)),
+            t_end=last,
+            figure=length / (t1 - t0),
         )
     ]
