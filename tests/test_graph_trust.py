@@ -126,7 +126,7 @@ def test_residual_windows_are_quiet_on_a_right_model_and_see_a_burst():
     (f,) = health.window_findings(p, {"wheels": _residuals(chi2)})
     assert f.check == "residual_windows" and f.sensor == "wheels" and f.degrades
     assert f.t_start <= 500.0 and f.t_end >= 501.0
-    # a robust loss declares outliers expected; stitched (fixed-lag) poses are not judged
+    # a robust loss declares outliers expected; only a batch optimum is judged
     robust = SimpleNamespace(odometry_stream="wheels", gyro={}, robust={"wheels": ("cauchy", 2.4)})
     assert not health.window_findings(robust, {"wheels": _residuals(chi2)})
-    assert not health.window_findings(p, {"wheels": _residuals(chi2)}, stitched=True)
+    assert not health.window_findings(p, {"wheels": _residuals(chi2)}, optimum=False)
