@@ -130,3 +130,26 @@ def test_residual_windows_are_quiet_on_a_right_model_and_see_a_burst():
     robust = SimpleNamespace(odometry_stream="wheels", gyro={}, robust={"wheels": ("cauchy", 2.4)})
     assert not health.window_findings(robust, {"wheels": _residuals(chi2)})
     assert not health.window_findings(p, {"wheels": _residuals(chi2)}, optimum=False)
+
+
+def test_fixed_lag_through_a_long_gps_outage_says_so():
+    # Full-length gps_outage (GPS silent 60-240 s of 283 s): the fixed-lag smoother was 1.14 m
+    # with position NEES 47.7 and `ok`; the filters' outage rule now degrades every graph run.
+    log, cfg = ts.simulated("gps_outage")
+    m = ts.run(log, cfg, "fixed_lag")
+    (f,) = [f for f in m["findings"] if f["check"] == "outage"]
+    assert f["sensor"] == "gps" and f["degrades"] and 170.0 < f["figure"] < 190.0
+    assert m["status"] == "degraded" and ts.judge(m, math.inf) != "SILENT"
+
+
+def test_outage_needs_more_than_half_of_the_run():
+    def problem(gps_times):
+        kt = np.arange(0.0, 100.5, 0.5)
+        rows = [
+            SimpleNamespace(stream="gps", keyframe=int(np.searchsorted(kt, t))) for t in gps_times
+        ]
+        return SimpleNamespace(kt=kt, measurements=rows, gyro={})
+
+    assert not health.outage_findings(problem(np.r_[0:30, 70:101]))  # 40 s of 100 s
+    (f,) = health.outage_findings(problem(np.r_[0:20, 80:101]))  # 60 s of 100 s
+    assert (f.check, f.sensor, f.t_start, f.t_end) == ("outage", "gps", 19.0, 80.0)

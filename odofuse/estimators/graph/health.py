@@ -205,6 +205,7 @@ def graph_findings(
                 )
             )
     out += window_findings(problem, residuals, optimum and not stitched)
+    out += outage_findings(problem)
     out += slip_findings(problem, slip_scales(problem))
     out += calibration_findings(problem, values) + gauge_findings(problem)
     odo = residuals.get(problem.odometry_stream)
@@ -283,6 +284,37 @@ def window_findings(problem, residuals: dict, optimum: bool = True) -> list[Find
                 figure=worst,
             )
         )
+    return out
+
+
+def outage_findings(problem) -> list[Finding]:
+    """A sensor silent for more than half of the run: the filters' ``outage`` check.
+
+    The rule and its bound are :class:`~odofuse.estimators.monitors.FilterMonitor`'s (issue
+    10 item 5: no score over less than half of the span without a warning; more than the
+    default ``reject_run`` of the stream's readings), fed the times of the rows that got a
+    factor (a gyro: the ends of its keyframe intervals). Over such a gap the graph's poses
+    rest on odometry alone, a drift no residual can show.
+    """
+    from types import SimpleNamespace
+
+    from odofuse.declarations import FilterOptions
+    from odofuse.estimators.monitors import FilterMonitor
+
+    times: dict[str, list] = {}
+    for meas in problem.measurements:
+        times.setdefault(meas.stream, []).append(float(problem.kt[meas.keyframe]))
+    for stream, inc in problem.gyro.items():
+        times[stream] = list(problem.kt[np.asarray(inc.interval, dtype=int) + 1])
+    if len(problem.kt) < 2 or not times:
+        return []
+    monitor = FilterMonitor(FilterOptions(), {s: SimpleNamespace(dim=1) for s in times})
+    t0, t1 = float(problem.kt[0]), float(problem.kt[-1])
+    out = []
+    for stream, ts in sorted(times.items()):
+        for t in ts:
+            monitor.observe(stream, t, True, 1.0)
+        out += monitor._outage_findings(stream, t0, t1)
     return out
 
 
