@@ -47,6 +47,8 @@ DEFAULTS = {
     "calibration_freeze": None,
     "slam_init": "auto",
 }
+#: Keys added after the move (issue 10: robust odometry in the graph), with their defaults.
+DEFAULTS.update({"slip": True, "slip_gate": 0.999})
 
 _HUBER = ["huber", 1.345]
 #: Packaged config, estimator -> the values that differ from DEFAULTS (absent: none differ).

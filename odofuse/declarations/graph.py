@@ -195,6 +195,23 @@ class GraphOptions:
         doc="smoother: initial values of a SLAM problem (docs/graph.md: SLAM initial values)",
         choices=SLAM_INITS,
     )
+    slip: bool = option(
+        True,
+        unit="-",
+        doc=(
+            "robust odometry: widen a keyframe interval's odometry noise when the fused gyro "
+            "disagrees (docs/graph.md: wheel slip)"
+        ),
+    )
+    slip_gate: float = option(
+        0.999,
+        unit="-",
+        doc="chi-square probability of the per-interval gyro-wheel disagreement",
+        minimum=0,
+        maximum=1,
+        exclusive_minimum=True,
+        exclusive_maximum=True,
+    )
 
     def for_run(self, estimator: str, sensors: Mapping, source: str) -> GraphOptions:
         """These options for a run of ``estimator`` with the sensor blocks ``sensors``.

@@ -56,6 +56,50 @@ def robust_noise(base, kind: str | None, k: float | None = None):
     return gtsam.noiseModel.Robust.Create(est.Create(float(k or ROBUST_DEFAULT_K[kind])), base)
 
 
+def slip_scales(problem: GraphProblem) -> np.ndarray:
+    """Robust odometry: the factor (>= 1) of each keyframe interval's odometry covariance.
+
+    The graph's form of the filters' rule (:func:`odofuse.estimators.monitors.slip_scale`,
+    docs/trust.md section 2), applied to the keyframe intervals of the first fused gyro
+    stream: an interval whose wheel heading change ``deltas[i, 2]`` disagrees with the gyro's
+    increment (bias removed at its prior value) by ``d`` with
+    ``d^2 > chi2_1(slip_gate) (var_wheels + var_gyro + (sigma_b T)^2)`` slipped, and its
+    covariance is widened so that the accumulated wheel heading variance of the run of
+    consecutive slipping intervals is the square of its summed disagreement. ``sigma_b`` is
+    the bias prior's sigma (the graph estimates the bias, but the noise of a factor must not
+    depend on the solution): a conservative test, never a looser one.
+
+    Returns
+    -------
+    ndarray (K-1,)
+        1 for every interval that did not slip, without a gyro, with ``slip: false`` and for
+        pose-graph odometry (the file's covariance).
+    """
+    from odofuse.estimators.monitors import slip_scale
+    from odofuse.measurements import gate_threshold
+
+    out = np.ones(len(problem.deltas))
+    if not problem.gyro or problem.pose_graph or not problem.options.slip:
+        return out
+    stream = next(s for s in problem.models if s in problem.gyro)
+    inc, model = problem.gyro[stream], problem.models[stream]
+    if "gyro_bias" in problem.calib and "gyro_bias" in getattr(model, "calib_states", ()):
+        _, bias, bias_sigma = problem.calib["gyro_bias"]
+    else:
+        bias, bias_sigma = 0.0, float(getattr(model, "bias_sigma", 0.0))
+    i = np.asarray(inc.interval, dtype=int)
+    d = se2.wrap(inc.dtheta - bias * inc.T - problem.deltas[i, 2])
+    var_odo = problem.covs[i, 2, 2]
+    var_ref = inc.var + (bias_sigma * inc.T) ** 2
+    gate = gate_threshold(problem.options.slip_gate, 1)
+    run, prev = 0.0, -2
+    for n in np.flatnonzero(d * d > gate * (var_odo + var_ref)):
+        run = run if i[n] == prev + 1 else 0.0  # a run: consecutive slipping intervals
+        out[i[n]] = slip_scale(float(d[n]), float(var_odo[n]), float(var_ref[n]), gate, run)
+        run, prev = (run + float(d[n]), i[n]) if out[i[n]] > 1.0 else (0.0, -2)
+    return out
+
+
 def _odometry_noise(cov, floor: float = _COV_FLOOR):
     import gtsam
 
@@ -122,6 +166,7 @@ class Factors:
                 self.gyro_by_interval.setdefault(int(i), []).append((stream, n))
         self.gyro_created: list = []
         self.odometry_created: list = []  # (keyframe i, factor from i-1 to i)
+        self.slip = slip_scales(problem)  # (K-1,) odometry covariance factors (wheel slip)
         self._theta_guess: dict[int, float] = {}
 
     def _landmark_variable_needed(self, lid) -> bool:
@@ -190,7 +235,7 @@ class Factors:
         loss, k = self.p.robust.get(self.p.odometry_stream, ("none", 0.0))
         if not self.odometry_robust:
             loss = "none"
-        cov = self.p.covs[i - 1]
+        cov = self.p.covs[i - 1] * self.slip[i - 1]
         if self.odometry_weights is not None:
             cov = cov / self.odometry_weights[i - 1]
         floor = 0.0 if self.p.pose_graph else self.p.options.odometry_floor  # the file's noise

@@ -202,7 +202,7 @@ def finish(
     extra["residuals"] = {
         s: {k: v for k, v in d.items() if k != "outliers"} for s, d in summary.items()
     }
-    found = graph_findings(problem, values, residuals, summary, stitched)
+    found = graph_findings(problem, values, residuals, summary, stitched, estimator == "smoother")
     findings = tuple(findings) + tuple(found)
     traj = Trajectory(problem.kt.copy(), poses, covs)
     used = {k: int(v) for k, v in fac.used.items()}
