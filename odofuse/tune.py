@@ -40,6 +40,10 @@ from odofuse.errors import ConfigError
 FIT_FRACTION = 2.0 / 3.0
 #: Step of the numerical Hessian, in log-parameter units (a factor e^0.1 = 1.105).
 HESSIAN_STEP = 0.1
+#: Each value is searched within ``start / SPAN .. start * SPAN``: a value the likelihood
+#: drives to a bound (towards 0: the log does not want that noise) is reported as such
+#: instead of wandering in log space until the time bound.
+SPAN = 1.0e3
 _KEY = re.compile(r"^([A-Za-z_][\w]*(?:\.[A-Za-z_][\w]*)*)(?:\[(\d+)\])?$")
 
 
@@ -73,6 +77,10 @@ class TuneResult:
         ``"converged"``, ``"time bound"`` or ``"evaluation bound"``.
     raw : dict
         The config mapping with the learned values (what :func:`write_tuned` writes).
+    at_bound : tuple of str
+        Per key ``""``, or ``"lower"``/``"upper"`` when the learned value sits at
+        ``start / SPAN`` or ``start * SPAN`` (no uncertainty then; the others' is computed
+        with it held there).
     """
 
     keys: tuple
@@ -88,6 +96,7 @@ class TuneResult:
     seconds: float
     stopped: str
     raw: dict
+    at_bound: tuple = ()
 
 
 class _Bound(Exception):
@@ -413,6 +422,7 @@ def tune(
 
     f_start = nll(np.log(start), bounded=False)
     x0 = np.log(start)
+    lo, hi = x0 - math.log(SPAN), x0 + math.log(SPAN)
     simplex = np.vstack([x0] + [x0 + 0.5 * e for e in np.eye(len(keys))])
     stopped = "converged"
     try:
@@ -420,17 +430,32 @@ def tune(
             nll,
             x0,
             method="Nelder-Mead",
+            bounds=list(zip(lo, hi, strict=True)),
             options={"initial_simplex": simplex, "xatol": 0.01, "fatol": 0.05, "maxfev": 10**6},
         )
     except _Bound as exc:
         stopped = str(exc)
     x = best["x"]
-    sig = (None,) * len(keys)
-    if uncertainty and stopped == "converged":
+    at_bound = tuple(
+        "lower" if xi - a < 0.01 else "upper" if b - xi < 0.01 else ""
+        for xi, a, b in zip(x, lo, hi, strict=True)
+    )
+    free = np.array([not b for b in at_bound])
+    sig = [None] * len(keys)
+    if uncertainty and stopped == "converged" and free.any():
+
+        def f_free(th):
+            full = x.copy()
+            full[free] = th
+            return nll(full)
+
         try:
-            sig = _log_sigma(lambda th: nll(th), x, best["f"])
+            free_sig = _log_sigma(f_free, x[free], best["f"])
+            for i, v in zip(np.flatnonzero(free), free_sig, strict=True):
+                sig[i] = v
         except _Bound as exc:
             stopped = f"converged; Hessian cut by the {exc}"
+    sig = tuple(sig)
     values = start if np.array_equal(x, np.log(start)) else np.exp(x)
     cfg, tuned_raw = config_for(values)
     learned_rec = innovations(log, cfg)
@@ -455,6 +480,7 @@ def tune(
         seconds=time.perf_counter() - clock,
         stopped=stopped,
         raw=tuned_raw,
+        at_bound=at_bound,
     )
 
 
@@ -520,8 +546,13 @@ def report_lines(res: TuneResult) -> list[str]:
         f"start values -> {res.fit_loglik:.2f} learned",
         f"{res.evaluations} filter runs, {res.seconds:.1f} s, stopped: {res.stopped}",
     ]
-    for k, s, v, sg in zip(res.keys, res.start, res.values, res.log_sigma, strict=True):
+    bounds = res.at_bound or ("",) * len(res.keys)
+    for k, s, v, sg, b in zip(res.keys, res.start, res.values, res.log_sigma, bounds, strict=True):
         band = "uncertainty not computed" if sg is None else f"1-sigma x/ {math.exp(sg):.3f}"
+        if b:
+            band = f"at the {b} bound start {'/' if b == 'lower' else '*'} {SPAN:g}: " + (
+                "the log does not want this noise" if b == "lower" else "not informed"
+            )
         lines.append(f"  {k}: {v:.4g} ({band}; start {s:.4g})")
     for name in ("start", "learned"):
         h = res.heldout[name]
