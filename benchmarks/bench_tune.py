@@ -117,7 +117,8 @@ def main(argv=None) -> None:
         res = pl["res"]
         print(f"\nPlaza1 tune ({res.evaluations} runs, {res.seconds:.0f} s, {res.stopped}):")
         print("\n".join("  " + line for line in T.report_lines(res)[2:]))
-        print(f"{'log':8s} {'tuned RMSE (NEES)':>20s} {'hand-tuned RMSE (NEES)':>24s} {'ratio':>6s}")
+        head = f"{'log':8s} {'tuned RMSE (NEES)':>20s} {'hand-tuned RMSE (NEES)':>24s}"
+        print(f"{head} {'ratio':>6s}")
         for n, ((r, e), (r0, e0)) in pl["rows"].items():
             print(f"{n:8s} {r:10.3f} m ({e:5.2f}) {r0:13.3f} m ({e0:5.2f}) {r / r0:6.2f}")
     print(f"\ntotal {time.perf_counter() - clock:.0f} s")
