@@ -41,8 +41,8 @@ FIT_FRACTION = 2.0 / 3.0
 #: Step of the numerical Hessian, in log-parameter units (a factor e^0.1 = 1.105).
 HESSIAN_STEP = 0.1
 #: Each value is searched within ``start / SPAN .. start * SPAN``: a value the likelihood
-#: drives to a bound (towards 0: the log does not want that noise) is reported as such
-#: instead of wandering in log space until the time bound.
+#: drives to a bound (within one Hessian step of it; towards 0: the log does not want that
+#: noise) is reported as such instead of wandering in log space until the time bound.
 SPAN = 1.0e3
 _KEY = re.compile(r"^([A-Za-z_][\w]*(?:\.[A-Za-z_][\w]*)*)(?:\[(\d+)\])?$")
 
@@ -437,7 +437,7 @@ def tune(
         stopped = str(exc)
     x = best["x"]
     at_bound = tuple(
-        "lower" if xi - a < 0.01 else "upper" if b - xi < 0.01 else ""
+        "lower" if xi - a < HESSIAN_STEP else "upper" if b - xi < HESSIAN_STEP else ""
         for xi, a, b in zip(x, lo, hi, strict=True)
     )
     free = np.array([not b for b in at_bound])
