@@ -508,7 +508,9 @@ def _log_sigma(f, x, f0: float, h: float = HESSIAN_STEP) -> tuple:
     w = np.linalg.eigvalsh(H) if np.all(np.isfinite(H)) else np.array([-1.0])
     if w.min() <= 0:
         return (None,) * p  # not a strict optimum in every direction: not identifiable
-    return tuple(float(s) for s in np.sqrt(np.diag(np.linalg.inv(H))))
+    sig = np.sqrt(np.diag(np.linalg.inv(H)))
+    # a 1-sigma wider than the whole search span (x/ SPAN): the log does not inform the value
+    return tuple(float(s) if s < math.log(SPAN) else None for s in sig)
 
 
 # --------------------------------------------------------------------------------------------
