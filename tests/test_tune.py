@@ -196,3 +196,18 @@ def test_compiled_criterion_equals_the_python_one(name):
     raw = _true_raw(sim)
     assert "gyro" in raw["sensors"]
     assert T.compiled_innovations(to_sensor_log(sim), config_from_dict(raw, "<t>")) is None
+
+
+def test_a_noise_the_log_does_not_want_is_reported_at_its_lower_bound():
+    # the simulated wheels have no per-second noise: its learned value goes to start / SPAN
+    sim = _sim(DIFF, GPS, seed=2)
+    log = to_sensor_log(sim)
+    raw = _true_raw(sim)
+    raw["motion"]["var_rate"] = 1.0e-3  # rad^2 per s per wheel, none in the simulation
+    keys = ["motion.var_rate", "sensors.gps.sigma"]
+    res = T.tune(config_from_dict(raw, "<tune test>"), raw, log, keys, progress=lambda s: None)
+    assert res.stopped == "converged" and res.at_bound == ("lower", "")
+    assert res.values[0] <= 1.0e-3 / T.SPAN * math.exp(T.HESSIAN_STEP)
+    assert res.log_sigma[0] is None and res.log_sigma[1] is not None  # the other's Hessian
+    assert abs(res.values[1] / 0.5 - 1.0) < 0.3
+    assert any("motion.var_rate" in line and "lower bound" in line for line in T.report_lines(res))
