@@ -10,6 +10,9 @@ update rejected by the sensor's gate contributes with its NIS capped at the gate
 shrinking a sigma until readings are rejected does not pay (a trimmed likelihood, robust to
 the outliers the gate is for).
 
+Each evaluation runs the compiled offline EKF when it covers the log (:func:`compiled_innovations`:
+rejected probe readings give each update's ``S``), else the Python one.
+
 The parameters (dotted config keys such as ``motion.k[0]``, ``motion.k_theta_ds``,
 ``sensors.ranges.sigma``) are optimised in log space by Nelder-Mead on the first part of the
 log (default two thirds, by time); the held-out rest is scored with the learned and the
