@@ -6,7 +6,10 @@ Run from any directory: ``python benchmarks/bench_configs.py [--before REV] [--l
 changed and prints the position RMSE (m, against the log's ground truth, used only to score)
 and the mean position NEES (expected 2). With ``--before REV`` the same table is printed first
 for the configs as they were at git revision ``REV`` (the "before" of a config change), run by
-today's code.
+today's code. Then each cell that has a hand-tuned reference for its log and estimator
+(``configs/handtuned-<log>-<estimator>.yaml``, tuned on that log with its ground truth) is
+printed as a ratio to the reference's RMSE (issue 11's targets: filters within 1.3x, smoother
+within 1.2x).
 """
 
 from __future__ import annotations
@@ -85,6 +88,24 @@ def main(argv=None) -> None:
     if a.before:
         table(f"before: configs at {a.before}", before, a.estimators, a.logs)
     table("after: configs of this checkout", after, a.estimators, a.logs)
+    references(after, a.estimators, a.logs)
+
+
+def references(res: dict, estimators, logs) -> None:
+    """Each cell as a ratio to the hand-tuned reference of its log, where one exists."""
+    print("\nratio to the hand-tuned reference of that log (tuned there WITH ground truth)")
+    for est in estimators:
+        for name in logs:
+            short = name.removeprefix("builtin:")
+            path = ROOT / "configs" / f"handtuned-{short}-{est}.yaml"
+            rmse = res[est, name][0]
+            if not path.exists() or isinstance(rmse, str):
+                continue
+            cfg = load_config(path)
+            log = load_log(name)
+            ref = metrics(run_estimator(est, log, cfg), log)["ate_rmse_m"]
+            print(f"  {est:10s} {short:8s} {rmse:.3f} / {ref:.3f} m = {rmse / ref:.2f}x", end="")
+            print(f"  ({path.name})")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,9 @@ update rejected by the sensor's gate contributes with its NIS capped at the gate
 shrinking a sigma until readings are rejected does not pay (a trimmed likelihood, robust to
 the outliers the gate is for).
 
+Each evaluation runs the compiled offline EKF when it covers the log (:func:`compiled_innovations`:
+rejected probe readings give each update's ``S``), else the Python one.
+
 The parameters (dotted config keys such as ``motion.k[0]``, ``motion.k_theta_ds``,
 ``sensors.ranges.sigma``) are optimised in log space by Nelder-Mead on the first part of the
 log (default two thirds, by time); the held-out rest is scored with the learned and the
@@ -40,6 +43,10 @@ from odofuse.errors import ConfigError
 FIT_FRACTION = 2.0 / 3.0
 #: Step of the numerical Hessian, in log-parameter units (a factor e^0.1 = 1.105).
 HESSIAN_STEP = 0.1
+#: Each value is searched within ``start / SPAN .. start * SPAN``: a value the likelihood
+#: drives to a bound (within one Hessian step of it; towards 0: the log does not want that
+#: noise) is reported as such instead of wandering in log space until the time bound.
+SPAN = 1.0e3
 _KEY = re.compile(r"^([A-Za-z_][\w]*(?:\.[A-Za-z_][\w]*)*)(?:\[(\d+)\])?$")
 
 
@@ -73,6 +80,10 @@ class TuneResult:
         ``"converged"``, ``"time bound"`` or ``"evaluation bound"``.
     raw : dict
         The config mapping with the learned values (what :func:`write_tuned` writes).
+    at_bound : tuple of str
+        Per key ``""``, or ``"lower"``/``"upper"`` when the learned value sits at
+        ``start / SPAN`` or ``start * SPAN`` (no uncertainty then; the others' is computed
+        with it held there).
     """
 
     keys: tuple
@@ -88,6 +99,7 @@ class TuneResult:
     seconds: float
     stopped: str
     raw: dict
+    at_bound: tuple = ()
 
 
 class _Bound(Exception):
@@ -171,6 +183,9 @@ def _positive(v) -> bool:
 def innovations(log, config) -> list[tuple[str, float, float, float, int, bool]]:
     """Run the EKF of ``config`` over ``log`` and return every measurement update.
 
+    The compiled EKF (:func:`compiled_innovations`) when it covers the run, else the
+    pure-Python one (:func:`python_innovations`); both give the same records (to rounding).
+
     Returns
     -------
     list of (stream, t, logdet, nis_capped, dim, accepted)
@@ -178,6 +193,98 @@ def innovations(log, config) -> list[tuple[str, float, float, float, int, bool]]
         arrival or a recovery): ``logdet = log det(2 pi S)``, ``nis_capped =
         min(y^T S^-1 y, gate)``, ``dim`` its dimension.
     """
+    cfg = dataclasses.replace(config, estimator="ekf")
+    rec = compiled_innovations(log, cfg)
+    return rec if rec is not None else python_innovations(log, cfg)
+
+
+#: Offsets of the probe readings per measurement dimension, in units of the reading's
+#: sigma: ``nis(y + a) + nis(y - a) - 2 nis(y) = 2 a^T S^-1 a`` for each ``a`` gives S^-1.
+_PROBES = {1: np.array([[1.0, 0.0]]), 2: np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])}
+
+
+def compiled_innovations(log, config):
+    """:func:`innovations` through the compiled offline EKF, or None when it does not cover
+    the run (a gyro stream, or anything :func:`odofuse.estimators.compiled.ekf.prepare`
+    refuses).
+
+    The kernel reports each update's NIS ``y^T S^-1 y`` but not ``S``. Before every reading
+    of a stream, probe readings ``z +- a`` (``a`` from :data:`_PROBES` times the reading's
+    sigma) of a copy of the stream whose gate rejects everything are inserted: rejected, they
+    leave the filter untouched (same state, same covariance, same calibration states), and
+    their NIS gives ``S^-1`` exactly (``nis(y+a) + nis(y-a) - 2 nis(y) = 2 a^T S^-1 a``).
+    """
+    from odofuse.estimators.compiled import ekf as cekf
+
+    prep = cekf.prepare(log, config)
+    if prep is None:
+        return None
+    kern, loc, streams, args = prep
+    skind, sgate, sR, mR = args["skind"], args["sgate"], args["sR"], args["mR"]
+    if np.any(skind == cekf.GYRO):
+        return None  # a gyro reading moves its clone state even when rejected
+    S = len(streams)
+    dims = np.array([loc.models[s].dim for s in streams], dtype=np.int64)
+    ms = args["ms"]
+    var = np.where(np.isnan(mR), sR[ms, 0, 0], mR)
+    delta = np.sqrt(np.where(var > 0, var, 1.0))
+    # Per reading j: its probes (+a1, -a1, +a2, -a2, ...) then the real reading, all at the
+    # same time and step; idx[j] = (real row, +a1 row, -a1 row, ...) in the new arrays.
+    J = len(ms)
+    idx = np.full((J, 1 + 2 * len(_PROBES[2])), -1, dtype=np.int64)
+    order, offs, is_probe = [], [], []
+    for j in range(J):
+        a = _PROBES[int(dims[ms[j]])] * delta[j]
+        block = [v for p in a for v in (p, -p)]
+        base = len(order)
+        order += [j] * (len(block) + 1)
+        offs += block + [np.zeros(2)]
+        is_probe += [True] * len(block) + [False]
+        idx[j, : len(block) + 1] = np.r_[base + len(block), base + np.arange(len(block))]
+    order = np.asarray(order, dtype=np.int64)
+    probe = np.asarray(is_probe, dtype=bool)
+    for k in ("mt", "mstep", "maux", "mR"):
+        args[k] = np.ascontiguousarray(args[k][order])
+    args["mz"] = np.ascontiguousarray(args["mz"][order] + np.asarray(offs))
+    args["ms"] = np.where(probe, ms[order] + S, ms[order]).astype(np.int64)
+    for k in ("skind", "sidx", "sR"):
+        args[k] = np.ascontiguousarray(np.concatenate([args[k], args[k]]))
+    args["sgate"] = np.concatenate([sgate, np.full(S, -1.0)])  # probes: always rejected
+    args["acc"] = np.zeros(len(order), dtype=np.int8)
+    args["nis"] = np.zeros(len(order))
+    kern.ekf_offline(*args.values())
+    nis, acc = args["nis"], args["acc"]
+    if np.any(acc[probe] != 0):
+        return None
+    mt = args["mt"]
+    out = []
+    real = idx[:, 0]
+    for si, s in enumerate(streams):  # the monitor would trigger a recovery: Python path
+        sel = ms == si
+        if cekf._record(loc.monitor, s, mt[real[sel]], acc[real[sel]] == 1, nis[real[sel]]):
+            return None
+    for j in range(J):
+        d = int(dims[ms[j]])
+        n0 = nis[idx[j, 0]]
+        second = [
+            (nis[idx[j, 1 + 2 * q]] + nis[idx[j, 2 + 2 * q]] - 2.0 * n0) / (2.0 * delta[j] ** 2)
+            for q in range(len(_PROBES[d]))
+        ]
+        if d == 1:
+            det_inv = second[0]
+        else:
+            a11, a22 = second[0], second[1]
+            a12 = 0.5 * (second[2] - a11 - a22)
+            det_inv = a11 * a22 - a12 * a12
+        logdet = d * math.log(2.0 * math.pi) - math.log(det_inv) if det_inv > 0 else math.inf
+        gate = float(sgate[ms[j]])
+        nis_c = min(n0, gate) if math.isfinite(n0) else gate
+        out.append((streams[ms[j]], float(mt[idx[j, 0]]), logdet, nis_c, d, acc[idx[j, 0]] == 1))
+    return out
+
+
+def python_innovations(log, config) -> list[tuple[str, float, float, float, int, bool]]:
+    """:func:`innovations` through the pure-Python EKF (every run the compiled one refuses)."""
     from odofuse.estimators.ekf import EkfBackend
     from odofuse.estimators.localizer import run_with
     from odofuse.measurements import gate_threshold
@@ -201,8 +308,7 @@ def innovations(log, config) -> list[tuple[str, float, float, float, int, bool]]
         names.update({id(m): s for s, m in models.items()})
         return Recording(model, models, x0, P0, walk, options)
 
-    cfg = dataclasses.replace(config, estimator="ekf")
-    run_with(log, cfg, "ekf", make)
+    run_with(log, config, "ekf", make)
     return list(records.values())
 
 
@@ -319,6 +425,7 @@ def tune(
 
     f_start = nll(np.log(start), bounded=False)
     x0 = np.log(start)
+    lo, hi = x0 - math.log(SPAN), x0 + math.log(SPAN)
     simplex = np.vstack([x0] + [x0 + 0.5 * e for e in np.eye(len(keys))])
     stopped = "converged"
     try:
@@ -326,17 +433,32 @@ def tune(
             nll,
             x0,
             method="Nelder-Mead",
+            bounds=list(zip(lo, hi, strict=True)),
             options={"initial_simplex": simplex, "xatol": 0.01, "fatol": 0.05, "maxfev": 10**6},
         )
     except _Bound as exc:
         stopped = str(exc)
     x = best["x"]
-    sig = (None,) * len(keys)
-    if uncertainty and stopped == "converged":
+    at_bound = tuple(
+        "lower" if xi - a < HESSIAN_STEP else "upper" if b - xi < HESSIAN_STEP else ""
+        for xi, a, b in zip(x, lo, hi, strict=True)
+    )
+    free = np.array([not b for b in at_bound])
+    sig = [None] * len(keys)
+    if uncertainty and stopped == "converged" and free.any():
+
+        def f_free(th):
+            full = x.copy()
+            full[free] = th
+            return nll(full)
+
         try:
-            sig = _log_sigma(lambda th: nll(th), x, best["f"])
+            free_sig = _log_sigma(f_free, x[free], best["f"])
+            for i, v in zip(np.flatnonzero(free), free_sig, strict=True):
+                sig[i] = v
         except _Bound as exc:
             stopped = f"converged; Hessian cut by the {exc}"
+    sig = tuple(sig)
     values = start if np.array_equal(x, np.log(start)) else np.exp(x)
     cfg, tuned_raw = config_for(values)
     learned_rec = innovations(log, cfg)
@@ -361,6 +483,7 @@ def tune(
         seconds=time.perf_counter() - clock,
         stopped=stopped,
         raw=tuned_raw,
+        at_bound=at_bound,
     )
 
 
@@ -388,7 +511,9 @@ def _log_sigma(f, x, f0: float, h: float = HESSIAN_STEP) -> tuple:
     w = np.linalg.eigvalsh(H) if np.all(np.isfinite(H)) else np.array([-1.0])
     if w.min() <= 0:
         return (None,) * p  # not a strict optimum in every direction: not identifiable
-    return tuple(float(s) for s in np.sqrt(np.diag(np.linalg.inv(H))))
+    sig = np.sqrt(np.diag(np.linalg.inv(H)))
+    # a 1-sigma wider than the whole search span (x/ SPAN): the log does not inform the value
+    return tuple(float(s) if s < math.log(SPAN) else None for s in sig)
 
 
 # --------------------------------------------------------------------------------------------
@@ -426,8 +551,13 @@ def report_lines(res: TuneResult) -> list[str]:
         f"start values -> {res.fit_loglik:.2f} learned",
         f"{res.evaluations} filter runs, {res.seconds:.1f} s, stopped: {res.stopped}",
     ]
-    for k, s, v, sg in zip(res.keys, res.start, res.values, res.log_sigma, strict=True):
+    bounds = res.at_bound or ("",) * len(res.keys)
+    for k, s, v, sg, b in zip(res.keys, res.start, res.values, res.log_sigma, bounds, strict=True):
         band = "uncertainty not computed" if sg is None else f"1-sigma x/ {math.exp(sg):.3f}"
+        if b:
+            band = f"at the {b} bound start {'/' if b == 'lower' else '*'} {SPAN:g}: " + (
+                "the log does not want this noise" if b == "lower" else "not informed"
+            )
         lines.append(f"  {k}: {v:.4g} ({band}; start {s:.4g})")
     for name in ("start", "learned"):
         h = res.heldout[name]

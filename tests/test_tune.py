@@ -170,3 +170,44 @@ def test_criterion_is_the_gaussian_prediction_error_decomposition():
     assert T.loglik(rec, t_min=50.0)[1] == np.count_nonzero(log.streams["gps"].t > 50.0)
     # with the true noise the innovations are consistent: NIS per dimension ~ 1
     assert 0.7 < T.heldout_summary(rec, -math.inf)["nis"]["gps"] < 1.3
+
+
+@pytest.mark.parametrize("name", ["differential_gps", "differential_ranges"])
+def test_compiled_criterion_equals_the_python_one(name):
+    # the compiled path reads S from rejected probe readings: same records as the Python EKF
+    robot, sensors, _ = ROBOTS[name]
+    sim = _sim(robot, sensors, seed=4)
+    log = to_sensor_log(sim)
+    raw = _true_raw(sim)
+    raw["sensors"]["gps" if "gps" in raw["sensors"] else "ranges"]["sigma"] *= 0.5  # rejects
+    cfg = config_from_dict(raw, "<tune test>")
+    fast = T.compiled_innovations(log, cfg)
+    slow = T.python_innovations(log, cfg)
+    assert fast is not None and len(fast) == len(slow) > 100
+    fast, slow = (sorted(r, key=lambda r: (r[1], r[0])) for r in (fast, slow))
+    assert {r[0] for r in fast} == set(sensors)
+    assert any(not r[5] for r in slow)  # some readings gated out
+    for a, b in zip(fast, slow, strict=True):
+        assert a[0] == b[0] and a[1] == b[1] and a[4] == b[4] and a[5] == b[5]
+        assert math.isclose(a[2], b[2], rel_tol=1e-9, abs_tol=1e-9)
+        assert math.isclose(a[3], b[3], rel_tol=1e-9, abs_tol=1e-9)
+    # a gyro moves its clone state even when rejected: no probes, the Python path
+    sim = _sim(robot, {**sensors, "gyro": {"sigma": 0.01, "rate": 5.0}}, seed=4)
+    raw = _true_raw(sim)
+    assert "gyro" in raw["sensors"]
+    assert T.compiled_innovations(to_sensor_log(sim), config_from_dict(raw, "<t>")) is None
+
+
+def test_a_noise_the_log_does_not_want_is_reported_at_its_lower_bound():
+    # the simulated wheels have no per-second noise: its learned value goes to start / SPAN
+    sim = _sim(DIFF, GPS, seed=2)
+    log = to_sensor_log(sim)
+    raw = _true_raw(sim)
+    raw["motion"]["var_rate"] = 1.0e-3  # rad^2 per s per wheel, none in the simulation
+    keys = ["motion.var_rate", "sensors.gps.sigma"]
+    res = T.tune(config_from_dict(raw, "<tune test>"), raw, log, keys, progress=lambda s: None)
+    assert res.stopped == "converged" and res.at_bound == ("lower", "")
+    assert res.values[0] <= 1.0e-3 / T.SPAN * math.exp(T.HESSIAN_STEP)
+    assert res.log_sigma[0] is None and res.log_sigma[1] is not None  # the other's Hessian
+    assert abs(res.values[1] / 0.5 - 1.0) < 0.3
+    assert any("motion.var_rate" in line and "lower bound" in line for line in T.report_lines(res))

@@ -187,8 +187,12 @@ def _record(mon, stream: str, t, ok, nis) -> bool:
     return False
 
 
-def run(log, config):
-    """The compiled offline EKF, or None when the run is not covered (see module doc)."""
+def prepare(log, config):
+    """``(kernels, loc, streams, args)`` of the compiled offline EKF, or None when the run
+    is not covered: ``args`` are the arguments of :func:`~.kernels.ekf_offline` by name (in
+    its order), the Localizer ``loc`` receives the outcome. Also used by :mod:`odofuse.tune`,
+    which adds rejected probe readings to the measurement arrays to read each update's
+    innovation covariance."""
     from odofuse.estimators.localizer import build
 
     opts = config.estimator_options("ekf")
@@ -230,12 +234,24 @@ def run(log, config):
     odom = loc._odom.copy()
     acc = np.zeros(len(mt), dtype=np.int8)
     nis = np.zeros(len(mt))
-    kern.ekf_offline(
-        x, P, loc.backend.walk, t, U, INTEGRATORS.index(model.integrator),
-        np.ascontiguousarray(M), np.ascontiguousarray(K), floor, rate, cal_code, cidx,
-        mt, ms, mstep, np.ascontiguousarray(mz), np.ascontiguousarray(maux), mR,
-        skind, sidx, sgate, sR, traj_x, traj_P, odom, acc, nis,
+    args = dict(
+        x=x, P=P, walk=loc.backend.walk, tt=t, U=U, integ=INTEGRATORS.index(model.integrator),
+        M=np.ascontiguousarray(M), K=np.ascontiguousarray(K), floor=floor, rate=rate,
+        cal=cal_code, cidx=cidx, mt=mt, ms=ms, mstep=mstep, mz=np.ascontiguousarray(mz),
+        maux=np.ascontiguousarray(maux), mR=mR, skind=skind, sidx=sidx, sgate=sgate, sR=sR,
+        traj_x=traj_x, traj_P=traj_P, odom=odom, acc=acc, nis=nis,
     )  # fmt: skip
+    return kern, loc, streams, args
+
+
+def run(log, config):
+    """The compiled offline EKF, or None when the run is not covered (see module doc)."""
+    prep = prepare(log, config)
+    if prep is None:
+        return None
+    kern, loc, streams, args = prep
+    kern.ekf_offline(*args.values())
+    t, mt, ms, acc, nis = (args[k] for k in ("tt", "mt", "ms", "acc", "nis"))
     for si, s in enumerate(streams):
         mine = ms == si
         sel = mine & (acc != 2)  # clone-only first gyro readings are not counted
@@ -244,8 +260,8 @@ def run(log, config):
             return None  # a recovery would re-open the filter: the Python path does that
         loc.used[s] += int(np.count_nonzero(ok))
         loc.rejected[s] += int(ok.size - np.count_nonzero(ok))
-    loc.backend.x, loc.backend.P = x, P
-    loc._track = Track.from_arrays(t, traj_x, traj_P)
-    loc._odom = odom
+    loc.backend.x, loc.backend.P = args["x"], args["P"]
+    loc._track = Track.from_arrays(t, args["traj_x"], args["traj_P"])
+    loc._odom = args["odom"]
     loc.t = float(t[-1])
     return loc.result()
