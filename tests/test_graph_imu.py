@@ -116,3 +116,41 @@ def test_robust_gyro_with_bias_uses_the_python_factor():
     res = run_estimator("smoother", log, cfg)
     assert 0 < res.extra["python_factors"] < res.extra["keyframes"] + 5
     assert abs(res.extra["calibration"]["gyro_bias"] - 0.01) < 1e-3
+
+
+def test_attached_headings_variance_matches_monte_carlo():
+    """Headings moved to their nearest keyframe through a gyro: the averaged heading is
+    unbiased and its stated variance is the spread over seeded repetitions (white rate noise,
+    reading noise, bias prior), keyframe by keyframe."""
+    from odofuse.estimators.graph.keyframes import attach_headings, gyro_rotation_track
+
+    rng = np.random.default_rng(21)
+    dt, sig_rate, sig_c, bias_sigma = 0.01, 0.02, 0.05, 0.01
+    edges = np.round(np.arange(0.0, 6.0 + dt / 2, dt), 9)  # gyro sample boundaries
+    t_prev, t_g = edges[:-1], edges[1:]
+    theta = 0.8 * np.sin(0.7 * edges)  # true heading at the boundaries
+    rate = np.diff(theta) / dt  # the true mean rate of each sample
+    t_c = edges[1::2]  # 50 Hz readings on sample boundaries
+    kt = np.array([0.0, 1.0, 2.3, 3.0, 4.5, 6.0])
+    trials = 1500
+    errs = []
+    for _ in range(trials):
+        b = rng.normal(0.0, bias_sigma)
+        wz = rate + b + rng.normal(0.0, sig_rate, rate.size)
+        track = (*gyro_rotation_track(t_prev, t_g, wz, np.full(wz.size, sig_rate**2)), bias_sigma)
+        z = theta[1::2] + rng.normal(0.0, sig_c, t_c.size)
+        k, zk, var, count, first = attach_headings(t_c, z, np.full(t_c.size, sig_c**2), kt, [track])
+        errs.append(np.angle(np.exp(1j * (zk - theta[np.round(kt[k] / dt).astype(int)]))))
+    errs = np.array(errs)
+    np.testing.assert_array_equal(k, np.arange(kt.size))  # every keyframe gets readings
+    assert count.sum() == t_c.size and first[0] == 0
+    # each reading went to its nearest keyframe
+    nearest = np.argmin(np.abs(t_c[:, None] - kt[None, :]), axis=1)
+    np.testing.assert_array_equal(count, np.bincount(nearest, minlength=kt.size))
+    se = np.sqrt(var / trials)
+    assert np.all(np.abs(errs.mean(axis=0)) < 4 * se)
+    ratio = errs.var(axis=0) / var
+    print("empirical / stated variance per keyframe:", np.round(ratio, 3))
+    assert np.all(np.abs(ratio - 1.0) < 5 * np.sqrt(2.0 / trials))
+    # the averaging is worth it: far below one reading's variance
+    assert np.all(var[1:-1] < 0.2 * sig_c**2)

@@ -362,7 +362,7 @@ class Factors:
             f = self.measurement(meas)
             g.add(f)
             self.created.append((meas, f))
-            self.used[meas.stream] = self.used.get(meas.stream, 0) + 1
+            self.used[meas.stream] = self.used.get(meas.stream, 0) + meas.rows
         pin = gtsam.noiseModel.Isotropic.Sigma(2, self.p.options.known_landmark_sigma)
         for bkey, pos in self._pending:
             v.insert(bkey, pos)

@@ -19,7 +19,14 @@ from odofuse.declarations import GraphOptions
 from odofuse.errors import ConfigError
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.graph.calibration import OdometryCalibration, odometry_calibration_for
-from odofuse.estimators.graph.keyframes import keyframe_times, preintegrate, preintegrate_gyro
+from odofuse.estimators.graph.keyframes import (
+    attach_headings,
+    gyro_rotation_track,
+    keyframe_times,
+    preintegrate,
+    preintegrate_gyro,
+    wheel_rotation_track,
+)
 from odofuse.estimators.graph.keys import C, model_kind
 from odofuse.estimators.graph.loops import (
     STREAM,
@@ -39,10 +46,11 @@ class Measurement:
     """A sensor row that gets a factor: its stream, row, keyframe(s) and landmark id."""
 
     stream: str
-    index: int  # row in the stream
+    index: int  # row in the stream (the first of an averaged heading)
     keyframe: int  # keyframe index
     row: dict
     landmark: int | None = None
+    rows: int = 1  # stream rows the factor stands for (attach_headings averages several)
 
 
 @dataclass(frozen=True)
@@ -127,6 +135,20 @@ class GraphProblem:
         return np.column_stack([xy, se2.wrap(theta)])
 
 
+def _rotation_tracks(gyro_rows, models, t_odo, U, model) -> list:
+    """Rotation tracks for :func:`attach_headings`: the first gyro stream (its bias prior
+    value subtracted, its prior sigma as the bias uncertainty), then the wheels."""
+    tracks = []
+    for name, rows in gyro_rows.items():
+        m = models[name]
+        bias, bias_sigma = getattr(m, "calib_prior", dict)().get("gyro_bias", (0.0, 0.0))
+        t_prev, t, wz, var = np.array(rows).T
+        tracks.append((*gyro_rotation_track(t_prev, t, wz, var, bias), float(bias_sigma)))
+        break
+    tracks.append((*wheel_rotation_track(t_odo, U, model), 0.0))
+    return tracks
+
+
 def build_problem(log, config, estimator: str) -> GraphProblem:
     """Keyframes, pre-integrated odometry and the sensor rows of a run (no GTSAM objects).
 
@@ -157,6 +179,12 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
 
     rejected: dict[str, int] = {}
     pending: list[tuple[float, Measurement]] = []
+    # compass readings follow the keyframe policy when it has a trigger of its own: they are
+    # moved to their nearest keyframe and averaged (attach_headings), not keyframes
+    attach = not pose_graph and (
+        options.keyframe_dt > 0 or options.keyframe_ds > 0 or options.keyframe_dtheta > 0
+    )
+    heading_rows: dict[str, list] = {}  # stream -> (t, row index, heading, variance)
     gyro_rows: dict[str, list] = {}  # stream -> (t_prev, t, wz, var) of accepted samples
     for name, m in models.items():
         if not log.has(name):
@@ -187,6 +215,11 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
                 )
                 prev_t = t
                 continue
+            if kind == "CompassHeading" and attach:
+                heading_rows.setdefault(name, []).append(
+                    (t, int(i), float(m.z(row)[0]), float(m.R(row)[0, 0]))
+                )
+                continue
             if kind in LANDMARK_SENSORS:
                 lid = int(row["id"])
                 if not options.slam and lid not in log.landmarks:
@@ -210,6 +243,14 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         name: GyroIncrements(*preintegrate_gyro(*np.array(rows).T, kt))
         for name, rows in gyro_rows.items()
     }
+    if heading_rows:
+        tracks = _rotation_tracks(gyro_rows, models, t_odo, U, model)
+        for name, rows in heading_rows.items():
+            t_r, idx, z, var = np.array(rows).T
+            for k, zk, vk, n, first in zip(*attach_headings(t_r, z, var, kt, tracks), strict=True):
+                row = {"heading": float(zk), "sigma": math.sqrt(vk)}
+                meas = Measurement(name, int(idx[first]), int(k), row, rows=int(n))
+                pending.append((float(kt[k]), meas))
     pending.sort(key=lambda tm: (tm[1].keyframe, tm[1].stream))
     odo_cal = odometry_calibration_for(
         model,
