@@ -154,3 +154,51 @@ def test_attached_headings_variance_matches_monte_carlo():
     assert np.all(np.abs(ratio - 1.0) < 5 * np.sqrt(2.0 / trials))
     # the averaging is worth it: far below one reading's variance
     assert np.all(var[1:-1] < 0.2 * sig_c**2)
+
+
+def _two_gyros(bias2=-0.015, sigma2=0.004):
+    """SCENARIO's log with a second IMU ``gyro_2`` (50 Hz, its own bias and noise)."""
+    import dataclasses
+
+    from odofuse.io.log import Stream
+
+    log, cfg = simulated_run(SCENARIO, 9, "smoother")
+    gt = log.groundtruth
+    rng = np.random.default_rng(31)
+    t2 = np.arange(gt.t[0] + 0.02, gt.t[-1], 0.02)
+    theta = np.interp(np.r_[t2[0] - 0.02, t2], gt.t, np.unwrap(gt["theta"]))
+    wz = np.diff(theta) / 0.02 + bias2 + rng.normal(0.0, sigma2, t2.size)
+    streams = {**log.streams, "gyro_2": Stream("gyro_2", "sim", t2, ("wz",), wz[:, None])}
+    return dataclasses.replace(log, streams=streams)
+
+
+@pytest.mark.parametrize("estimator", ["smoother", "isam2", "fixed_lag"])
+def test_two_gyros_each_with_its_own_bias(estimator):
+    """Two IMUs (gyro, gyro_2): each pre-integrated, each with its bias variable."""
+    log = _two_gyros()
+    sensors = {
+        "gyro": {"sigma": 0.005, "calibrate": True},
+        "gyro_2": {"model": "gyro", "sigma": 0.004, "calibrate": True},
+    }
+    _, cfg = simulated_run(SCENARIO, 9, estimator, sensors=sensors)
+    res = run_estimator(estimator, log, cfg)
+    cal = res.extra["calibration"]
+    assert set(cal) >= {"gyro_bias", "gyro_bias:gyro_2"}
+    assert abs(cal["gyro_bias"] - 0.01) < 1e-3
+    assert abs(cal["gyro_bias:gyro_2"] + 0.015) < 1e-3
+    assert res.used["gyro"] == len(log.streams["gyro"]) - 1
+    assert res.used["gyro_2"] == len(log.streams["gyro_2"]) - 1
+    assert res.extra["python_factors"] == 0
+    gyro = log.streams["gyro"]
+    assert len(gyro) > 80 * res.extra["keyframes"]  # both pre-integrated: 1 s keyframes
+
+
+def test_filters_refuse_a_second_gyro():
+    from odofuse.errors import ConfigError
+
+    log = _two_gyros()
+    blocks = {"gyro_2": {"model": "gyro", "sigma": 0.004}}
+    for estimator in ("ekf", "ukf", "particle"):
+        _, cfg = simulated_run(SCENARIO, 9, estimator, sensors=blocks)
+        with pytest.raises(ConfigError, match=r"key 'sensors.gyro_2': the filters fuse one gyro"):
+            run_estimator(estimator, log, cfg)

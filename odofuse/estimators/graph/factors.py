@@ -134,11 +134,12 @@ class Factors:
         )
 
     def model_calib(self, model) -> dict:
+        """Model state name -> GTSAM key of the model's estimated calibration states."""
         clones = set(getattr(model, "clones", lambda: {})())
+        stream = getattr(model, "name", "")
+        names = {s: self.p.state_name(stream, s) for s in getattr(model, "calib_states", ())}
         return {
-            s: self.p.calib[s][0]
-            for s in getattr(model, "calib_states", ())
-            if s in self.p.calib and s not in clones
+            s: self.p.calib[n][0] for s, n in names.items() if n in self.p.calib and s not in clones
         }
 
     def static(self):
@@ -293,7 +294,7 @@ class Factors:
             return gyro_increment_factor(
                 X(i - 1), X(i), bias_key, dtheta, T, robust_noise(nm, loss, k)
             )
-        b0 = float(self.p.calib["gyro_bias"][1])
+        b0 = float(self.p.calib[self.p.state_name(stream, "gyro_bias")][1])
         th0, th1 = self._theta_guess[i - 1], self._theta_guess[i]
         e0 = float(se2.wrap(th1 - th0 + b0 * T - dtheta))
         jf = gtsam.JacobianFactor(

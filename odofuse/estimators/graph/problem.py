@@ -93,7 +93,8 @@ class GraphProblem:
         Stream -> rows that got no factor (outside the odometry span, unknown landmark, ...).
     gyro : dict
         Gyro stream -> :class:`GyroIncrements` (one heading-increment factor per keyframe
-        interval; gyro times are not keyframes).
+        interval; gyro times are not keyframes). Several gyro streams each get their own
+        factors and, when calibrated, their own bias (``gyro_bias``, ``gyro_bias:gyro_2``).
     """
 
     kt: np.ndarray
@@ -115,6 +116,13 @@ class GraphProblem:
     loops: list = field(default_factory=list)  # graph.loops.Loop records
     pose_graph: bool = False  # odometry edges as stored in a pose-graph file (graph.loops)
     gyro: dict = field(default_factory=dict)
+    # (stream, model state) -> name in ``calib`` where a stream has its own copy of a state
+    # its model shares by name: ``gyro_bias:gyro_2``, the bias of a second gyro
+    calib_alias: dict = field(default_factory=dict)
+
+    def state_name(self, stream: str, state: str) -> str:
+        """The ``calib`` name of ``stream``'s calibration state ``state``."""
+        return self.calib_alias.get((stream, state), state)
 
     @property
     def odometry_key(self) -> int:
@@ -273,14 +281,20 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         deltas, covs, G = preintegrate(t_odo, U, model, kt, odo_cal)
 
     calib: dict[str, tuple[int, float, float]] = {}
-    for m in models.values():
+    alias: dict[tuple[str, str], str] = {}
+    for stream, m in models.items():
         clones = set(getattr(m, "clones", lambda: {})())
         prior = getattr(m, "calib_prior", lambda: {})()
         for state in getattr(m, "calib_states", ()):
-            if state in clones or state in calib:
+            if state in clones:
+                continue
+            if state == "gyro_bias" and state in calib:  # a second IMU has its own bias
+                alias[stream, state] = f"{state}:{stream}"
+            name = alias.get((stream, state), state)
+            if name in calib:
                 continue
             value, sigma = prior.get(state, (0.0, 1.0))
-            calib[state] = (C(len(calib)), float(value), float(sigma))
+            calib[name] = (C(len(calib)), float(value), float(sigma))
 
     robust = {s: options.robust.get(s, ("none", 0.0)) for s in models}
     robust[odometry_stream_name(model)] = options.robust.get(
@@ -306,6 +320,7 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         G,
         gyro=gyro,
         pose_graph=pose_graph,
+        calib_alias=alias,
     )
     if loops_cfg is not None:
         lag = options.lag if estimator == "fixed_lag" else None
