@@ -313,6 +313,49 @@ def test_mcap_read_back(ekf_run):
     np.testing.assert_allclose(odom_base[:, :2], dr[:, :2], atol=1e-9)
 
 
+def test_mcap_on_request_and_frames_from_the_config(bags, tmp_path):
+    """trajectory.mcap: by default for a bag, on request otherwise; frames config > bag."""
+    from types import SimpleNamespace
+
+    from odofuse.config import config_from_dict, parse_yaml
+    from odofuse.outputs_ros import mcap_options
+
+    def cfg(output):
+        text = CONFIG.format(bag=bags["mcap"], estimator="ekf")
+        return config_from_dict(parse_yaml(text + f"options: {{output: {output}}}\n", "cfg"), "cfg")
+
+    bag_log = read_bag(bags["mcap"], TOPICS, JOINTS)
+    csv_log = SimpleNamespace(ros={})
+    frames = {"map_frame": "map", "odom_frame": "odom", "base_frame": "base_link"}
+    assert mcap_options(cfg("{}"), bag_log) == {"topic": "/odometry/filtered", **frames}
+    assert mcap_options(cfg("{mcap: false}"), bag_log) is None
+    assert mcap_options(cfg("{}"), csv_log) is None
+    assert mcap_options(cfg("{mcap: true}"), csv_log) == {"topic": "/odometry/filtered", **frames}
+    got = mcap_options(cfg("{topic: /est, map_frame: world, base_frame: robot}"), bag_log)
+    assert got == {
+        "topic": "/est",
+        "map_frame": "world",
+        "odom_frame": "odom",
+        "base_frame": "robot",
+    }
+    # a CSV-style log (Plaza1) asked for the MCAP: one Odometry per pose, the config's frames
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = tmp_path / "dr.yaml"
+    text = cli.default_config_path("dead_reckoning").read_text()
+    path.write_text(text + "options: {output: {mcap: true, map_frame: world}}\n")
+    config = load_config(path)
+    m = rundir.run_one(config, load_log_for(config), tmp_path / "out")
+    with AnyReader(
+        [tmp_path / "out" / "trajectory.mcap"], default_typestore=get_typestore(Stores.ROS2_HUMBLE)
+    ) as r:
+        conns = [c for c in r.connections if c.topic == "/odometry/filtered"]
+        odo = [r.deserialize(d, c.msgtype) for c, _, d in r.messages(conns)]
+    assert len(odo) == m["poses"]
+    assert {(o.header.frame_id, o.child_frame_id) for o in odo} == {("world", "base_link")}
+
+
 @pytest.mark.parametrize("compass", [True, False])
 @pytest.mark.parametrize("estimator", ["isam2", "fixed_lag"])
 def test_incremental_smoothers_on_the_bag(bags, robot, tmp_path, estimator, compass):
