@@ -2,7 +2,9 @@
 
 Gyro samples between keyframes are pre-integrated into one heading-increment factor per
 keyframe interval with the bias as a variable, so the keyframes follow the keyframe policy,
-not the gyro rate, and the factors are built-in GTSAM ones.
+not the gyro rate, and the factors are built-in GTSAM ones. High-rate compass readings move to
+their nearest keyframe through the gyro (or wheel) rotation and are averaged; two gyros each
+keep their own bias in the graph, and the filters refuse the second.
 """
 
 from __future__ import annotations
@@ -202,3 +204,42 @@ def test_filters_refuse_a_second_gyro():
         _, cfg = simulated_run(SCENARIO, 9, estimator, sensors=blocks)
         with pytest.raises(ConfigError, match=r"key 'sensors.gyro_2': the filters fuse one gyro"):
             run_estimator(estimator, log, cfg)
+
+
+def test_wheel_rotation_track_is_the_preintegrated_heading():
+    """The wheels' rotation track between two odometry times is the heading part of the
+    pre-integrated odometry (its variance the theta-theta covariance entry)."""
+    from odofuse.estimators.common import odometry_inputs
+    from odofuse.estimators.graph.keyframes import preintegrate, wheel_rotation_track
+    from odofuse.motion import motion_model_from_config
+
+    log, cfg = simulated_run(SCENARIO, 9, "smoother")
+    model = motion_model_from_config(cfg)
+    t_odo, U = odometry_inputs(log, model)
+    kt = t_odo[::37]
+    deltas, covs = preintegrate(t_odo, U, model, kt)
+    knots, theta, var = wheel_rotation_track(t_odo, U, model)
+    np.testing.assert_allclose(np.diff(np.interp(kt, knots, theta)), deltas[:, 2], atol=1e-12)
+    np.testing.assert_allclose(np.diff(np.interp(kt, knots, var)), covs[:, 2, 2], rtol=1e-9)
+
+
+def test_high_rate_compass_without_gyro_rides_on_the_wheels():
+    """A 20 Hz compass, no gyro: attached through the wheels' heading to 1 s keyframes, as
+    accurate as the same readings each made a keyframe (``keyframe_dt: 0``, the old graph)."""
+    scenario = {
+        **SCENARIO,
+        "sensors": {"compass": {"sigma": 0.05, "rate": 20.0}, "gps": {"sigma": 0.5, "rate": 1.0}},
+    }
+    res, err = {}, {}
+    for dt in (1.0, 0.0):
+        log, cfg = simulated_run(scenario, 9, "smoother", options={"keyframe_dt": dt})
+        res[dt] = run_estimator("smoother", log, cfg)
+        err[dt] = metrics(res[dt], log)["ate_rmse_m"]
+        assert res[dt].used["compass"] == len(log.streams["compass"])
+    span = log.streams["wheels"].t[-1] - log.streams["wheels"].t[0]
+    print("keyframes", {k: r.extra["keyframes"] for k, r in res.items()}, "RMSE", err)
+    assert res[1.0].extra["keyframes"] <= span + len(log.streams["gps"]) + 2
+    assert res[0.0].extra["keyframes"] >= len(log.streams["compass"])
+    assert err[1.0] < 1.15 * err[0.0]
+    summary = res[1.0].extra["residuals"]["compass"]
+    assert summary["beyond_999"] <= 0.02  # the averaged readings' variance holds
