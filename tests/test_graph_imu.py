@@ -141,11 +141,13 @@ def test_attached_headings_variance_matches_monte_carlo():
         wz = rate + b + rng.normal(0.0, sig_rate, rate.size)
         track = (*gyro_rotation_track(t_prev, t_g, wz, np.full(wz.size, sig_rate**2)), bias_sigma)
         z = theta[1::2] + rng.normal(0.0, sig_c, t_c.size)
-        k, zk, var, count, first = attach_headings(t_c, z, np.full(t_c.size, sig_c**2), kt, [track])
+        k, zk, var, count, first, last = attach_headings(
+            t_c, z, np.full(t_c.size, sig_c**2), kt, [track]
+        )
         errs.append(np.angle(np.exp(1j * (zk - theta[np.round(kt[k] / dt).astype(int)]))))
     errs = np.array(errs)
     np.testing.assert_array_equal(k, np.arange(kt.size))  # every keyframe gets readings
-    assert count.sum() == t_c.size and first[0] == 0
+    assert count.sum() == t_c.size and first[0] == 0 and last[-1] == t_c.size - 1
     # each reading went to its nearest keyframe
     nearest = np.argmin(np.abs(t_c[:, None] - kt[None, :]), axis=1)
     np.testing.assert_array_equal(count, np.bincount(nearest, minlength=kt.size))
@@ -243,3 +245,23 @@ def test_high_rate_compass_without_gyro_rides_on_the_wheels():
     assert err[1.0] < 1.15 * err[0.0]
     summary = res[1.0].extra["residuals"]["compass"]
     assert summary["beyond_999"] <= 0.02  # the averaged readings' variance holds
+
+
+def test_attached_compass_factor_waits_for_its_last_reading():
+    """iSAM2 adds an averaged compass factor with the first keyframe at or after its last
+    reading: no update sees readings from its future."""
+    from odofuse.estimators.graph.problem import build_problem
+
+    scenario = {**SCENARIO, "sensors": {"compass": {"sigma": 0.05, "rate": 20.0}}}
+    log, cfg = simulated_run(scenario, 9, "isam2")
+    p = build_problem(log, cfg, "isam2")
+    tc = log.streams["compass"].t
+    meas = [m for m in p.measurements if m.stream == "compass"]
+    assert sum(m.rows for m in meas) == len(tc)
+    later = 0
+    for m in meas:
+        added = m.keyframe if m.added_at is None else m.added_at
+        last = tc[m.index + m.rows - 1]
+        assert p.kt[added] >= last and added - m.keyframe in (0, 1)
+        later += added > m.keyframe
+    assert later > len(meas) // 2  # most keyframes have readings after them

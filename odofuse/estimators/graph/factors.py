@@ -96,7 +96,8 @@ class Factors:
         self.created: list = []  # (measurement, factor) in the order added
         self.by_kf: dict[int, list[Measurement]] = {}
         for meas in problem.measurements:
-            self.by_kf.setdefault(meas.keyframe, []).append(meas)
+            added = meas.keyframe if meas.added_at is None else meas.added_at
+            self.by_kf.setdefault(added, []).append(meas)
         self.loops_by_kf: dict[int, list] = {}  # graph.loops.Loop records by later keyframe
         for loop in problem.loops:
             self.loops_by_kf.setdefault(loop.later, []).append(loop)

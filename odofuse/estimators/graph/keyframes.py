@@ -298,8 +298,9 @@ def attach_headings(t, heading, var, kt, tracks):
         rad^2.
     count : ndarray (F,) int
         Readings averaged.
-    first : ndarray (F,) int
-        Index (into ``t``) of the first reading of each keyframe.
+    first, last : ndarray (F,) int
+        Index (into ``t``) of the first and the last reading of each keyframe (in the order
+        of ``t``: earliest and latest when ``t`` is sorted).
     """
     t = np.asarray(t, dtype=float)
     z = np.asarray(heading, dtype=float)
@@ -341,4 +342,4 @@ def attach_headings(t, heading, var, kt, tracks):
             for s in np.unique(source[idx])
         )
         out_var[n] = np.dot(w * w, var[idx]) + w @ C @ w + bias_var
-    return keys, out_z, out_var, count, order[first_pos]
+    return keys, out_z, out_var, count, order[first_pos], order[first_pos + count - 1]

@@ -51,6 +51,7 @@ class Measurement:
     row: dict
     landmark: int | None = None
     rows: int = 1  # stream rows the factor stands for (attach_headings averages several)
+    added_at: int | None = None  # keyframe whose update adds the factor (default: keyframe)
 
 
 @dataclass(frozen=True)
@@ -255,9 +256,16 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         tracks = _rotation_tracks(gyro_rows, models, t_odo, U, model)
         for name, rows in heading_rows.items():
             t_r, idx, z, var = np.array(rows).T
-            for k, zk, vk, n, first in zip(*attach_headings(t_r, z, var, kt, tracks), strict=True):
+            for k, zk, vk, n, first, last in zip(
+                *attach_headings(t_r, z, var, kt, tracks), strict=True
+            ):
                 row = {"heading": float(zk), "sigma": math.sqrt(vk)}
                 meas = Measurement(name, int(idx[first]), int(k), row, rows=int(n))
+                # causal for iSAM2's online estimate: added with the keyframe after the last
+                # reading (unless the fixed-lag window would have dropped keyframe k by then)
+                late = t_r[last] > kt[k] and k + 1 < kt.size
+                if late and not (estimator == "fixed_lag" and kt[k + 1] - kt[k] >= options.lag):
+                    meas.added_at = int(k) + 1
                 pending.append((float(kt[k]), meas))
     pending.sort(key=lambda tm: (tm[1].keyframe, tm[1].stream))
     odo_cal = odometry_calibration_for(
