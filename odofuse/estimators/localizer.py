@@ -547,6 +547,7 @@ def assemble(
     gyro = gyrodometry_of(config)
     # With gyrodometry the gyro feeds the prediction and is not a measurement model.
     filt = {s: m for s, m in models.items() if gyro is None or s != gyro[0]}
+    _one_gyro(filt, config.source)
     # Odometry calibration states (odofuse.estimators.odocal) are laid out after the sensors'.
     odo = filter_odometry_calibration(motion, opts, f"options.{estimator}", config.source)
     extra = {} if odo is None else {ODOMETRY_CALIBRATION: odo}
@@ -560,6 +561,22 @@ def assemble(
     if gyro is not None:
         gyro = (gyro[0], gyro[1], float(getattr(models["gyro"], "sigma", 0.0)))
     return Localizer(backend, filt, float(t0), late, gyro, estimator, motion, opts, keep_trajectory)
+
+
+def _one_gyro(models, source) -> None:
+    """Refuse a second yaw-rate stream: the filters' gyro model compares the heading with a
+    cloned heading (``gyro_theta_ref``) and has one ``gyro_bias``, shared by name, so a second
+    gyro would read the first one's clone over its own interval (silently wrong)."""
+    from odofuse.measurements import GyroYawRate
+
+    gyros = [s for s, m in models.items() if isinstance(m, GyroYawRate)]
+    if len(gyros) > 1:
+        raise ConfigError(
+            f"the filters fuse one gyro stream ('{gyros[0]}'), not also '{gyros[1]}': use a "
+            "graph estimator (smoother, isam2, fixed_lag), which fuses each, or drop the block",
+            source,
+            f"sensors.{gyros[1]}",
+        )
 
 
 def build(config, log, estimator: str, make_backend):

@@ -140,7 +140,8 @@ class Factors:
         self.created: list = []  # (measurement, factor) in the order added
         self.by_kf: dict[int, list[Measurement]] = {}
         for meas in problem.measurements:
-            self.by_kf.setdefault(meas.keyframe, []).append(meas)
+            added = meas.keyframe if meas.added_at is None else meas.added_at
+            self.by_kf.setdefault(added, []).append(meas)
         self.loops_by_kf: dict[int, list] = {}  # graph.loops.Loop records by later keyframe
         for loop in problem.loops:
             self.loops_by_kf.setdefault(loop.later, []).append(loop)
@@ -179,11 +180,12 @@ class Factors:
         )
 
     def model_calib(self, model) -> dict:
+        """Model state name -> GTSAM key of the model's estimated calibration states."""
         clones = set(getattr(model, "clones", lambda: {})())
+        stream = getattr(model, "name", "")
+        names = {s: self.p.state_name(stream, s) for s in getattr(model, "calib_states", ())}
         return {
-            s: self.p.calib[s][0]
-            for s in getattr(model, "calib_states", ())
-            if s in self.p.calib and s not in clones
+            s: self.p.calib[n][0] for s, n in names.items() if n in self.p.calib and s not in clones
         }
 
     def static(self):
@@ -338,7 +340,7 @@ class Factors:
             return gyro_increment_factor(
                 X(i - 1), X(i), bias_key, dtheta, T, robust_noise(nm, loss, k)
             )
-        b0 = float(self.p.calib["gyro_bias"][1])
+        b0 = float(self.p.calib[self.p.state_name(stream, "gyro_bias")][1])
         th0, th1 = self._theta_guess[i - 1], self._theta_guess[i]
         e0 = float(se2.wrap(th1 - th0 + b0 * T - dtheta))
         jf = gtsam.JacobianFactor(
@@ -407,7 +409,7 @@ class Factors:
             f = self.measurement(meas)
             g.add(f)
             self.created.append((meas, f))
-            self.used[meas.stream] = self.used.get(meas.stream, 0) + 1
+            self.used[meas.stream] = self.used.get(meas.stream, 0) + meas.rows
         pin = gtsam.noiseModel.Isotropic.Sigma(2, self.p.options.known_landmark_sigma)
         for bkey, pos in self._pending:
             v.insert(bkey, pos)

@@ -86,10 +86,11 @@ def gyro_error(problem, values, stream: str, n: int) -> float:
     inc = problem.gyro[stream]
     i = int(inc.interval[n])
     b = 0.0
-    if "gyro_bias" in problem.calib and values.exists(problem.calib["gyro_bias"][0]):
+    name = problem.state_name(stream, "gyro_bias")  # a second gyro's own bias
+    if name in problem.calib and values.exists(problem.calib[name][0]):
         m = problem.models[stream]
         if "gyro_bias" in getattr(m, "calib_states", ()):
-            b = float(values.atVector(problem.calib["gyro_bias"][0])[0])
+            b = float(values.atVector(problem.calib[name][0])[0])
     th0, th1 = values.atPose2(X(i)).theta(), values.atPose2(X(i + 1)).theta()
     return float(se2.wrap(th1 - th0 + b * float(inc.T[n]) - float(inc.dtheta[n])))
 

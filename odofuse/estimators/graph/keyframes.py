@@ -4,7 +4,11 @@ Owns where keyframes fall (:func:`keyframe_times`: the odometry span's ends, sen
 and the dt / ds / dtheta triggers) and the relative pose, body-frame covariance and
 calibration sensitivity of the odometry between consecutive keyframes (:func:`preintegrate`,
 ``MotionModel.relative`` vectorised over all intervals); an odometry step straddling a
-keyframe is split, its wheel / increment inputs scaled by the time fraction.
+keyframe is split, its wheel / increment inputs scaled by the time fraction. Also the
+high-rate sensors attached to keyframes instead of making their own: gyro samples summed per
+keyframe interval (:func:`preintegrate_gyro`) and absolute heading readings moved to their
+nearest keyframe through the rotation since it (gyro or wheels) and averaged
+(:func:`attach_headings`).
 """
 
 from __future__ import annotations
@@ -195,3 +199,147 @@ def preintegrate_gyro(t_prev, t, wz, var_rate, kt):
     samples = np.bincount(end_interval, minlength=n_int)
     keep = np.flatnonzero(T > 0)
     return keep, dtheta[keep], var[keep], T[keep], samples[keep]
+
+
+def gyro_rotation_track(t_prev, t, wz, var_rate, bias=0.0):
+    """Heading rotated since the first gyro sample, and its variance, at the sample ends.
+
+    The same piece model as :func:`preintegrate_gyro`: inside sample ``k`` the rotation grows
+    linearly by ``(wz[k] - bias) tau`` and its variance by ``var_rate[k] dt tau``, so linear
+    interpolation of the returned knots (:func:`attach_headings`) gives the rotation between
+    any two times of the stream's span.
+
+    Parameters
+    ----------
+    t_prev, t : ndarray (S,)
+        s, start and end of each (consecutive) sample's interval.
+    wz, var_rate : ndarray (S,)
+        rad/s and rad^2/s^2, measured yaw rates and their variances.
+    bias : float
+        rad/s, the bias subtracted (the prior value of ``gyro_bias``).
+
+    Returns
+    -------
+    knots : ndarray (S+1,)
+        s, ``t_prev[0]`` then ``t``.
+    theta, var : ndarray (S+1,)
+        rad and rad^2, cumulative rotation and variance at the knots (0 at the first).
+    """
+    t_prev, t = np.asarray(t_prev, dtype=float), np.asarray(t, dtype=float)
+    dt = t - t_prev
+    theta = np.concatenate([[0.0], np.cumsum((np.asarray(wz, dtype=float) - bias) * dt)])
+    var = np.concatenate([[0.0], np.cumsum(np.asarray(var_rate, dtype=float) * dt * dt)])
+    return np.concatenate([t_prev[:1], t]), theta, var
+
+
+def wheel_rotation_track(t_odo, U, model):
+    """Heading rotated by the odometry since ``t_odo[0]`` and its variance, per odometry pose.
+
+    Step ``k``'s heading change ``dtheta`` and its variance ``J_theta diag(var_u) J_theta^T``
+    (``MotionModel`` increment and error model, nominal calibration), accumulated; inside a
+    step both grow linearly in time (the time-fraction split of :func:`preintegrate`).
+
+    Returns
+    -------
+    knots : ndarray (N+1,)
+        s, ``t_odo``.
+    theta, var : ndarray (N+1,)
+        rad and rad^2, cumulative at the knots.
+    """
+    t_odo = np.asarray(t_odo, dtype=float)
+    if len(U) == 0:
+        return t_odo, np.zeros(t_odo.size), np.zeros(t_odo.size)
+    inc, J = model.increment(U)
+    var_u = model.errors.variances(model.drive, U)
+    var = np.einsum("pk,pk->p", J[:, 2, :] ** 2, var_u)
+    return (
+        t_odo,
+        np.concatenate([[0.0], np.cumsum(inc[:, 2])]),
+        np.concatenate([[0.0], np.cumsum(var)]),
+    )
+
+
+def attach_headings(t, heading, var, kt, tracks):
+    """Absolute heading readings moved to their nearest keyframe and averaged per keyframe.
+
+    Reading ``r`` at ``t[r]`` becomes a reading of the heading at its nearest keyframe
+    ``t_k``: ``z'_r = heading[r] - (Theta(t[r]) - Theta(t_k))`` with ``Theta`` the rotation of
+    the first track (gyro, then wheels) whose span holds both times. The readings of one
+    keyframe are averaged with weights ``w_r ∝ 1/var[r]``; the variance of that mean is exact
+    for the model (independent reading noise, white rotation-rate noise)::
+
+        var = sum_r w_r^2 var[r] + sum_rs w_r w_s C_rs + s_b^2 (sum_r w_r (t[r] - t_k))^2
+
+    with ``C_rs = min(|V_r|, |V_s|)`` for two readings on the same side of ``t_k`` taken from
+    the same track (their rotations share the noise up to the nearer one), else 0, where
+    ``V_r = V(t[r]) - V(t_k)`` is the track's rotation variance; and ``s_b`` the track's rate
+    bias uncertainty (rad/s: the gyro bias prior sigma; 0 for the wheels), common to the
+    readings of a keyframe (summed per track when a keyframe's readings use two). Not
+    modelled: the reuse of the same gyro / wheel data by the between-keyframe factors (the
+    rotations used here span at most half a keyframe interval).
+
+    Parameters
+    ----------
+    t, heading, var : ndarray (R,)
+        s, rad, rad^2: reading times (inside ``[kt[0], kt[-1]]``), headings and variances.
+    kt : ndarray (K,)
+        s, keyframe times.
+    tracks : list of (knots, theta, var, bias_sigma)
+        Rotation tracks (:func:`gyro_rotation_track`, :func:`wheel_rotation_track`) in order
+        of preference; the last one should span ``kt``.
+
+    Returns
+    -------
+    keyframe : ndarray (F,) int
+        Keyframe of each averaged reading, increasing.
+    heading : ndarray (F,)
+        rad, wrapped.
+    var : ndarray (F,)
+        rad^2.
+    count : ndarray (F,) int
+        Readings averaged.
+    first, last : ndarray (F,) int
+        Index (into ``t``) of the first and the last reading of each keyframe (in the order
+        of ``t``: earliest and latest when ``t`` is sorted).
+    """
+    t = np.asarray(t, dtype=float)
+    z = np.asarray(heading, dtype=float)
+    var = np.asarray(var, dtype=float)
+    kt = np.asarray(kt, dtype=float)
+    hi = np.clip(np.searchsorted(kt, t), 1, kt.size - 1)
+    kf = np.where(t - kt[hi - 1] <= kt[hi] - t, hi - 1, hi)
+    tk = kt[kf]
+    source = np.full(t.size, -1)
+    rot = np.zeros(t.size)
+    rvar = np.zeros(t.size)
+    sb = np.zeros(t.size)
+    for n, (knots, theta, v, bias_sigma) in enumerate(tracks):
+        lo_t, hi_t = float(knots[0]), float(knots[-1])
+        use = (source < 0) & (np.minimum(t, tk) >= lo_t) & (np.maximum(t, tk) <= hi_t)
+        rot[use] = np.interp(t[use], knots, theta) - np.interp(tk[use], knots, theta)
+        rvar[use] = np.interp(t[use], knots, v) - np.interp(tk[use], knots, v)
+        sb[use] = bias_sigma
+        source[use] = n
+    if np.any(source < 0):
+        raise ValueError("attach_headings: a reading outside every rotation track")
+    zp = z - rot
+    order = np.argsort(kf, kind="stable")
+    keys, first_pos, count = np.unique(kf[order], return_index=True, return_counts=True)
+    out_z, out_var = np.zeros(keys.size), np.zeros(keys.size)
+    for n, (a, c) in enumerate(zip(first_pos, count, strict=True)):
+        idx = order[a : a + c]
+        w = 1.0 / var[idx]
+        w /= w.sum()
+        d = se2.wrap(zp[idx] - zp[idx[0]])
+        out_z[n] = se2.wrap(zp[idx[0]] + np.dot(w, d))
+        side = np.sign(t[idx] - tk[idx]) + 3 * source[idx]
+        same = side[:, None] == side[None, :]
+        a_abs = np.abs(rvar[idx])
+        C = np.where(same, np.minimum(a_abs[:, None], a_abs[None, :]), 0.0)
+        wtau = w * (t[idx] - tk[idx])  # a bias error b of a track shifts z' by b tau
+        bias_var = sum(
+            (sb[idx][source[idx] == s][0] * wtau[source[idx] == s].sum()) ** 2
+            for s in np.unique(source[idx])
+        )
+        out_var[n] = np.dot(w * w, var[idx]) + w @ C @ w + bias_var
+    return keys, out_z, out_var, count, order[first_pos], order[first_pos + count - 1]

@@ -19,7 +19,14 @@ from odofuse.declarations import GraphOptions
 from odofuse.errors import ConfigError
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.graph.calibration import OdometryCalibration, odometry_calibration_for
-from odofuse.estimators.graph.keyframes import keyframe_times, preintegrate, preintegrate_gyro
+from odofuse.estimators.graph.keyframes import (
+    attach_headings,
+    gyro_rotation_track,
+    keyframe_times,
+    preintegrate,
+    preintegrate_gyro,
+    wheel_rotation_track,
+)
 from odofuse.estimators.graph.keys import C, model_kind
 from odofuse.estimators.graph.loops import (
     STREAM,
@@ -39,10 +46,12 @@ class Measurement:
     """A sensor row that gets a factor: its stream, row, keyframe(s) and landmark id."""
 
     stream: str
-    index: int  # row in the stream
+    index: int  # row in the stream (the first of an averaged heading)
     keyframe: int  # keyframe index
     row: dict
     landmark: int | None = None
+    rows: int = 1  # stream rows the factor stands for (attach_headings averages several)
+    added_at: int | None = None  # keyframe whose update adds the factor (default: keyframe)
 
 
 @dataclass(frozen=True)
@@ -85,7 +94,8 @@ class GraphProblem:
         Stream -> rows that got no factor (outside the odometry span, unknown landmark, ...).
     gyro : dict
         Gyro stream -> :class:`GyroIncrements` (one heading-increment factor per keyframe
-        interval; gyro times are not keyframes).
+        interval; gyro times are not keyframes). Several gyro streams each get their own
+        factors and, when calibrated, their own bias (``gyro_bias``, ``gyro_bias:gyro_2``).
     """
 
     kt: np.ndarray
@@ -107,6 +117,13 @@ class GraphProblem:
     loops: list = field(default_factory=list)  # graph.loops.Loop records
     pose_graph: bool = False  # odometry edges as stored in a pose-graph file (graph.loops)
     gyro: dict = field(default_factory=dict)
+    # (stream, model state) -> name in ``calib`` where a stream has its own copy of a state
+    # its model shares by name: ``gyro_bias:gyro_2``, the bias of a second gyro
+    calib_alias: dict = field(default_factory=dict)
+
+    def state_name(self, stream: str, state: str) -> str:
+        """The ``calib`` name of ``stream``'s calibration state ``state``."""
+        return self.calib_alias.get((stream, state), state)
 
     @property
     def odometry_key(self) -> int:
@@ -125,6 +142,37 @@ class GraphProblem:
         step = np.column_stack([c * dx - s * dy, s * dx + c * dy])
         xy = self.pose0[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])
         return np.column_stack([xy, se2.wrap(theta)])
+
+
+def _rotation_tracks(gyro_rows, models, t_odo, U, model) -> list:
+    """Rotation tracks for :func:`attach_headings`: the first gyro stream (its bias prior
+    value subtracted, its prior sigma as the bias uncertainty), then the wheels."""
+    tracks = []
+    for name, rows in gyro_rows.items():
+        m = models[name]
+        bias, bias_sigma = getattr(m, "calib_prior", dict)().get("gyro_bias", (0.0, 0.0))
+        t_prev, t, wz, var = np.array(rows).T
+        tracks.append((*gyro_rotation_track(t_prev, t, wz, var, bias), float(bias_sigma)))
+        break
+    tracks.append((*wheel_rotation_track(t_odo, U, model), 0.0))
+    return tracks
+
+
+def _compass_rows(stream, order, model, t_lo, t_hi):
+    """Rows of a compass stream to attach to keyframes, vectorised (the per-row loop of
+    :func:`build_problem` costs seconds at 50 Hz): the count rejected (outside the odometry
+    span or not finite) and ``(t, row index, heading, variance)`` arrays in time order, the
+    heading and variance as ``model.z`` / ``model.R`` give them (a ``sigma`` column or the
+    model's sigma)."""
+    t = stream.t[order]
+    ok = (t >= t_lo) & (t <= t_hi) & np.all(np.isfinite(stream.values[order]), axis=1)
+    idx = order[ok]
+    heading = se2.wrap(stream["heading"][idx])
+    if "sigma" in stream.columns:
+        var = stream["sigma"][idx] ** 2
+    else:
+        var = np.full(idx.size, float(model.R(None)[0, 0]))
+    return int(np.count_nonzero(~ok)), (t[ok], idx, heading, var)
 
 
 def build_problem(log, config, estimator: str) -> GraphProblem:
@@ -157,6 +205,12 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
 
     rejected: dict[str, int] = {}
     pending: list[tuple[float, Measurement]] = []
+    # compass readings follow the keyframe policy when it has a trigger of its own: they are
+    # moved to their nearest keyframe and averaged (attach_headings), not keyframes
+    attach = not pose_graph and (
+        options.keyframe_dt > 0 or options.keyframe_ds > 0 or options.keyframe_dtheta > 0
+    )
+    heading_rows: dict[str, tuple] = {}  # stream -> (t, row index, heading, variance)
     gyro_rows: dict[str, list] = {}  # stream -> (t_prev, t, wz, var) of accepted samples
     for name, m in models.items():
         if not log.has(name):
@@ -164,6 +218,9 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         stream = log.streams[name]
         order = np.argsort(stream.t, kind="stable")  # a few logs (Plaza) are not sorted
         kind = model_kind(m)
+        if kind == "CompassHeading" and attach:
+            rejected[name], heading_rows[name] = _compass_rows(stream, order, m, t_lo, t_hi)
+            continue
         prev_t = None
         n_rej = 0
         for i in order:
@@ -210,6 +267,21 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         name: GyroIncrements(*preintegrate_gyro(*np.array(rows).T, kt))
         for name, rows in gyro_rows.items()
     }
+    if heading_rows:
+        tracks = _rotation_tracks(gyro_rows, models, t_odo, U, model)
+        for name, rows in heading_rows.items():
+            t_r, idx, z, var = rows
+            for k, zk, vk, n, first, last in zip(
+                *attach_headings(t_r, z, var, kt, tracks), strict=True
+            ):
+                row = {"heading": float(zk), "sigma": math.sqrt(vk)}
+                meas = Measurement(name, int(idx[first]), int(k), row, rows=int(n))
+                # causal for iSAM2's online estimate: added with the keyframe after the last
+                # reading (unless the fixed-lag window would have dropped keyframe k by then)
+                late = t_r[last] > kt[k] and k + 1 < kt.size
+                if late and not (estimator == "fixed_lag" and kt[k + 1] - kt[k] >= options.lag):
+                    meas.added_at = int(k) + 1
+                pending.append((float(kt[k]), meas))
     pending.sort(key=lambda tm: (tm[1].keyframe, tm[1].stream))
     odo_cal = odometry_calibration_for(
         model,
@@ -232,14 +304,20 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         deltas, covs, G = preintegrate(t_odo, U, model, kt, odo_cal)
 
     calib: dict[str, tuple[int, float, float]] = {}
-    for m in models.values():
+    alias: dict[tuple[str, str], str] = {}
+    for stream, m in models.items():
         clones = set(getattr(m, "clones", lambda: {})())
         prior = getattr(m, "calib_prior", lambda: {})()
         for state in getattr(m, "calib_states", ()):
-            if state in clones or state in calib:
+            if state in clones:
+                continue
+            if state == "gyro_bias" and state in calib:  # a second IMU has its own bias
+                alias[stream, state] = f"{state}:{stream}"
+            name = alias.get((stream, state), state)
+            if name in calib:
                 continue
             value, sigma = prior.get(state, (0.0, 1.0))
-            calib[state] = (C(len(calib)), float(value), float(sigma))
+            calib[name] = (C(len(calib)), float(value), float(sigma))
 
     robust = {s: options.robust.get(s, ("none", 0.0)) for s in models}
     robust[odometry_stream_name(model)] = options.robust.get(
@@ -265,6 +343,7 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         G,
         gyro=gyro,
         pose_graph=pose_graph,
+        calib_alias=alias,
     )
     if loops_cfg is not None:
         lag = options.lag if estimator == "fixed_lag" else None
