@@ -426,3 +426,38 @@ def test_live_ekf_equals_odofuse_run_bit_for_bit_with_the_compiled_core():
     assert type(Localizer.from_config(off, t0=t_all[0]).backend) is ekf.EkfBackend
     python = ekf.run(log, off)
     np.testing.assert_allclose(python.trajectory.poses, offline.trajectory.poses, atol=1e-9)
+
+
+def test_a_burst_of_late_readings_costs_one_window_each(monkeypatch):
+    # Issue 16: late bursts cost O(n^2) (1,000 late rows 13 s): each replay walked the whole
+    # history. Now the Localizer keeps the late window's steps only and a late reading replays
+    # the steps after it, at most one window. Counted in steps, not timed.
+    from odofuse.config import RunConfig
+    from odofuse.estimators.localizer import Localizer
+
+    cfg = RunConfig(
+        log="live",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
+        estimator="ekf",
+        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
+        sensors={"gps": {"sigma": 0.5}},
+        options={"ekf": {"late_window": 0.5}},
+    )
+    loc = Localizer.from_config(cfg, 0.0)
+    u = np.array([0.02, 0.0])
+    for k in range(1, 2001):  # 200 s of history at 10 Hz
+        loc.add_odometry(0.1 * k, u)
+    calls = []
+    real = Localizer._process_step
+    monkeypatch.setattr(
+        Localizer, "_process_step", lambda self, *a: (calls.append(1), real(self, *a))[1]
+    )
+    rng = np.random.default_rng(8)
+    late = loc.t - rng.uniform(0.0, 0.45, 1000)
+    outcomes = {loc.add_measurement("gps", {"t": tm, "x": 0.2 * tm, "y": 0.0}) for tm in late}
+    assert outcomes == {"used"}
+    window_steps = int(math.ceil(loc.late_window / 0.1)) + 1
+    assert len(loc._steps) <= window_steps
+    assert len(calls) <= 1000 * window_steps  # the whole history: 2,000 steps a reading
+    assert loc.used["gps"] == 1000
