@@ -18,6 +18,10 @@ odometry (``slip`` with a gyro), landmark bearing and range-bearing, lat/lon GPS
 models, duplicated readings. Recovery: the kernel does not re-open the filter; if the monitor
 says a recovery would have been triggered, the whole run falls back to Python (so the result
 is always the Python one).
+
+The streaming path: :func:`live` gives a live EKF Localizer a backend on the same kernels
+(:func:`kernel_backend_class`), so online equals ``odofuse run`` bit for bit on the runs
+:func:`run` covers (``docs/filters.md``, "Compiled core").
 """
 
 from __future__ import annotations
