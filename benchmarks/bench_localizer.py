@@ -62,9 +62,12 @@ def rss_mib() -> float:
     return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
-def feed(cls, n: int, marks=(), delay: float = 0.3, t0: float = 0.0) -> tuple[object, dict]:
+def feed(
+    cls, n: int, marks=(), delay: float = 0.3, t0: float = 0.0, verbose: bool = False
+) -> tuple[object, dict]:
     """Feed ``n`` steps to a live ``cls`` Localizer, each GPS fix ``delay`` s late (negative:
-    early, buffered); RSS (MiB) at the step counts ``marks``."""
+    early, buffered); RSS (MiB) at the step counts ``marks`` (printed as reached when
+    ``verbose``)."""
     loc = cls.from_config(config(), t0)
     noise = np.random.default_rng(0).normal(0.0, 0.5, (n // GPS_EVERY + 1, 2)).tolist()
     dt = 1.0 / RATE
@@ -84,6 +87,8 @@ def feed(cls, n: int, marks=(), delay: float = 0.3, t0: float = 0.0) -> tuple[ob
             loc.add_measurement("gps", {"t": t - delay, "x": x + ex, "y": y + ey})
         if k in marks:
             rss[k] = rss_mib()
+            if verbose:
+                print(f"  step {k:,}: RSS {rss[k]:.1f} MiB", flush=True)
     return loc, rss
 
 
@@ -181,7 +186,7 @@ def main() -> None:
     n = args.steps
     marks = [n * i // 8 for i in range(1, 9)]
     start = time.perf_counter()
-    _, rss = feed(Localizer, n, marks)
+    _, rss = feed(Localizer, n, marks, verbose=True)
     wall = time.perf_counter() - start
     rate = n / wall
     print(f"live EKF Localizer, odometry {RATE} Hz + GPS 1 Hz, {n:,} steps: {rate:,.0f} steps/s")
