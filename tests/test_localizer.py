@@ -500,3 +500,35 @@ def test_live_compiled_ekf_recovers_as_the_python_one():
     assert kern.used == py.used and kern.rejected == py.rejected
     np.testing.assert_allclose(kern.pose(), py.pose(), rtol=0, atol=1e-9)
     np.testing.assert_allclose(kern.covariance(), py.covariance(), rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize("odometry_calibration", [True, False])
+def test_live_ekf_with_calibration_states_equals_odofuse_run_bit_for_bit(odometry_calibration):
+    # The same with ranges and their scale/offset states, with and without the
+    # odometry-calibration states (the kernels' general-matrix prediction).
+    from odofuse.estimators.compiled import load_kernels
+    from odofuse.estimators.localizer import Localizer
+
+    if load_kernels() is None:
+        pytest.skip("numba not importable")
+    log, _ = simulate(7, steps=600)
+    opts = {"odometry_calibration": True} if odometry_calibration else {}
+    cfg = sim_config(estimator="ekf", calibrate=True, **opts)
+    offline = ekf.run(log, cfg)
+    _, t, U = build(cfg, log, "ekf", ekf.make_backend)
+    loc = Localizer.from_config(
+        cfg, t0=t[0], landmarks=log.landmarks, initial_pose=log.initial_pose, keep_trajectory=True
+    )
+    assert type(loc.backend).__name__ == "KernelEkfBackend"
+    for te, kind, stream, i in events(log, t, U, ["ranges"]):
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+        else:
+            loc.add(stream, log.streams[stream].row(i))
+    loc.finish()
+    online = loc.result()
+    np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses)
+    np.testing.assert_array_equal(online.trajectory.covariances, offline.trajectory.covariances)
+    assert online.used == offline.used and online.rejected == offline.rejected
+    assert online.extra["calibration"] == offline.extra["calibration"]
+    assert online.extra["map_to_odom"] == offline.extra["map_to_odom"]
