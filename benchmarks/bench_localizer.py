@@ -8,7 +8,8 @@ the run is kept outside the Localizer). Printed:
 * steps/s over the whole run, and the process's resident memory (RSS) at eight checkpoints:
   flat after the first window means the Localizer's memory does not grow with the run;
 * with ``--check N``: the live Localizer against ``odofuse run``'s EKF (the compiled core by
-  default) over ``N`` steps, bit for bit (the offline run keeps all N poses: ~100 B a step);
+  default) over ``N`` steps, bit for bit (the offline run keeps the whole log and all N poses:
+  peak RSS 5.7 GiB for N = 10^7);
 * with ``--against REV`` (a git revision, e.g. the merge base), the same run through that
   revision's ``odofuse/estimators/localizer.py`` and ``inputs.py`` in the same process
   (interleaved, best of three), and the ratio.
