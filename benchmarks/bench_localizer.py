@@ -7,11 +7,14 @@ the run is kept outside the Localizer). Printed:
 
 * steps/s over the whole run, and the process's resident memory (RSS) at eight checkpoints:
   flat after the first window means the Localizer's memory does not grow with the run;
+* with ``--check N``: the live Localizer against ``odofuse run``'s EKF (the compiled core by
+  default) over ``N`` steps, bit for bit (the offline run keeps the whole log and all N poses:
+  peak RSS 5.7 GiB for N = 10^7);
 * with ``--against REV`` (a git revision, e.g. the merge base), the same run through that
   revision's ``odofuse/estimators/localizer.py`` and ``inputs.py`` in the same process
   (interleaved, best of three), and the ratio.
 
-Run from anywhere: ``python benchmarks/bench_localizer.py [--steps N] [--against REV]``
+Run from anywhere: ``python benchmarks/bench_localizer.py [--steps N] [--check N] [--against REV]``
 (``nice -n 10`` on a shared machine; 10^7 steps take about half an hour there).
 """
 
@@ -60,10 +63,13 @@ def rss_mib() -> float:
     return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
-def feed(cls, n: int, marks=(), delay: float = 0.3) -> tuple[object, dict]:
+def feed(
+    cls, n: int, marks=(), delay: float = 0.3, t0: float = 0.0, verbose: bool = False
+) -> tuple[object, dict]:
     """Feed ``n`` steps to a live ``cls`` Localizer, each GPS fix ``delay`` s late (negative:
-    early, buffered); RSS (MiB) at the step counts ``marks``."""
-    loc = cls.from_config(config(), 0.0)
+    early, buffered); RSS (MiB) at the step counts ``marks`` (printed as reached when
+    ``verbose``)."""
+    loc = cls.from_config(config(), t0)
     noise = np.random.default_rng(0).normal(0.0, 0.5, (n // GPS_EVERY + 1, 2)).tolist()
     dt = 1.0 / RATE
     ds, dth = 0.5 * dt, 0.05 * dt  # 0.5 m/s, 0.05 rad/s
@@ -82,7 +88,64 @@ def feed(cls, n: int, marks=(), delay: float = 0.3) -> tuple[object, dict]:
             loc.add_measurement("gps", {"t": t - delay, "x": x + ex, "y": y + ey})
         if k in marks:
             rss[k] = rss_mib()
+            if verbose:
+                print(f"  step {k:,}: RSS {rss[k]:.1f} MiB", flush=True)
     return loc, rss
+
+
+def offline_log(n: int, delay: float = 0.3):
+    """The readings :func:`feed` sends, as a :class:`~odofuse.io.log.SensorLog` (the same
+    arithmetic, so the same numbers)."""
+    from odofuse.io.log import SensorLog, Stream
+
+    noise = np.random.default_rng(0).normal(0.0, 0.5, (n // GPS_EVERY + 1, 2)).tolist()
+    dt = 1.0 / RATE
+    ds, dth = 0.5 * dt, 0.05 * dt
+    th, x, y = 0.0, 0.0, 0.0
+    gps = []
+    for k in range(1, n + 1):
+        th += dth
+        x += ds * math.cos(th)
+        y += ds * math.sin(th)
+        if k % GPS_EVERY == 0:
+            ex, ey = noise[k // GPS_EVERY]
+            gps.append((k * dt - delay, x + ex, y + ey))
+    t = np.arange(1, n + 1) * dt  # k * dt, as feed computes it
+    U = np.tile([ds, dth], (n, 1))
+    g = np.array(gps).reshape(-1, 3)
+    streams = {
+        "odometry": Stream("odometry", "bench", t, ("ds", "dtheta"), U),
+        "gps": Stream("gps", "bench", g[:, 0], ("x", "y"), g[:, 1:]),
+    }
+    return SensorLog("bench", streams, initial_pose=np.zeros(3))
+
+
+def check_offline(n: int) -> str:
+    """Online (live Localizer) against ``odofuse run``'s EKF (``ekf.run``) over ``n`` steps:
+    the poses and covariances of the late window and the final state, bit for bit."""
+    from odofuse.estimators import ekf
+    from odofuse.estimators.common import odometry_inputs
+    from odofuse.motion import motion_model_from_config
+
+    log = offline_log(n)
+    t, _ = odometry_inputs(log, motion_model_from_config(config()))
+    offline = ekf.run(log, config())
+    loc, _ = feed(Localizer, n, t0=float(t[0]))
+    online = loc.result()
+    m = len(online.trajectory.t)
+    same = (
+        np.array_equal(online.trajectory.t, offline.trajectory.t[-m:])
+        and np.array_equal(online.trajectory.poses, offline.trajectory.poses[-m:])
+        and np.array_equal(online.trajectory.covariances, offline.trajectory.covariances[-m:])
+        and online.used == offline.used
+        and online.extra["map_to_odom"] == offline.extra["map_to_odom"]
+    )
+    diff = float(np.max(np.abs(online.trajectory.poses - offline.trajectory.poses[-m:])))
+    return (
+        f"online == odofuse run's EKF over {n:,} steps ({type(loc.backend).__name__}): "
+        f"{'bit for bit' if same else f'NOT equal (max pose difference {diff:.3g})'}; "
+        f"last {m} poses, final covariance, used {online.used}"
+    )
 
 
 def base_localizer(rev: str):
@@ -114,12 +177,17 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=200_000)
     ap.add_argument("--against", help="git revision to compare with (same process)")
     ap.add_argument("--speed-steps", type=int, default=20_000)
+    ap.add_argument(
+        "--check", type=int, metavar="N", help="compare online with odofuse run over N steps"
+    )
     args = ap.parse_args()
+    if args.check:
+        print(check_offline(args.check))
 
     n = args.steps
     marks = [n * i // 8 for i in range(1, 9)]
     start = time.perf_counter()
-    _, rss = feed(Localizer, n, marks)
+    _, rss = feed(Localizer, n, marks, verbose=True)
     wall = time.perf_counter() - start
     rate = n / wall
     print(f"live EKF Localizer, odometry {RATE} Hz + GPS 1 Hz, {n:,} steps: {rate:,.0f} steps/s")

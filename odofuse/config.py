@@ -169,6 +169,11 @@ def _resolve_log(v, src: str, base_dir: Path | None) -> tuple[str, dict]:
     else:
         path = _string(v, "log", src)
     if path.startswith("builtin:"):
+        from odofuse.io.builtin import BUILTINS
+
+        if path.removeprefix("builtin:").lower() not in BUILTINS:
+            known = ", ".join(f"builtin:{b}" for b in BUILTINS)
+            raise ConfigError(f"unknown built-in dataset '{path}'; known: {known}", src, "log")
         return path, opts
     p = Path(path).expanduser()
     if not p.is_absolute() and base_dir is not None:

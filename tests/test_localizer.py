@@ -357,3 +357,178 @@ def test_live_localizer_memory_is_flat_after_the_first_window(monkeypatch):
     assert len(loc.trajectory()) <= 512 and len(loc._steps) <= 7
     assert all(len(a) <= 50 + 256 for a in loc.monitor._t.values())
     loc.health()  # the windowed findings still work
+
+
+def test_live_ekf_equals_odofuse_run_bit_for_bit_with_the_compiled_core():
+    # Issue 16: `odofuse run`'s EKF uses the compiled core by default, which matched the
+    # Python streaming path to 1e-9 only. A live EKF Localizer now runs the same step kernels
+    # (compiled.ekf.live), so online == offline bit for bit: odometry at 50 Hz, a GPS fix each
+    # second arriving 0.3 s late (a replay of 15 steps each time).
+    from odofuse.config import RunConfig
+    from odofuse.estimators.compiled import load_kernels
+    from odofuse.estimators.localizer import Localizer
+    from odofuse.motion import motion_model_from_config
+
+    if load_kernels() is None:
+        pytest.skip("numba not importable")
+    cfg = RunConfig(
+        log="live",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
+        estimator="ekf",
+        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
+        sensors={"gps": {"sigma": 0.5}},
+    )
+    rng = np.random.default_rng(16)
+    n, dt = 3000, 0.02
+    t = dt * np.arange(1, n + 1)
+    U = np.column_stack([0.01 + rng.normal(0, 1e-3, n), 0.001 + rng.normal(0, 1e-4, n)])
+    truth, _ = dead_reckon(motion_model_from_config(cfg), np.zeros(3), None, U, with_cov=False)
+    k = np.arange(49, n, 50)  # the fix taken 0.3 s before step k's end, sent with step k
+    tg = t[k] - 0.3
+    xy = np.interp(tg, np.r_[0.0, t], truth[:, 0]), np.interp(tg, np.r_[0.0, t], truth[:, 1])
+    gps = np.column_stack(xy) + rng.normal(0.0, 0.5, (len(k), 2))
+    log = SensorLog(
+        "sim",
+        {
+            "odometry": Stream("odometry", "sim", t, ("ds", "dtheta"), U),
+            "gps": Stream("gps", "sim", tg, ("x", "y"), gps),
+        },
+        initial_pose=np.zeros(3),
+    )
+    offline = ekf.run(log, cfg)  # the compiled core (options.ekf.compiled: auto)
+    _, t_all, U_all = build(cfg, log, "ekf", ekf.make_backend)
+    loc = Localizer.from_config(cfg, t0=t_all[0])
+    assert type(loc.backend).__name__ == "KernelEkfBackend"
+    fixes = dict(zip(k.tolist(), range(len(k)), strict=True))
+    outcomes = []
+    for i in range(n):
+        loc.add_odometry(t_all[i + 1], U_all[i])
+        if i in fixes:
+            j = fixes[i]
+            fix = {"t": tg[j], "x": gps[j, 0], "y": gps[j, 1]}
+            outcomes.append(loc.add_measurement("gps", fix))
+    assert set(outcomes) == {"used"}  # every late fix replayed at once
+    online = loc.result()
+    m = len(online.trajectory.t)  # a live Localizer keeps the late window's poses
+    np.testing.assert_array_equal(online.trajectory.t, offline.trajectory.t[-m:])
+    np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses[-m:])
+    np.testing.assert_array_equal(
+        online.trajectory.covariances, offline.trajectory.covariances[-m:]
+    )
+    assert online.used == offline.used == {"gps": len(k)}
+    assert online.extra["map_to_odom"] == offline.extra["map_to_odom"]
+    x_off = offline.trajectory.poses[-1]
+    np.testing.assert_array_equal(loc.pose(), x_off)
+    # `compiled: off` keeps the Python backend, equal to the offline Python path bit for bit
+    # (test_streaming_equals_the_offline_run); the two paths agree to 1e-9.
+    off = dataclasses.replace(cfg, options={"ekf": {"compiled": "off"}})
+    assert type(Localizer.from_config(off, t0=t_all[0]).backend) is ekf.EkfBackend
+    python = ekf.run(log, off)
+    np.testing.assert_allclose(python.trajectory.poses, offline.trajectory.poses, atol=1e-9)
+
+
+def test_a_burst_of_late_readings_costs_one_window_each(monkeypatch):
+    # Issue 16: late bursts cost O(n^2) (1,000 late rows 13 s): each replay walked the whole
+    # history. Now the Localizer keeps the late window's steps only and a late reading replays
+    # the steps after it, at most one window. Counted in steps, not timed.
+    from odofuse.config import RunConfig
+    from odofuse.estimators.localizer import Localizer
+
+    cfg = RunConfig(
+        log="live",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
+        estimator="ekf",
+        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
+        sensors={"gps": {"sigma": 0.5}},
+        options={"ekf": {"late_window": 0.5}},
+    )
+    loc = Localizer.from_config(cfg, 0.0)
+    u = np.array([0.02, 0.0])
+    for k in range(1, 2001):  # 200 s of history at 10 Hz
+        loc.add_odometry(0.1 * k, u)
+    calls = []
+    real = Localizer._process_step
+    monkeypatch.setattr(
+        Localizer, "_process_step", lambda self, *a: (calls.append(1), real(self, *a))[1]
+    )
+    rng = np.random.default_rng(8)
+    late = loc.t - rng.uniform(0.0, 0.45, 1000)
+    outcomes = {loc.add_measurement("gps", {"t": tm, "x": 0.2 * tm, "y": 0.0}) for tm in late}
+    assert outcomes == {"used"}
+    window_steps = int(math.ceil(loc.late_window / 0.1)) + 1
+    assert len(loc._steps) <= window_steps
+    assert len(calls) <= 1000 * window_steps  # the whole history: 2,000 steps a reading
+    assert loc.used["gps"] == 1000
+
+
+def test_live_compiled_ekf_recovers_as_the_python_one():
+    # The kernel backend reads a recovery's innovation from the model (last_innovation) and
+    # re-applies the reading through the kernel: the same recoveries as the Python backend,
+    # poses to 1e-9. GPS fixes 20 m off from the start: rejected until the filter re-opens.
+    from odofuse.config import RunConfig
+    from odofuse.estimators.compiled import load_kernels
+    from odofuse.estimators.localizer import Localizer
+
+    if load_kernels() is None:
+        pytest.skip("numba not importable")
+
+    def run(compiled):
+        cfg = RunConfig(
+            log="live",
+            robot={"drive": "increments"},
+            motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
+            estimator="ekf",
+            initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
+            sensors={"gps": {"sigma": 0.5}},
+            options={"ekf": {"compiled": compiled}},
+        )
+        loc = Localizer.from_config(cfg, 0.0)
+        rng = np.random.default_rng(4)
+        for k in range(1, 601):
+            loc.add_odometry(0.1 * k, np.array([0.02, 0.0]))
+            if k % 5 == 0:
+                x, y = 0.02 * k + 20.0 + rng.normal(0, 0.5), rng.normal(0, 0.5)
+                loc.add_measurement("gps", {"t": 0.1 * k - 0.05, "x": x, "y": y})
+        return loc
+
+    kern, py = run("auto"), run("off")
+    assert type(kern.backend).__name__ == "KernelEkfBackend"
+    assert type(py.backend) is ekf.EkfBackend
+    assert len(kern.monitor.recoveries) == len(py.monitor.recoveries) > 0
+    assert kern.used == py.used and kern.rejected == py.rejected
+    np.testing.assert_allclose(kern.pose(), py.pose(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(kern.covariance(), py.covariance(), rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize("odometry_calibration", [True, False])
+def test_live_ekf_with_calibration_states_equals_odofuse_run_bit_for_bit(odometry_calibration):
+    # The same with ranges and their scale/offset states, with and without the
+    # odometry-calibration states (the kernels' general-matrix prediction).
+    from odofuse.estimators.compiled import load_kernels
+    from odofuse.estimators.localizer import Localizer
+
+    if load_kernels() is None:
+        pytest.skip("numba not importable")
+    log, _ = simulate(7, steps=600)
+    opts = {"odometry_calibration": True} if odometry_calibration else {}
+    cfg = sim_config(estimator="ekf", calibrate=True, **opts)
+    offline = ekf.run(log, cfg)
+    _, t, U = build(cfg, log, "ekf", ekf.make_backend)
+    loc = Localizer.from_config(
+        cfg, t0=t[0], landmarks=log.landmarks, initial_pose=log.initial_pose, keep_trajectory=True
+    )
+    assert type(loc.backend).__name__ == "KernelEkfBackend"
+    for te, kind, stream, i in events(log, t, U, ["ranges"]):
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+        else:
+            loc.add(stream, log.streams[stream].row(i))
+    loc.finish()
+    online = loc.result()
+    np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses)
+    np.testing.assert_array_equal(online.trajectory.covariances, offline.trajectory.covariances)
+    assert online.used == offline.used and online.rejected == offline.rejected
+    assert online.extra["calibration"] == offline.extra["calibration"]
+    assert online.extra["map_to_odom"] == offline.extra["map_to_odom"]

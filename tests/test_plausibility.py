@@ -139,6 +139,39 @@ def test_counter_wrapping_below_the_configured_rollover_is_an_error(tmp_path):
 
 
 # ------------------------------------------------------------------------- counter gaps
+def test_rollover_of_one_state_is_an_error_naming_the_column(tmp_path):
+    # Issue 16: `rollover: 1` turned every step into zero motion and the run said ok.
+    _wheels_log(tmp_path / "log")
+    exc = _error(
+        tmp_path,
+        ["wheels.csv", "row 3", "wraps at 1499 of 1499 steps", "robot.encoder.rollover"],
+        encoder="{ticks_per_rev: 4096, rollover: 1}",
+    )
+    assert exc.column == "left"
+
+
+def test_a_counter_wrapping_every_other_row_still_loads(tmp_path):
+    # The bound of the check above: a counter of 16 states moving 7 ticks per row (less than
+    # half its range) wraps at most every other row and is unwrapped exactly.
+    folder = tmp_path / "log"
+    folder.mkdir()
+    ticks = 7 * np.arange(200)
+    rows = [f"{1.0 + DT * k!r},{float(c % 16)!r},{float(c % 16)!r}" for k, c in enumerate(ticks)]
+    (folder / "wheels.csv").write_text("t,left,right\n" + "\n".join(rows) + "\n")
+    log = _load(tmp_path, encoder="{ticks_per_rev: 4096, rollover: 16}")
+    np.testing.assert_allclose(log.streams["wheels"]["left"], ticks * 2 * math.pi / TPR)
+
+
+def test_extra_wheels_column_is_an_error(tmp_path):
+    # Issue 16: an extra wheels.csv column was accepted though docs/formats.md calls it an error.
+    folder = _wheels_log(tmp_path / "log")
+    lines = (folder / "wheels.csv").read_text().splitlines()
+    body = [lines[0] + ",spare"] + [line + ",1.0" for line in lines[1:]]
+    (folder / "wheels.csv").write_text("\n".join(body) + "\n")
+    exc = _error(tmp_path, ["wheels.csv", "row 1", "unexpected column", "left, right"])
+    assert exc.column == "spare"
+
+
 def test_gap_longer_than_half_the_counter_range_is_a_degrading_warning(tmp_path):
     # Issue 16: a wheels gap longer than half the counter range (8.58 m), reported only as
     # wheels.gaps: 1. The right wheel turns 5.5 rad/s: half of a 4096-tick counter (pi rad)

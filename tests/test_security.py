@@ -52,6 +52,7 @@ def _one_line_error(capsys, *needles):
         ('plugins: [os]\nrobot: {drive: "os:system", command: "touch pwned"}', "plugins[0]"),
         (f"robot: {GEOMETRY}\nplugins: os", "plugins"),
         (f'robot: {GEOMETRY}\nestimator: "kalman"', "estimator"),
+        (f"robot: {GEOMETRY}\noptions: {{kalman: {{gate: 0.99}}}}", "options.kalman"),
     ],
 )
 def test_config_naming_code_is_refused_and_nothing_runs(tmp_path, monkeypatch, capsys, text, key):
@@ -64,6 +65,29 @@ def test_config_naming_code_is_refused_and_nothing_runs(tmp_path, monkeypatch, c
     _one_line_error(capsys, str(cfg), key)
     assert not (tmp_path / "pwned").exists()
     assert not (tmp_path / "o").exists()
+
+
+def test_unknown_builtin_dataset_names_the_config_file_and_key(tmp_path, capsys):
+    # Issue 16: "unknown built-in dataset" named neither the config file nor the key.
+    cfg = _config(tmp_path, f"log: builtin:plaza9\nrobot: {GEOMETRY}\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(cfg)
+    assert info.value.key == "log" and info.value.file == str(cfg)
+    assert main(["run", str(cfg)]) == 2
+    _one_line_error(capsys, str(cfg), "key 'log'", "builtin:plaza9", "builtin:plaza1")
+
+
+def test_gate_null_is_no_gate_as_documented(tmp_path):
+    # Issue 16: `gate: null` is documented as "no gate" (docs/filters.md) but was rejected.
+    from odofuse.measurements import gate_threshold
+
+    cfg = load_config(
+        _config(
+            tmp_path, f"log: builtin:plaza1\nrobot: {GEOMETRY}\nsensors: {{gps: {{gate: null}}}}"
+        )
+    )
+    assert cfg.sensors["gps"].gate is None
+    assert gate_threshold(cfg.sensors["gps"].gate, 2) == math.inf
 
 
 def _plugin_module(tmp_path, monkeypatch, name: str, body: str):
@@ -253,6 +277,31 @@ def test_non_utf8_header_names_the_file_and_row(tmp_path, capsys):
     _one_line_error(capsys, str(odo), "row 1", "not UTF-8")
 
 
+EKF = "estimator: ekf\n"
+NON_UTF8 = {
+    "gps.csv": (b"t,x,y\n2.0,0.1,0.0\n3.0,0.5,0.\xc51\n", "sensors: {gps: {sigma: 1.0}}", "y"),
+    "ranges.csv": (b"t,id,range\n2.0,0,1.0\n3.0,0,1.\xc5\n", "sensors: {ranges: {}}", "range"),
+    "gyro.csv": (b"t,wz\n2.0,0.1\n3.0,0.\xc5\n", "sensors: {gyro: {sigma: 0.01}}", "wz"),
+    "landmarks.csv": (b"id,x,y\n0,1.0,2.0\n1,3.\xc5,1.0\n", "sensors: {ranges: {}}", "x"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(NON_UTF8))
+def test_non_utf8_byte_in_any_csv_names_file_row_and_column(tmp_path, capsys, name):
+    # Issue 16: a non-UTF-8 byte in *any* CSV gave "'utf-8' codec can't decode byte 0xc5".
+    cfg = make_run(tmp_path)
+    body, sensors, column = NON_UTF8[name]
+    (tmp_path / "log" / name).write_bytes(body)
+    if name == "landmarks.csv":
+        (tmp_path / "log" / "ranges.csv").write_text("t,id,range\n2.0,0,1.0\n")
+    text = CONFIG.format(log="log", out="out").replace("estimator: dead_reckoning\n", EKF)
+    cfg.write_text(text + sensors + "\n")
+    assert main(["run", str(cfg)]) == 2
+    where = str(tmp_path / "log" / name)
+    _one_line_error(capsys, where, "row 3", f"column '{column}'", "not UTF-8", "0xc5")
+    assert outputs_left(tmp_path) == []
+
+
 # ------------------------------------------------------------------- 4. output integrity
 def _snapshot(folder):
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
@@ -411,6 +460,20 @@ def test_streaming_bad_odometry_names_time_and_field(u, needles):
     assert np.all(np.isfinite(loc.covariance()))
     with pytest.raises(InputError, match="'t' must be a number"):
         loc.add_odometry(None, [0.1, 0.0])
+
+
+def test_streaming_zero_dt_step_with_another_input_is_an_error():
+    # Issue 16: zero dt with a 100x input was accepted (the CLI drops exact duplicates only).
+    from odofuse.errors import InputError
+
+    _, loc, t, U = _localizer()
+    assert loc.add_odometry(t[1], U[0]) == "used"
+    before = loc.state()
+    with pytest.raises(InputError, match="a second step at this time") as info:
+        loc.add_odometry(t[1], 100.0 * U[0])
+    assert "\n" not in str(info.value) and "t=" in str(info.value)
+    np.testing.assert_array_equal(loc.state()[1], before[1])
+    assert loc.add_odometry(t[1], U[0]) == "duplicate"
 
 
 def test_streaming_add_returns_what_happened_to_the_reading():

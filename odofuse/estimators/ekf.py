@@ -411,3 +411,12 @@ def run(log, config):
 
     result = compiled_ekf.run(log, config)  # numba core, None when not covered or off
     return result if result is not None else run_with(log, config, "ekf", make_backend)
+
+
+def live(loc) -> None:
+    """Give a live EKF Localizer (``Localizer.from_config``) the compiled core's step kernels
+    when ``odofuse run`` would use that core, so that online equals offline bit for bit
+    (:func:`odofuse.estimators.compiled.ekf.live`)."""
+    from odofuse.estimators.compiled import ekf as compiled_ekf
+
+    compiled_ekf.live(loc)

@@ -189,7 +189,10 @@ class Localizer:
         module = importlib.import_module(f"odofuse.estimators.{name}")
         pose = None if initial_pose is None else np.asarray(initial_pose, dtype=float)
         src = SimpleNamespace(landmarks=dict(landmarks or {}), initial_pose=pose, streams={})
-        return assemble(config, name, module.make_backend, t0, src, keep_trajectory)
+        loc = assemble(config, name, module.make_backend, t0, src, keep_trajectory)
+        if hasattr(module, "live"):  # the EKF: the compiled core's kernels, as `odofuse run`'s
+            module.live(loc)
+        return loc
 
     # ----------------------------------------------------------------- queries
     def pose(self) -> np.ndarray:
@@ -301,8 +304,12 @@ class Localizer:
         """Dead-reckon the waiting inputs onto the ``odom`` pose (the shared motion model)."""
         from odofuse.motion import dead_reckon
 
-        poses, _ = dead_reckon(self.motion_model, self._odom, None, self._odom_u, with_cov=False)
-        self._odom = poses[-1].copy()
+        compose = getattr(self.backend, "compose_odom", None)  # the compiled core's, if any
+        if compose is None:
+            U = self._odom_u
+            self._odom = dead_reckon(self.motion_model, self._odom, None, U, with_cov=False)[0][-1]
+        else:
+            self._odom = compose(self._odom, self._odom_u)
         self._odom_u.clear()
 
     def _store_gyro(self, t: float, wz: float) -> None:
@@ -487,11 +494,9 @@ class Localizer:
             extra["slip_steps"] = int(self.slip_steps)
         extra["recoveries"] = len(self.monitor.recoveries)
         extra.update(getattr(self.backend, "extra", lambda: {})())
-        used = {s: n for s, n in self.used.items()}
-        rejected = {s: n for s, n in self.rejected.items()}
         traj = self.trajectory()
-        findings = self._findings(traj.t, traj.covariances)
-        return EstimateResult(self.name, traj, used, rejected, extra, tuple(findings))
+        found = tuple(self._findings(traj.t, traj.covariances))
+        return EstimateResult(self.name, traj, dict(self.used), dict(self.rejected), extra, found)
 
     # ----------------------------------------------------------------- health
     def health(self) -> monitors.Health:

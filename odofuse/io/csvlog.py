@@ -233,6 +233,28 @@ def _check_values(stream, header, data, lines, name, landmark_ids):
     return data
 
 
+def _check_wrap_rate(counts, rollover, lines, name: str, cols) -> None:
+    """Unwrapping takes a step of more than ``rollover / 2`` as a wrap. A counter moving less
+    than that per row needs at least two rows to run through its range, so it wraps at most
+    every other row: a column that "wraps" more often is aliased (e.g. ``rollover: 1``, which
+    turned every step into zero motion), an error naming the column."""
+    if rollover is None or counts.shape[0] < 3:
+        return
+    wraps = np.abs(np.diff(counts, axis=0)) > 0.5 * float(rollover)
+    steps = counts.shape[0] - 1
+    per = wraps.sum(axis=0)
+    j = int(np.argmax(per))
+    if per[j] > steps // 2 + 1:
+        raise InputError(
+            f"the counter wraps at {int(per[j])} of {steps} steps, more often than a counter "
+            f"of {float(rollover):g} states can (every other row at most): check "
+            "robot.encoder.rollover (the counter width)",
+            name,
+            int(lines[int(np.argmax(wraps[:, j])) + 1]),
+            cols[j],
+        )
+
+
 def _wheel_ticks_to_rad(header, data, lines, name, encoder: dict, repairs: dict):
     """Convert encoder ticks to wheel angles (rad), unwrapping counter rollover.
 
@@ -254,6 +276,7 @@ def _wheel_ticks_to_rad(header, data, lines, name, encoder: dict, repairs: dict)
         if col not in header:
             raise InputError("encoder column named in the config is missing", name, 1, col)
     idx = [header.index(c) for c in cols]
+    _check_wrap_rate(data[:, idx], encoder.get("rollover"), lines, name, cols)
     data = data.copy()
     data[:, idx], unwraps = enc.convert(data[:, idx])
     if unwraps:

@@ -94,6 +94,7 @@ def check_log(log, config, max_speed: float = MAX_SPEED, max_yaw_rate: float = M
         if rates is not None:
             _speed(log.streams[odo], rates, max_speed, max_yaw_rate, config)
     if odo == "wheels":
+        _wheel_columns(log.streams["wheels"], drive)
         findings += _counter_gaps(log.streams["wheels"], config)
     if log.has("gps"):
         findings += _gps(log, config, max_speed)
@@ -118,6 +119,22 @@ def _drive(config):
         return make_drive(robot["drive"], **geometry)
     except Exception:  # noqa: BLE001 - a bad drive is the config validator's error, not ours
         return None
+
+
+def _wheel_columns(stream, drive) -> None:
+    """``wheels.csv`` holds one column per drive input (docs/formats.md): another column is an
+    error naming it (a column the drive does not read was accepted and ignored)."""
+    if drive is None or not str(stream.source).endswith(".csv"):
+        return
+    names = tuple(drive.input_names)
+    extra = [c for c in stream.columns if c not in names]
+    if extra:
+        raise InputError(
+            f"unexpected column (the '{drive.name}' drive reads {', '.join(('t', *names))})",
+            stream.source,
+            1,
+            extra[0],
+        )
 
 
 def _step_rates(stream, drive, name: str):

@@ -18,9 +18,15 @@ odometry (``slip`` with a gyro), landmark bearing and range-bearing, lat/lon GPS
 models, duplicated readings. Recovery: the kernel does not re-open the filter; if the monitor
 says a recovery would have been triggered, the whole run falls back to Python (so the result
 is always the Python one).
+
+The streaming path: :func:`live` gives a live EKF Localizer a backend on the same kernels
+(:func:`kernel_backend_class`), so online equals ``odofuse run`` bit for bit on the runs
+:func:`run` covers (``docs/filters.md``, "Compiled core").
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -265,3 +271,131 @@ def run(log, config):
     loc._odom = args["odom"]
     loc.t = float(t[-1])
     return loc.result()
+
+
+# --------------------------------------------------------------------- the streaming path
+@functools.cache
+def kernel_backend_class(base):
+    """:class:`KernelEkfBackend` over ``base`` (``EkfBackend``, the Python backend it stands in
+    for; passed in so that this module imports neither it nor filterpy)."""
+
+    class KernelEkfBackend(base):
+        """:class:`~odofuse.estimators.ekf.EkfBackend` whose odometry predictions and gated
+        updates run the kernels of :func:`run` (:func:`.kernels.ekf_predict_step`,
+        :func:`.kernels.ekf_update_row`), in place on ``kf.x`` (n,) and ``kf.P`` (n, n).
+
+        A live Localizer on it (:func:`live`) computes what ``odofuse run`` computes with the
+        compiled core, bit for bit, on every run that :func:`run` covers. What the kernels do
+        not cover runs the Python methods: a prediction with a gyro heading or a slip noise
+        scale, a row without the kernel's columns (a lat/lon fix, a range without ``id``), the
+        innovation a recovery reads.
+        """
+
+        def predict(self, u, dt, dtheta=None, var_dtheta=0.0, noise_scale=1.0) -> None:
+            if dtheta is not None or noise_scale != 1.0:
+                super().predict(u, dt, dtheta, var_dtheta, noise_scale)
+                return
+            kf, (integ, M, K, floor, rate, cal, cidx) = self.kf, self._motion_args
+            self._kern.ekf_predict_step(
+                kf.x, kf.P, u, dt, integ, M, K, floor, rate, cal, cidx, self.walk
+            )  # fmt: skip
+
+        def update(self, model, row) -> tuple[bool, float]:
+            args = _update_args(self._kinds.get(type(model)), model, row)
+            gate = self._gates.get(id(model))
+            if args is None or gate is None:
+                return super().update(model, row)
+            self._pending = (model, row)
+            kf = self.kf
+            nis, ok = self._kern.ekf_update_row(kf.x, kf.P, *args, gate)
+            return bool(ok), float(nis)
+
+        def compose_odom(self, odom, U) -> np.ndarray:
+            """The ``odom`` pose (3,) after the steps ``U`` (N, m), as :func:`run` composes it."""
+            integ, M = self._motion_args[:2]
+            odom = np.array(odom, dtype=float)
+            self._kern.odom_steps(odom, np.ascontiguousarray(U, dtype=float), integ, M)
+            return odom
+
+        @property
+        def last_innovation(self):
+            """``(y, S, R)`` of the last update, from the model's ``h``/``H``/``R``; read only
+            by a recovery, which follows a rejected update (the state is still the prior)."""
+            if self._pending is None:
+                return self._innovation
+            model, row = self._pending
+            x, P = self.kf.x, self.kf.P
+            y = np.atleast_1d(model.residual(model.z(row), model.h(x, row)))
+            H = np.atleast_2d(model.H(x, row))
+            R = np.atleast_2d(model.R(row))
+            return y, H @ P @ H.T + R, R
+
+        @last_innovation.setter
+        def last_innovation(self, value) -> None:
+            self._innovation, self._pending = value, None
+
+    return KernelEkfBackend
+
+
+def _update_args(kind, model, row):
+    """``ekf_update_row``'s arguments for one row, as :func:`_measurements` and
+    ``kernels._apply`` build them, or None when the kernel does not cover the row."""
+    ci = model.calib_index
+    s = row.get("sigma")
+    if s is None:  # the stream's R, as _measurements' sR
+        R = model.R(None)
+        r00, r01, r11 = float(R[0, 0]), 0.0, 0.0
+        if R.shape[0] == 2:
+            r01, r11 = float(R[0, 1]), float(R[1, 1])
+    else:
+        r00 = r11 = float(s) * float(s)
+        r01 = 0.0
+    if kind == RANGE and "id" in row and "range" in row:
+        b = model._beacons.get(int(round(float(row["id"]))))
+        if b is None:
+            return None
+        i0, i1 = ci.get("range_scale", -1), ci.get("range_offset", -1)
+        return RANGE, float(row["range"]), 0.0, b[0], b[1], r00, r01, r11, i0, i1, 0.0
+    if kind == GPS and "x" in row and "y" in row:
+        lx, ly = model.lever_arm
+        return GPS, float(row["x"]), float(row["y"]), lx, ly, r00, r01, r11, -1, -1, 0.0
+    if kind == COMPASS and "heading" in row:
+        z = float(se2.wrap(float(row["heading"])))
+        i0 = ci.get("compass_offset", -1)
+        return COMPASS, z, 0.0, 0.0, 0.0, r00, r01, r11, i0, -1, 0.0
+    if kind == GYRO and "wz" in row and "dt" in row:
+        i0, i1 = ci["gyro_theta_ref"], ci.get("gyro_bias", -1)
+        return GYRO, float(row["wz"]), 0.0, 0.0, 0.0, r00, r01, r11, i0, i1, float(row["dt"])
+    return None
+
+
+def live(loc) -> None:
+    """Give the EKF Localizer ``loc`` the compiled step kernels when ``odofuse run`` would
+    use the compiled core for its sensors (``options.ekf.compiled``, numba importable, the
+    drive, error model, calibration and models covered: :func:`unsupported`); else leave its
+    Python backend. Equal to the offline run bit for bit on the runs :func:`run` covers."""
+    mode = getattr(loc.options, "compiled", "off")
+    if loc.name != "ekf" or type(loc.backend).__name__ != "EkfBackend" or mode == "off":
+        return
+    kinds = _kinds()
+    models = loc.models.values()
+    if unsupported(loc, None, []) is not None or any(type(m) not in kinds for m in models):
+        return
+    if any(kinds[type(m)] == GYRO and "gyro_theta_ref" not in m.calib_index for m in models):
+        return
+    kern = compiled.enabled(mode, "options.ekf.compiled")
+    if kern is None:
+        return
+    backend = object.__new__(kernel_backend_class(type(loc.backend)))
+    backend.__dict__.update(loc.backend.__dict__)
+    model = loc.motion_model
+    M, K, floor, rate = (np.ascontiguousarray(a, dtype=float) for a in linear_terms(model))
+    cal = backend.odo_cal
+    cidx = np.asarray(cal.index if cal is not None else (), dtype=np.int64)
+    code = 0 if cal is None else _CAL_DRIVES[cal.drive]
+    backend._motion_args = (INTEGRATORS.index(model.integrator), M, K, floor, rate, code, cidx)
+    backend._kern, backend._kinds, backend._pending = kern, kinds, None
+    backend._innovation = None
+    backend.kf.x = np.ascontiguousarray(backend.kf.x, dtype=float)
+    backend.kf.P = np.ascontiguousarray(backend.kf.P, dtype=float)
+    loc.backend = backend

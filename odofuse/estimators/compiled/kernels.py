@@ -611,3 +611,47 @@ def ekf_offline(
             vy += M[2, i] * u[i]
         d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
         _pose_step(odom, d0, d1, d2, zero_P, dummy, var0, False)
+
+
+@njit(cache=True)
+def ekf_predict_step(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk):
+    """One odometry prediction of the streaming Localizer (input ``u`` (m,) over ``dt`` s), in
+    place on ``x`` (n,) and ``P`` (n, n): :func:`_ekf_predict` with ``part = 1`` (the
+    Localizer passes the step's part already scaled), as :func:`ekf_offline` applies it."""
+    work = _work(x.shape[0], u.shape[0])
+    _ekf_predict(x, P, u, 1.0, dt, integ, M, K, floor, rate, cal, cidx, walk, work)
+
+
+@njit(cache=True)
+def ekf_update_row(x, P, kind, z0, z1, a0, a1, r00, r01, r11, i0, i1, dt, gate):
+    """One gated update of the streaming Localizer, in place: :func:`_ekf_update` on the
+    row's values ``z`` (z0, z1), beacon position / lever arm ``(a0, a1)``, ``R`` entries and
+    state columns ``(i0, i1)`` (-1: none) as :func:`_apply` passes them; returns
+    ``(nis, accepted)``."""
+    z = np.empty(2)
+    z[0], z[1] = z0, z1
+    aux = np.empty(2)
+    aux[0], aux[1] = a0, a1
+    idx = np.empty(2, dtype=np.int64)
+    idx[0], idx[1] = i0, i1
+    work = _work(x.shape[0], 1)
+    return _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work)
+
+
+@njit(cache=True)
+def odom_steps(odom, U, integ, M):
+    """Compose the steps ``U`` (N, m) onto the continuous odometry pose ``odom`` (3,) in place,
+    as :func:`ekf_offline` does after each step (the streaming Localizer's ``odom`` pose)."""
+    m = U.shape[1]
+    Jt = np.empty((3, 3))
+    dummy = np.empty((3, m))
+    var0 = np.empty(m)
+    zero_P = np.zeros((3, 3))
+    for k in range(U.shape[0]):
+        w = vx = vy = 0.0
+        for i in range(m):
+            w += M[0, i] * U[k, i]
+            vx += M[1, i] * U[k, i]
+            vy += M[2, i] * U[k, i]
+        d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
+        _pose_step(odom, d0, d1, d2, zero_P, dummy, var0, False)
