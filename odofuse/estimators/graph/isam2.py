@@ -318,8 +318,7 @@ def run_isam2(log, config) -> EstimateResult:
         except RuntimeError as exc:  # indeterminate system: report, never a traceback
             findings.append(_failure("iSAM2", problem, i, exc))
             break
-        t1 = _clock()
-        latency.append(t1 - t0)
+        latency.append(_clock() - t0)
         for meas in fac.by_kf.get(i, ()):
             n_factors[meas.stream] = n_factors.get(meas.stream, 0) + 1
         n_factors[problem.odometry_stream] = i  # odometry factors so far
