@@ -595,6 +595,67 @@ def test_frozen_beacon_range_is_local_built_in_and_equivalent():
         assert ff.error(values) == pytest.approx(fc.error(values), rel=1e-9)
 
 
+@pytest.mark.parametrize("threshold, skip", [(0.1, 10), (0.0, 1)])
+def test_newest_estimate_equals_calculate_estimate(threshold, skip):
+    """Issue 17: the per-keyframe estimate read from the root clique (no full back-substitution)
+    is iSAM2's own ``calculateEstimatePose2``, also when every variable is relinearised at
+    every update (threshold 0, skip 1) and with range calibration variables at the root."""
+    import gtsam
+
+    log = _simulate(seed=3, T=60.0, scale=1.02, offset=0.2)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
+    options = {"relinearize_threshold": threshold, "relinearize_skip": skip}
+    problem = graph.build_problem(log, _config("isam2", sensors, options), "isam2")
+    fac = factors.Factors(problem)
+    isam = gtsam.ISAM2(isam2._isam2_params(problem.options))
+    new_factors, new_values = fac.static()
+    current, worst = gtsam.Pose2(*problem.pose0), []
+    for i in range(len(problem.kt)):
+        if i > 0:
+            current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
+        g, v = fac.keyframe(i, current)
+        new_factors.push_back(g)
+        new_values.insert(v)
+        isam.update(new_factors, new_values)
+        new_factors, new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if i > 0:
+            mine = isam2._newest_estimate(isam, X(i), current)
+            current = isam.calculateEstimatePose2(X(i))
+            worst.append(np.abs(current.localCoordinates(mine)).max())
+    assert len(worst) == len(problem.kt) - 1 > 100
+    assert max(worst) < 1e-9
+
+
+def test_isam2_never_queries_the_whole_estimate_per_keyframe(monkeypatch):
+    """Issue 17: no per-step ``calculateEstimate*`` / ``getDelta`` (each brings the whole delta
+    up to date); the full estimate is read once, after the final relinearisations."""
+    import gtsam
+
+    calls: dict[str, int] = {}
+
+    class Counting(gtsam.ISAM2):
+        def _count(self, name):
+            calls[name] = calls.get(name, 0) + 1
+
+        def calculateEstimatePose2(self, key):
+            self._count("calculateEstimatePose2")
+            return super().calculateEstimatePose2(key)
+
+        def calculateEstimate(self, *args):
+            self._count("calculateEstimate")
+            return super().calculateEstimate(*args)
+
+        def getDelta(self):
+            self._count("getDelta")
+            return super().getDelta()
+
+    monkeypatch.setattr(gtsam, "ISAM2", Counting)
+    log = _simulate(seed=4, T=60.0)
+    res = graph.run_isam2(log, _config("isam2", {"ranges": {"sigma": 0.2}}))
+    assert res.extra["latency"]["updates"] == len(res.trajectory) > 100
+    assert calls == {"calculateEstimate": 1}
+
+
 def test_isam2_calibration_freeze_stops_touching_the_calibration():
     log = _simulate(seed=5, T=200.0, scale=1.05, offset=0.3)
     sensors = {"ranges": {"sigma": 0.2, "calibrate": True}}
