@@ -187,15 +187,12 @@ def ate(est: Trajectory, gt: Trajectory, align: bool = False) -> ATE:
     if align:
         if idx.size < 2:
             raise InputError("alignment needs at least two poses that overlap the ground truth")
-        e = Trajectory(est.t[idx], est.poses[idx])
-        r, t, _ = align_se2(e.xy, g[:, :2])
-        e = apply_alignment(e, r, t)
-        idx = np.arange(idx.size)  # e holds the associated poses only
-    else:
-        e = est
+        r, t, _ = align_se2(est.poses[idx, :2], g[:, :2])
     d, rot = np.empty(idx.size), np.empty(idx.size)
     for b in _blocks(idx.size):
-        pb = e.poses[idx[b]]
+        pb = est.poses[idx[b]]
+        if align:
+            pb = apply_alignment(Trajectory(est.t[idx[b]], pb), r, t).poses
         d[b] = np.linalg.norm(pb[:, :2] - g[b, :2], axis=1)
         rot[b] = wrap(pb[:, 2] - g[b, 2])
     return ATE(
@@ -251,7 +248,13 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
         raise ValueError(f"rpe delta must be positive, got {delta!r}")
     idx, g = associate(est, gt)
     if unit == "m":
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(g[:, :2], axis=0), axis=1))])
+        steps = np.empty(max(idx.size - 1, 0))  # travelled ground-truth path between poses
+        for b in _blocks(steps.size):
+            steps[b] = np.linalg.norm(g[b.start + 1 : b.stop + 1, :2] - g[b, :2], axis=1)
+        s = np.empty(idx.size)
+        s[0] = 0.0
+        np.cumsum(steps, out=s[1:])
+        del steps
     else:
         s = est.t[idx]
     j = np.searchsorted(s, s + delta * (1 - 1e-12), side="left")
@@ -337,16 +340,18 @@ def check_groundtruth(stream) -> None:
     Rows count as in the file (header = row 1). Coordinates beyond
     :data:`MAX_GT_COORDINATE` (e.g. ``1e308``) count as non-finite: their errors overflow.
     """
-    cells = np.column_stack([stream.t, stream.values])
-    bad = ~np.isfinite(cells) | (np.abs(cells) > MAX_GT_COORDINATE)
-    if bad.any():
+    for b in _blocks(len(stream.t)):  # the first bad cell of the first block that has one
+        cells = np.column_stack([stream.t[b], stream.values[b]])
+        bad = ~np.isfinite(cells) | (np.abs(cells) > MAX_GT_COORDINATE)
+        if not bad.any():
+            continue
         i, j = np.argwhere(bad)[0]
         column = ("t",) + tuple(stream.columns)
         raise InputError(
             f"ground truth value {cells[i, j]!r} is not finite (or beyond "
             f"{MAX_GT_COORDINATE:g}): the estimate cannot be scored",
             file=stream.source,
-            row=int(i) + 2,
+            row=b.start + int(i) + 2,
             column=column[j],
         )
 
