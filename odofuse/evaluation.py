@@ -187,7 +187,8 @@ def ate(est: Trajectory, gt: Trajectory, align: bool = False) -> ATE:
     if align:
         if idx.size < 2:
             raise InputError("alignment needs at least two poses that overlap the ground truth")
-        r, t, _ = align_se2(est.poses[idx, :2], g[:, :2])
+        every = idx.size == len(est)  # all poses scored: the positions as a view, no copy
+        r, t, _ = align_se2(est.poses[:, :2] if every else est.poses[idx, :2], g[:, :2])
     d, rot = np.empty(idx.size), np.empty(idx.size)
     for b in _blocks(idx.size):
         pb = est.poses[idx[b]]
