@@ -26,7 +26,10 @@ from odofuse.trajectory import EstimateResult, Trajectory
 
 
 def trajectory_from_stream(stream) -> Trajectory:
-    """A ``Trajectory`` from a stream with columns ``x, y, theta`` (e.g. ground truth)."""
+    """A ``Trajectory`` from a stream with columns ``x, y, theta`` (e.g. ground truth); its
+    values themselves (no copy) when they are exactly those columns in that order."""
+    if tuple(stream.columns) == ("x", "y", "theta"):
+        return Trajectory(stream.t, stream.values)
     return Trajectory(stream.t, np.column_stack([stream["x"], stream["y"], stream["theta"]]))
 
 
