@@ -224,9 +224,11 @@ def load():
 
 
 def main(argv=None) -> dict:
+    from odofuse.declarations import INTEGRATORS
     from odofuse.drives import Differential
     from odofuse.estimators.compiled import ekf as compiled_ekf
-    from odofuse.estimators.compiled.dead_reckoning import dead_reckon
+    from odofuse.estimators.compiled import kernels
+    from odofuse.estimators.compiled.dead_reckoning import dead_reckon, linear_terms
     from odofuse.motion import MotionModel, OdometryErrorModel
     from odofuse.motion import dead_reckon as numpy_reference
 
@@ -263,16 +265,25 @@ def main(argv=None) -> dict:
     )
     rows["dr_pose"] = (t_odo, t_np, t_plain, t_nb, t_cp)
     src_c, dst_c = np.ones_like(covs), np.empty_like(covs)
-    t_odo_c, t_np_c, t_nb_c, t_cp_c = best(
+    lin = linear_terms(model)[:3]  # M, K, floor of the drive's linear form
+    exact = INTEGRATORS.index("exact")
+    t_odo_c, t_np_c, t_nb_c, t_cp_c, t_kern_c, t_nb_fresh, t_fresh = best(
         [
             lambda: dead_reckon(model, np.zeros(3), P0, U, mode="on"),
             lambda: numpy_reference(model, np.zeros(3), P0, U),
             lambda: numba_loop(U, True, poses, covs),
             lambda: (np.copyto(dst_c, src_c), np.copyto(dst_p, src_p)),
+            # where the factor goes: odofuse's kernel into the numba loop's (already touched)
+            # arrays, the numba loop into fresh arrays as a function returning its result
+            # must, and allocating + first touching those arrays alone
+            lambda: kernels.dr_linear(np.zeros(3), P0, U, *lin, exact, True, poses, covs),
+            lambda: numba_loop(U, True, np.empty((N + 1, 3)), np.empty((N + 1, 3, 3))),
+            lambda: (np.ones((N + 1, 3)), np.ones((N + 1, 3, 3))),
         ],
         a.repeats,
     )
     rows["dr_cov"] = (t_odo_c, t_np_c, t_nb_c, t_cp_c)
+    rows["dr_cov_split"] = (t_kern_c, t_nb_fresh, t_fresh)
     # check: the compiled and numpy paths agree
     got, gc = dead_reckon(model, np.zeros(3), P0, U[:100_000], mode="on")
     ref, rc = numpy_reference(model, np.zeros(3), P0, U[:100_000])
@@ -350,6 +361,22 @@ def main(argv=None) -> dict:
         f"{t_odo_c / t_cp_c:.1f}x",
         "<= 20x " + _ok(t_odo_c / t_cp_c <= 20),
     )
+    t_kern_c, t_nb_fresh, t_fresh = rows["dr_cov_split"]
+    line(
+        "  odofuse kernel alone, into touched arrays",
+        t_kern_c,
+        N,
+        f"{t_kern_c / t_nb_c:.2f}x",
+        "of the numba loop",
+    )
+    line(
+        "  numba loop into fresh arrays",
+        t_nb_fresh,
+        N,
+        f"{t_odo_c / t_nb_fresh:.2f}x",
+        "odofuse / it",
+    )
+    line("  allocating + first touch of the output", t_fresh, N, f"{t_fresh / t_odo_c:.2f} of it")
     print(f"offline EKF, {M:.0e} steps (predict + range update, n = 5)")
     line("odofuse compiled.ekf.run (whole run)", t_off, M)
     line("  its kernel alone", kernel_t, M, f"{kernel_t / t_off:.2f} of it")
@@ -368,6 +395,8 @@ def main(argv=None) -> dict:
         dr_pose_vs_copy=t_odo / t_cp,
         dr_cov_vs_numba=t_odo_c / t_nb_c,
         dr_cov_vs_copy=t_odo_c / t_cp_c,
+        dr_cov_kernel_vs_numba=t_kern_c / t_nb_c,
+        dr_cov_vs_numba_fresh=t_odo_c / t_nb_fresh,
         ekf_vs_numba=t_off / t_hand,
         ekf_kernel_vs_numba=kernel_t / t_hand,
         python_vs_compiled=t_py / t_off_small,

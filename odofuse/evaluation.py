@@ -26,7 +26,10 @@ from odofuse.trajectory import EstimateResult, Trajectory
 
 
 def trajectory_from_stream(stream) -> Trajectory:
-    """A ``Trajectory`` from a stream with columns ``x, y, theta`` (e.g. ground truth)."""
+    """A ``Trajectory`` from a stream with columns ``x, y, theta`` (e.g. ground truth); its
+    values themselves (no copy) when they are exactly those columns in that order."""
+    if tuple(stream.columns) == ("x", "y", "theta"):
+        return Trajectory(stream.t, stream.values)
     return Trajectory(stream.t, np.column_stack([stream["x"], stream["y"], stream["theta"]]))
 
 
@@ -79,22 +82,37 @@ def apply_alignment(traj: Trajectory, r: np.ndarray, t: np.ndarray) -> Trajector
     return Trajectory(traj.t, poses, covs)
 
 
+#: Poses per block of the per-pose metrics (interpolation, RPE, NEES): bounds their
+#: temporaries to a few MB whatever the trajectory's length. Every value is computed pose by
+#: pose, so the blocks give the same bits as one whole-array pass.
+BLOCK = 1 << 16
+
+
+def _blocks(n: int):
+    """Slices of ``range(n)`` of at most :data:`BLOCK` items."""
+    return (slice(k, min(k + BLOCK, n)) for k in range(0, n, BLOCK))
+
+
 def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
     """Poses of ``traj`` at times ``t`` (inside its time span), shape (M, 3).
 
     Positions are interpolated linearly; headings along the shorter arc between neighbours.
+    Computed in blocks of :data:`BLOCK` times (temporaries bounded, same values).
     """
-    t = np.asarray(t, dtype=float)
+    t = np.asarray(t, dtype=float).reshape(-1)
     tt = traj.t
     if tt.size == 1:
         return np.repeat(traj.poses[:1], t.size, axis=0)
-    k = np.clip(np.searchsorted(tt, t, side="right") - 1, 0, tt.size - 2)
-    dt = tt[k + 1] - tt[k]
-    a = np.where(dt > 0, (t - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)
-    p0, p1 = traj.poses[k], traj.poses[k + 1]
-    xy = p0[:, :2] + a[:, None] * (p1[:, :2] - p0[:, :2])
-    th = wrap(p0[:, 2] + a * wrap(p1[:, 2] - p0[:, 2]))
-    return np.column_stack([xy, th])
+    out = np.empty((t.size, 3))
+    for b in _blocks(t.size):
+        tb = t[b]
+        k = np.clip(np.searchsorted(tt, tb, side="right") - 1, 0, tt.size - 2)
+        dt = tt[k + 1] - tt[k]
+        a = np.where(dt > 0, (tb - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)
+        p0, p1 = traj.poses[k], traj.poses[k + 1]
+        out[b, :2] = p0[:, :2] + a[:, None] * (p1[:, :2] - p0[:, :2])
+        out[b, 2] = wrap(p0[:, 2] + a * wrap(p1[:, 2] - p0[:, 2]))
+    return out
 
 
 #: Ground truth is not interpolated across a gap longer than this many median intervals.
@@ -116,9 +134,12 @@ def covered(est_t, gt_t, max_gap_intervals: float = MAX_GAP_INTERVALS) -> np.nda
     dt = np.diff(gt_t)
     pos = dt[dt > 0]
     limit = max_gap_intervals * (float(np.median(pos)) if pos.size else 0.0)
-    k = np.clip(np.searchsorted(gt_t, est_t, side="right") - 1, 0, gt_t.size - 2)
-    on_sample = (np.abs(est_t - gt_t[k]) <= tol) | (np.abs(est_t - gt_t[k + 1]) <= tol)
-    return inside & ((dt[k] <= limit) | on_sample)
+    for b in _blocks(est_t.size):
+        tb = est_t[b]
+        k = np.clip(np.searchsorted(gt_t, tb, side="right") - 1, 0, gt_t.size - 2)
+        on_sample = (np.abs(tb - gt_t[k]) <= tol) | (np.abs(tb - gt_t[k + 1]) <= tol)
+        inside[b] &= (dt[k] <= limit) | on_sample
+    return inside
 
 
 def associate(est: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]:
@@ -166,14 +187,18 @@ def ate(est: Trajectory, gt: Trajectory, align: bool = False) -> ATE:
     ATE
     """
     idx, g = associate(est, gt)
-    e = Trajectory(est.t[idx], est.poses[idx])
     if align:
         if idx.size < 2:
             raise InputError("alignment needs at least two poses that overlap the ground truth")
-        r, t, _ = align_se2(e.xy, g[:, :2])
-        e = apply_alignment(e, r, t)
-    d = np.linalg.norm(e.xy - g[:, :2], axis=1)
-    rot = wrap(e.poses[:, 2] - g[:, 2])
+        every = idx.size == len(est)  # all poses scored: the positions as a view, no copy
+        r, t, _ = align_se2(est.poses[:, :2] if every else est.poses[idx, :2], g[:, :2])
+    d, rot = np.empty(idx.size), np.empty(idx.size)
+    for b in _blocks(idx.size):
+        pb = est.poses[idx[b]]
+        if align:
+            pb = apply_alignment(Trajectory(est.t[idx[b]], pb), r, t).poses
+        d[b] = np.linalg.norm(pb[:, :2] - g[b, :2], axis=1)
+        rot[b] = wrap(pb[:, 2] - g[b, 2])
     return ATE(
         float(np.sqrt(np.mean(d**2))),
         float(d.mean()),
@@ -226,26 +251,31 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
     if not delta > 0:
         raise ValueError(f"rpe delta must be positive, got {delta!r}")
     idx, g = associate(est, gt)
-    e = est.poses[idx]
     if unit == "m":
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(g[:, :2], axis=0), axis=1))])
+        steps = np.empty(max(idx.size - 1, 0))  # travelled ground-truth path between poses
+        for b in _blocks(steps.size):
+            steps[b] = np.linalg.norm(g[b.start + 1 : b.stop + 1, :2] - g[b, :2], axis=1)
+        s = np.empty(idx.size)
+        s[0] = 0.0
+        np.cumsum(steps, out=s[1:])
+        del steps
     else:
         s = est.t[idx]
-    i = np.arange(len(s))
     j = np.searchsorted(s, s + delta * (1 - 1e-12), side="left")
-    ok = j < len(s)
-    i, j = i[ok], j[ok]
-    if i.size == 0:
+    pairs = int(np.count_nonzero(j < len(s)))  # j is non-decreasing: pairs start at 0..pairs-1
+    if pairs == 0:
         return RPE(math.nan, math.nan, 0, float(delta), unit)
-    rel_e = _between(e[i], e[j])
-    rel_g = _between(g[i], g[j])
-    err = _between(rel_g, rel_e)
-    t_err = np.linalg.norm(err[:, :2], axis=1)
-    r_err = np.abs(wrap(err[:, 2]))
+    t_err, r_err = np.empty(pairs), np.empty(pairs)
+    for b in _blocks(pairs):
+        jb = j[b]
+        e_i, e_j = est.poses[idx[b]], est.poses[idx[jb]]
+        err = _between(_between(g[b], g[jb]), _between(e_i, e_j))
+        t_err[b] = np.linalg.norm(err[:, :2], axis=1)
+        r_err[b] = np.abs(wrap(err[:, 2]))
     return RPE(
         float(np.sqrt(np.mean(t_err**2))),
         float(np.sqrt(np.mean(r_err**2))),
-        int(i.size),
+        pairs,
         float(delta),
         unit,
     )
@@ -264,27 +294,34 @@ def nees_values(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> np.ndarray:
         return np.empty(0)
     dims = list(dims)
     idx, g = associate(est, gt)
+    vals = np.empty(idx.size)
+    ok = np.ones(idx.size, dtype=bool)
+    for b in _blocks(idx.size):
+        vals[b], ok[b] = _nees_block(est, idx[b], g[b], dims)
+    return vals if ok.all() else vals[ok]
+
+
+def _nees_block(est: Trajectory, idx, g, dims) -> tuple[np.ndarray, np.ndarray]:
+    """NEES (n,) of the estimate poses ``idx`` against the truth ``g`` (n, 3), and the mask of
+    those with a positive-definite covariance (their values; the others' are undefined)."""
     e = est.poses[idx] - g
     e[:, 2] = wrap(e[:, 2])
     e = e[:, dims]
     covs = est.covariances[idx][:, dims][:, :, dims]
     covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
+    ok = np.ones(len(covs), dtype=bool)
     try:  # every covariance positive definite: one batched factorisation and solve
         ch = np.linalg.cholesky(covs)
     except np.linalg.LinAlgError:  # find the ones that are, pose by pose
-        ok = np.zeros(len(covs), dtype=bool)
         ch = np.zeros_like(covs)
         for k, pk in enumerate(covs):
             try:
                 ch[k] = np.linalg.cholesky(pk)
-                ok[k] = True
             except np.linalg.LinAlgError:
-                continue
-        ch, e = ch[ok], e[ok]
-    if len(ch) == 0:
-        return np.empty(0)
+                ok[k] = False
+                ch[k] = np.eye(len(dims))  # a placeholder: its value is masked out
     y = np.linalg.solve(ch, e[:, :, None])[:, :, 0]
-    return (y * y).sum(axis=1)  # the same sums as y @ y per pose
+    return (y * y).sum(axis=1), ok  # the same sums as y @ y per pose
 
 
 def nees(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> float:
@@ -307,16 +344,18 @@ def check_groundtruth(stream) -> None:
     Rows count as in the file (header = row 1). Coordinates beyond
     :data:`MAX_GT_COORDINATE` (e.g. ``1e308``) count as non-finite: their errors overflow.
     """
-    cells = np.column_stack([stream.t, stream.values])
-    bad = ~np.isfinite(cells) | (np.abs(cells) > MAX_GT_COORDINATE)
-    if bad.any():
+    for b in _blocks(len(stream.t)):  # the first bad cell of the first block that has one
+        cells = np.column_stack([stream.t[b], stream.values[b]])
+        bad = ~np.isfinite(cells) | (np.abs(cells) > MAX_GT_COORDINATE)
+        if not bad.any():
+            continue
         i, j = np.argwhere(bad)[0]
         column = ("t",) + tuple(stream.columns)
         raise InputError(
             f"ground truth value {cells[i, j]!r} is not finite (or beyond "
             f"{MAX_GT_COORDINATE:g}): the estimate cannot be scored",
             file=stream.source,
-            row=int(i) + 2,
+            row=b.start + int(i) + 2,
             column=column[j],
         )
 

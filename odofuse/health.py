@@ -116,14 +116,17 @@ def covariance_findings(t, covariances) -> list[Finding]:
     if covariances is None or len(t) == 0:
         return []
     C = np.asarray(covariances, dtype=float)
-    finite = np.isfinite(C).all(axis=(1, 2))
-    bad = ~finite
-    if finite.any():
-        sym = 0.5 * (C[finite] + np.swapaxes(C[finite], 1, 2))
-        eig = np.linalg.eigvalsh(sym)
-        top = np.maximum(np.abs(eig[:, -1]), np.finfo(float).tiny)
-        bad_f = eig[:, 0] <= MIN_EIGEN_RATIO * top
-        bad[np.flatnonzero(finite)[bad_f]] = True
+    bad = np.zeros(len(C), dtype=bool)
+    for k in range(0, len(C), 1 << 16):  # in blocks: temporaries of a few MB on any run
+        Cb = C[k : k + (1 << 16)]
+        finite = np.isfinite(Cb).all(axis=(1, 2))
+        bad[k : k + len(Cb)] = ~finite
+        if finite.any():
+            sym = 0.5 * (Cb[finite] + np.swapaxes(Cb[finite], 1, 2))
+            eig = np.linalg.eigvalsh(sym)
+            top = np.maximum(np.abs(eig[:, -1]), np.finfo(float).tiny)
+            bad_f = eig[:, 0] <= MIN_EIGEN_RATIO * top
+            bad[k + np.flatnonzero(finite)[bad_f]] = True
     if not bad.any():
         return []
     idx = np.flatnonzero(bad)

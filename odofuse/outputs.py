@@ -42,7 +42,7 @@ _COV_IDX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 #: Rows formatted and written per block: bounds the text held in memory (about 200 bytes a
 #: row) whatever the trajectory's length.
-_ROWS = 1 << 16
+_ROWS = 1 << 14
 
 
 def _csv_table(traj: Trajectory, rows: slice) -> np.ndarray:

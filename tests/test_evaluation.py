@@ -190,3 +190,53 @@ def test_batched_nees_equals_the_per_pose_loop():
         got = nees_values(est, gt)
         assert got.shape == (n - (43 if bad else 0),)
         assert np.array_equal(got, np.asarray(want))
+
+
+def _wiggly_run(n=500, seed=3):
+    """A curving estimate with growing covariances (one singular) and a noisy truth."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.1
+    th = np.cumsum(rng.normal(0, 0.05, n))
+    xy = np.cumsum(np.column_stack([np.cos(th), np.sin(th)]) * 0.2, axis=0)
+    truth = Trajectory(t, np.column_stack([xy, th]))
+    covs = np.tile(np.diag([0.01, 0.02, 0.003]), (n, 1, 1)) * (1 + np.arange(n))[:, None, None]
+    covs[0] = 0.0  # a perfectly known start: skipped by NEES
+    est = Trajectory(t, truth.poses + rng.normal(0, 0.05, (n, 3)), covs)
+    return est, truth
+
+
+def test_metrics_in_blocks_give_the_same_bits(monkeypatch):
+    """The per-pose metrics run in blocks of BLOCK poses: tiny blocks change no bit."""
+    from odofuse import evaluation
+
+    est, truth = _wiggly_run()
+
+    def scores():
+        return (
+            ate(est, truth).errors.tolist(),
+            ate(est, truth, align=True).rmse_m,
+            rpe(est, truth, 1.0),
+            rpe(est, truth, 2.0, "s"),
+            nees_values(est, truth).tolist(),
+            nees_values(est, truth, (0, 1)).tolist(),
+            interpolate_poses(truth, est.t[1:] - 0.03).tolist(),
+        )
+
+    whole = scores()
+    monkeypatch.setattr(evaluation, "BLOCK", 7)
+    assert scores() == whole
+    assert len(whole[4]) == len(est) - 1  # the singular start skipped, in any block
+
+
+def test_bad_groundtruth_cell_named_beyond_the_first_block(monkeypatch):
+    from odofuse import evaluation
+    from odofuse.errors import InputError
+
+    monkeypatch.setattr(evaluation, "BLOCK", 16)
+    n = 100
+    vals = np.zeros((n, 3))
+    vals[57, 1] = np.nan
+    gt = Stream("groundtruth", "gt.csv", np.arange(n, dtype=float), ("x", "y", "theta"), vals)
+    with pytest.raises(InputError) as err:
+        evaluation.check_groundtruth(gt)
+    assert (err.value.file, err.value.row, err.value.column) == ("gt.csv", 59, "y")
