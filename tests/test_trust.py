@@ -173,7 +173,15 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
 #: GPS stops at 60 s and the bias is never learnt well); particle filter, gyro_bias_walk
 #: 0.291 m vs 0.054 m, NEES 2.9, and gps_outage 0.361 m vs 0.132 m, NEES 3.1 (its cloud's
 #: heading-bias covariance is below the check's bound: 14 % of the run at 1000 particles).
+#: Since the graph's robust odometry (slip rule on keyframe intervals) the smoother on
+#: slip_bursts is 0.0121 m (was 0.0343 m, NEES 13.8 `ok`), and the filters, unchanged, fall
+#: outside 2x of it: EKF 0.0322 m (2.66x, NEES 2.39), particle 0.0417 m (3.4x, NEES 4.0). The
+#: EKF is 2.6x the smoother before the first burst too (0-19 s: 0.028 vs 0.011 m): the gap of
+#: a causal filter to a smoother with 0.1 m ranges, which the old smoother hid behind its own
+#: slip error. Both filters are consistent (NEES < 10), so no check sees a fault.
 KNOWN_SILENT = {
+    ("slip_bursts", "ekf"),
+    ("slip_bursts", "particle"),
     ("gps_outage", "ekf"),
     ("gyro_bias_walk", "particle"),
     ("gps_outage", "particle"),
@@ -183,11 +191,11 @@ _TRUST_ESTIMATORS = (("dead_reckoning", None), ("ekf", None), ("particle", {"par
 _SCENARIO_CACHE: dict = {}
 
 
-def _scenario_and_reference(name):
-    """``(log, config, smoother RMSE)`` of a one-lap scenario, computed once per session."""
+def _scenario_and_smoother(name):
+    """``(log, config, smoother metrics)`` of a one-lap scenario, computed once per session."""
     if name not in _SCENARIO_CACHE:
         log, cfg = ts.simulated(name, laps=1)
-        _SCENARIO_CACHE[name] = (log, cfg, ts.run(log, cfg, "smoother")["ate_rmse_m"])
+        _SCENARIO_CACHE[name] = (log, cfg, ts.run(log, cfg, "smoother"))
     return _SCENARIO_CACHE[name]
 
 
@@ -208,9 +216,17 @@ def _scenario_and_reference(name):
     ],
 )
 def test_scenarios_have_no_silent_failure(name, est, opts):
-    log, cfg, ref = _scenario_and_reference(name)
+    log, cfg, smoother = _scenario_and_smoother(name)
+    ref = smoother["ate_rmse_m"]
     m = ts.run(log, cfg, est, opts)
     assert ts.judge(m, ref) != "SILENT", (m["ate_rmse_m"], ref, m["nees_position_mean"])
+
+
+@pytest.mark.parametrize("name", ts.SIMULATED)
+def test_the_smoother_yardstick_has_no_silent_failure(name):
+    """The batch smoother is the others' RMSE reference, so it is judged on its NEES alone."""
+    m = _scenario_and_smoother(name)[2]
+    assert ts.judge(m, math.inf) != "SILENT", (m["ate_rmse_m"], m["nees_position_mean"])
 
 
 def test_judge_holds_fused_estimators_to_the_smoother_and_dead_reckoning_to_its_nees():
