@@ -48,15 +48,18 @@ class Track:
         self._n = 0  # stored rows
         self._offset = 0  # absolute index of stored row 0
         self._dead = 0  # absolute index before which rows may be dropped (live mode)
+        self._finished = False  # a whole-run offline track (from_arrays): never appended to
         self.append(t, x, P)
 
     @classmethod
     def from_arrays(cls, t, x, P) -> Track:
-        """An offline track holding times (N,), poses (N, 3) and covariances (N, 3, 3) as given
-        (the compiled core's whole-run output)."""
+        """A finished offline track holding times (N,), poses (N, 3) and covariances (N, 3, 3)
+        as given (the compiled core's whole-run output, not copied: on a 10 h log each copy of
+        the covariances is 130 MB). Nothing appends to it, so :meth:`arrays` returns views."""
         track = cls(float(t[0]), x[0], P[0])
-        track._t, track._x, track._P = (np.array(a, dtype=float) for a in (t, x, P))
+        track._t, track._x, track._P = (np.asarray(a, dtype=float) for a in (t, x, P))
         track._n = len(track._t)
+        track._finished = True
         return track
 
     def __len__(self) -> int:
@@ -65,6 +68,8 @@ class Track:
 
     def append(self, t: float, x, P) -> None:
         """Add the pose after one more step (``x`` (>= 3,), ``P`` (>= 3, >= 3): first 3 used)."""
+        if self._finished:
+            raise RuntimeError("a finished offline track (Track.from_arrays) is not appended to")
         n = self._n
         if n == self._t.shape[0]:
             self._make_room()
@@ -106,8 +111,11 @@ class Track:
             self._dead = max(self._dead, min(n, len(self)))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Copies of the kept times, poses and covariances."""
+        """The kept times, poses and covariances: copies while the track can still change (a
+        live track rewrites poses when late readings replay), views of a finished one."""
         n = self._n
+        if self._finished:
+            return self._t[:n], self._x[:n], self._P[:n]
         return self._t[:n].copy(), self._x[:n].copy(), self._P[:n].copy()
 
     def nbytes(self) -> int:
