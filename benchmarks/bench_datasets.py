@@ -141,7 +141,7 @@ def goats() -> None:
             print(
                 f"{name} SLAM {est:8s} {dt:6.2f} s  range residual median {np.median(abs(r)):.2f} "
                 f"rms {np.sqrt(np.mean(r**2)):.2f} m  graph error "
-                f"{res.extra.get('final_error', float('nan')):.1f} (isam2: n/a)  outliers "
+                f"{res.extra.get('final_error', float('nan')):.1f}  outliers "
                 f"{res.extra.get('outliers')}  beacons vs map after alignment {mis.round(1)} m"
             )
             slam = slam or res
