@@ -150,24 +150,35 @@ def victoria_head(tmp_path_factory):
     return path
 
 
-def test_victoria_park_slam_reaches_gtsams_best(victoria_head):
+@pytest.fixture(scope="module")
+def victoria_head_best(victoria_head):
+    """GTSAM's graph of :func:`victoria_head`, its pose keys and GTSAM's best solution of it
+    (its iSAM2 incremental solve polished by LM)."""
+    g, _, keys = ref.load(victoria_head)
+    return g, keys, ref.lm_optimum(g, ref.isam2_incremental(g, keys))
+
+
+def test_victoria_park_slam_reaches_gtsams_best(victoria_head, victoria_head_best):
     log = load_log(victoria_head)
     res = graph.run_smoother(log, ref.dataset_config(log, victoria_head, covariances=False))
-    g, _, keys = ref.load(victoria_head)
-    best = ref.lm_optimum(g, ref.isam2_incremental(g, keys))  # GTSAM's best on this graph
+    g, keys, best = victoria_head_best
     ours = ref.odofuse_values(res, keys)
     assert g.error(ours) <= 1.01 * g.error(best)
     assert ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys)) < 1.0
     assert len(res.extra["landmarks"]) == len(np.unique(log.streams["landmarks"]["id"]))
 
 
-def test_isam2_slam_victoria_head(victoria_head):
+def test_isam2_slam_victoria_head(victoria_head, victoria_head_best):
     log = load_log(victoria_head)
     res = graph.run_isam2(log, ref.dataset_config(log, victoria_head, "isam2"))
-    g, _, keys = ref.load(victoria_head)
-    best = ref.lm_optimum(g, ref.odofuse_values(res, keys))
-    ours = ref.poses_of(ref.odofuse_values(res, keys), keys)
-    assert ref.position_rms(ours, ref.poses_of(best, keys)) < 1.0
+    g, keys, best = victoria_head_best
+    ours = ref.odofuse_values(res, keys)
+    # the judged bounds (issue 12): within 1 % of GTSAM's best, poses within 1 m of it;
+    # before the final LM (graph.solvers.polish_isam2) the whole file was +17.5 %
+    assert g.error(ours) <= 1.01 * g.error(best)
+    assert ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys)) < 1.0
+    assert res.extra["final_error"] == pytest.approx(g.error(ours), rel=1e-3)
+    assert not [f for f in res.findings if f.check == "solver"]
     assert res.used["landmarks"] == len(log.streams["landmarks"])
     cov = res.extra["landmark_covariances"]
     assert set(cov) == set(res.extra["landmarks"])

@@ -18,12 +18,14 @@ from odofuse import se2
 from odofuse.declarations import GraphOptions
 from odofuse.errors import ConfigError
 from odofuse.estimators.graph.factors import Factors
+from odofuse.estimators.graph.health import solver_findings
 from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X, model_kind
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.estimators.graph.solvers import (
     finish,
     landmark_covariances,
+    polish_isam2,
     pose_array,
     world_covs,
 )
@@ -269,7 +271,12 @@ def run_isam2(log, config) -> EstimateResult:
     if problem.options.slam:  # unknown landmarks: odofuse.estimators.graph.isam2_slam
         params = _isam2_params(problem.options)
         isam, fac, lat = incremental_slam(problem, params, getattr(config, "source", "<config>"))
-        return _slam_result(problem, isam, fac, {"latency": _latency_summary(lat)})
+        t0 = time.perf_counter()  # LM on the final graph (graph.solvers.polish_isam2)
+        isam, out = polish_isam2(isam, params, fac, problem.options)
+        extra = {"latency": _latency_summary(lat), "final_iterations": int(out.iterations)}
+        extra.update(final_error=float(out.error), final_s=time.perf_counter() - t0)
+        bad = solver_findings("final Levenberg-Marquardt", out.reason, out.iterations)
+        return _slam_result(problem, isam, fac, extra, bad)
     fac = Factors(problem)
     groups = _freeze_groups(problem, fac, getattr(config, "source", "<config>"))
     spec = problem.options.calibration_freeze or {}
@@ -377,14 +384,14 @@ def run_isam2(log, config) -> EstimateResult:
     return finish(problem, fac, result, covs, "isam2", extra, findings)
 
 
-def _slam_result(problem, isam, fac, extra) -> EstimateResult:
+def _slam_result(problem, isam, fac, extra, findings=()) -> EstimateResult:
     """The final iSAM2 SLAM estimate with pose and landmark covariances."""
     result = isam.calculateEstimate()
     covs = None
     if problem.options.covariances:
         covs = world_covs(problem, pose_array(result, len(problem.kt)), isam.marginalCovariance)
         extra["landmark_covariances"] = landmark_covariances(fac, result, isam.marginalCovariance)
-    return finish(problem, fac, result, covs, "isam2", extra)
+    return finish(problem, fac, result, covs, "isam2", extra, findings)
 
 
 def run_fixed_lag(log, config) -> EstimateResult:

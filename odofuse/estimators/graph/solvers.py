@@ -255,6 +255,33 @@ def incremental_initial_values(problem: GraphProblem, values):
     return out, {"init_s": time.perf_counter() - t0}
 
 
+def polish_isam2(isam, params, fac: Factors, opts):
+    """Batch LM on an iSAM2 run's whole graph from its estimate, as a fresh ISAM2 there.
+
+    iSAM2 relinearises only the variables whose update exceeds ``relinearize_threshold``,
+    even in a forced relinearisation, so its final estimate is the solution of a graph
+    linearised at stale points: on Victoria Park its poses were 1.3 cm from the optimum
+    but its graph error 17.5 % above it (bearing factors at headings up to 0.1 rad old).
+    The SLAM path of ``estimator: isam2`` therefore ends with :func:`_solve` (LM, at most
+    ``max_iterations``, ``relative_tolerance``) on ``isam.getFactorsUnsafe()``, then one
+    update of a new ``gtsam.ISAM2(params)`` with that graph at the optimum, so that
+    ``calculateEstimate`` and ``marginalCovariance`` are those of the optimum.
+
+    Returns
+    -------
+    isam : gtsam.ISAM2
+        The fresh iSAM2 at the optimum.
+    outcome : LMOutcome
+    """
+    import gtsam
+
+    graph = isam.getFactorsUnsafe()
+    out = _solve(graph, isam.calculateEstimate(), fac, opts)
+    fresh = gtsam.ISAM2(params)
+    fresh.update(graph, out.values)
+    return fresh, out
+
+
 def _solve(graph, values, fac, opts) -> LMOutcome:
     """Batch LM: GTSAM's optimiser for built-in factors, :func:`levenberg_marquardt` for
     graphs with Python factors or when GTSAM's optimiser raises (indeterminate system)."""
