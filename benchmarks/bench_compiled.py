@@ -316,8 +316,8 @@ def main(argv=None) -> dict:
     assert res is not None and res.used["ranges"] + res.rejected["ranges"] == M
     Pn = a.python_steps
     plog, pcfg, *_ = ekf_log(Pn)
+    from odofuse.estimators.assembly import run_with
     from odofuse.estimators.ekf import make_backend
-    from odofuse.estimators.localizer import run_with
 
     (t_py,) = best([lambda: run_with(plog, pcfg, "ekf", make_backend)], 1)
     (t_off_small,) = best([lambda: compiled_ekf.run(plog, pcfg)], a.repeats)

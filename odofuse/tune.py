@@ -285,8 +285,8 @@ def compiled_innovations(log, config):
 
 def python_innovations(log, config) -> list[tuple[str, float, float, float, int, bool]]:
     """:func:`innovations` through the pure-Python EKF (every run the compiled one refuses)."""
+    from odofuse.estimators.assembly import run_with
     from odofuse.estimators.ekf import EkfBackend
-    from odofuse.estimators.localizer import run_with
     from odofuse.measurements import gate_threshold
 
     records: dict = {}

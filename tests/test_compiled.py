@@ -24,10 +24,10 @@ from graph_sim import excerpt, simulated_run  # noqa: E402
 
 from odofuse.config import RunConfig, config_from_dict  # noqa: E402
 from odofuse.estimators import compiled  # noqa: E402
+from odofuse.estimators.assembly import run_with  # noqa: E402
 from odofuse.estimators.compiled import ekf as compiled_ekf  # noqa: E402
 from odofuse.estimators.compiled.dead_reckoning import dead_reckon  # noqa: E402
 from odofuse.estimators.ekf import make_backend  # noqa: E402
-from odofuse.estimators.localizer import run_with  # noqa: E402
 from odofuse.motion import dead_reckon as dead_reckon_reference  # noqa: E402
 from odofuse.motion import motion_model_from_config  # noqa: E402
 

@@ -227,7 +227,7 @@ def localizer_parts():
 def test_any_streaming_calls_end_in_a_status_or_an_input_error(localizer_parts, calls):
     from odofuse.errors import InputError
     from odofuse.estimators import ekf
-    from odofuse.estimators.localizer import build
+    from odofuse.estimators.assembly import build
 
     log, cfg = localizer_parts
     loc, _, _ = build(cfg, log, "ekf", ekf.make_backend)

@@ -12,7 +12,7 @@ from test_ekf import sim_config, simulate
 from odofuse import se2
 from odofuse.errors import ConfigError
 from odofuse.estimators import ekf, particle, ukf
-from odofuse.estimators.localizer import build, events
+from odofuse.estimators.assembly import build, events
 from odofuse.io.log import SensorLog, Stream
 from odofuse.motion import dead_reckon
 

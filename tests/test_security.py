@@ -401,7 +401,7 @@ def _localizer(steps=20):
     from test_localizer import _cfg
 
     from odofuse.estimators import ekf
-    from odofuse.estimators.localizer import build
+    from odofuse.estimators.assembly import build
 
     log, _ = simulate(31, steps=steps)
     loc, t, U = build(_cfg(), log, "ekf", ekf.make_backend)

@@ -242,7 +242,7 @@ def test_judge_holds_fused_estimators_to_the_smoother_and_dead_reckoning_to_its_
 
 
 def test_localizer_health_is_live():
-    from odofuse.estimators.localizer import build
+    from odofuse.estimators.assembly import build
 
     log, cfg = ts.simulated("stuck_encoder", laps=1)
     from odofuse.estimators.ekf import make_backend

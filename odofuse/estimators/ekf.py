@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from odofuse.estimators.localizer import run_with
+from odofuse.estimators.assembly import run_with
 from odofuse.measurements import gate_threshold
 from odofuse.motion import linear_terms
 
@@ -394,7 +394,7 @@ class EkfBackend:
 
 
 def make_backend(model, models, x0, P0, walk, options) -> EkfBackend:
-    """Backend factory for :func:`odofuse.estimators.localizer.build`."""
+    """Backend factory for :func:`odofuse.estimators.assembly.build`."""
     return EkfBackend(model, models, x0, P0, walk, options)
 
 

@@ -55,7 +55,7 @@ import math
 import numpy as np
 
 from odofuse.declarations import ParticleOptions
-from odofuse.estimators.localizer import run_with
+from odofuse.estimators.assembly import run_with
 from odofuse.measurements import gate_threshold
 from odofuse.motion import body_increment
 from odofuse.options import coerce
@@ -403,7 +403,7 @@ class ParticleBackend:
 
 
 def make_backend(model, models, x0, P0, walk, options) -> ParticleBackend:
-    """Backend factory for :func:`odofuse.estimators.localizer.build`."""
+    """Backend factory for :func:`odofuse.estimators.assembly.build`."""
     return ParticleBackend(model, models, x0, P0, walk, options)
 
 

@@ -21,8 +21,8 @@ import math
 import numpy as np
 
 from odofuse.declarations import UkfOptions
+from odofuse.estimators.assembly import run_with
 from odofuse.estimators.ekf import FastIncrement
-from odofuse.estimators.localizer import run_with
 from odofuse.measurements import gate_threshold
 from odofuse.options import coerce
 from odofuse.se2 import wrap
@@ -244,7 +244,7 @@ class UkfBackend:
 
 
 def make_backend(model, models, x0, P0, walk, options) -> UkfBackend:
-    """Backend factory for :func:`odofuse.estimators.localizer.build`."""
+    """Backend factory for :func:`odofuse.estimators.assembly.build`."""
     return UkfBackend(model, models, x0, P0, walk, options)
 
 

@@ -1,6 +1,6 @@
 """Compiled offline EKF: a whole log's event array through :func:`~.kernels.ekf_offline`.
 
-The run is assembled exactly as the pure-Python one (:func:`odofuse.estimators.localizer.build`:
+The run is assembled exactly as the pure-Python one (:func:`odofuse.estimators.assembly.build`:
 the same models, state layout, prior, random walks and odometry-calibration states), the log's
 rows become flat arrays in the order the streaming Localizer would apply them (measurements
 before the odometry step ending at their time, each step split at the measurement times), the
@@ -199,7 +199,7 @@ def prepare(log, config):
     its order), the Localizer ``loc`` receives the outcome. Also used by :mod:`odofuse.tune`,
     which adds rejected probe readings to the measurement arrays to read each update's
     innovation covariance."""
-    from odofuse.estimators.localizer import build
+    from odofuse.estimators.assembly import build
 
     opts = config.estimator_options("ekf")
     kern = compiled.enabled(getattr(opts, "compiled", "auto"), "options.ekf.compiled")
