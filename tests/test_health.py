@@ -52,3 +52,28 @@ def test_estimator_findings_come_first_and_are_not_duplicated():
     own = Finding("rejected", "custom", sensor="gps")
     out = assess(_result(None, {"gps": 1}, {"gps": 4}, findings=(own,)))
     assert out == [own]
+
+
+def test_filter_covariance_conditioning_in_blocks_equals_the_whole_run():
+    from odofuse.declarations import EkfOptions
+    from odofuse.estimators import pose_checks
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(1000, 3, 3))
+    P = A @ np.swapaxes(A, 1, 2) + 1e-3 * np.eye(3)
+    P[17] = np.diag([1.0, 1.0, 1e-14])  # correlation condition 1 (diagonal): healthy
+    P[400] = [[1.0, 1.0 - 1e-13, 0.0], [1.0 - 1e-13, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    P[600, 0, 0] = np.nan
+    d = np.sqrt(np.clip(np.einsum("nii->ni", P), 1e-300, None))
+    finite = np.isfinite(P).all(axis=(1, 2))
+    C = P[finite] / (d[finite, :, None] * d[finite, None, :])
+    eig = np.linalg.eigvalsh(0.5 * (C + np.swapaxes(C, 1, 2)))
+    whole = eig[:, -1] / np.maximum(eig[:, 0], 1e-300)
+    blocks = pose_checks._correlation_condition(P, d, finite, block=7)
+    assert np.array_equal(blocks, whole)
+    (f,) = [
+        f
+        for f in pose_checks.covariance_health(np.arange(1000.0), P, EkfOptions())
+        if f.check == "covariance"
+    ]
+    assert f.t_start == f.t_end == 400.0 and f.figure > 1e12
