@@ -30,18 +30,22 @@ def _s(x: float) -> str:
     return f"{x:.3g}"
 
 
-def _correlation_condition(P, d, finite, block: int = 1 << 16) -> np.ndarray:
-    """Condition numbers (M,) of the correlation matrices of the ``finite`` covariances ``P``
-    (N, n, n) with standard deviations ``d`` (N, n), in blocks, so the temporaries stay a few
-    MB on any run (whole-run copies were 4 x 130 MB on a 10 h log at 50 Hz)."""
+def _correlation_condition(P, block: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
+    """Which covariances of ``P`` (N, n, n) are finite with a positive diagonal (N,) bool, and
+    the condition numbers (M,) of their correlation matrices; in blocks, so the temporaries
+    stay a few MB on any run (whole-run copies were 4 x 130 MB on a 10 h log at 50 Hz)."""
+    finite = np.empty(len(P), dtype=bool)
     out = []
     for k in range(0, len(P), block):
+        Pb = P[k : k + block]
+        diag = np.einsum("nii->ni", Pb)
         f = finite[k : k + block]
-        db = d[k : k + block][f]
-        C = P[k : k + block][f] / (db[:, :, None] * db[:, None, :])
+        f[:] = np.isfinite(Pb).all(axis=(1, 2)) & (diag > 0).all(axis=1)
+        db = np.sqrt(np.clip(diag[f], 1e-300, None))
+        C = Pb[f] / (db[:, :, None] * db[:, None, :])
         eig = np.linalg.eigvalsh(0.5 * (C + np.swapaxes(C, 1, 2)))
         out.append(eig[:, -1] / np.maximum(eig[:, 0], 1e-300))
-    return np.concatenate(out)
+    return finite, np.concatenate(out)
 
 
 def covariance_health(t, P, options: FilterOptions) -> list[Finding]:
@@ -56,10 +60,8 @@ def covariance_health(t, P, options: FilterOptions) -> list[Finding]:
     if P.size == 0:
         return []
     out = []
-    d = np.sqrt(np.clip(np.einsum("nii->ni", P), 1e-300, None))
-    finite = np.isfinite(P).all(axis=(1, 2)) & (np.einsum("nii->ni", P) > 0).all(axis=1)
+    finite, cond = _correlation_condition(P)
     if finite.any():
-        cond = _correlation_condition(P, d, finite)
         bad = cond > options.max_condition
         if bad.any():
             idx = np.flatnonzero(finite)[bad]
