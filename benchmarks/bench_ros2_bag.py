@@ -25,22 +25,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
-CONFIG = """\
-log:
-  path: {bag}
-  topics: {{gyro: [/imu/data, /imu2/data]}}
-  joints: {{left: left_wheel_joint, right: right_wheel_joint}}
-robot: {{drive: differential, wheel_radius: 0.1, track_width: 0.5}}
-estimator: {estimator}
-sensors:
-  gps: {{datum: [45.0, 9.0]}}
-  gyro: {{calibrate: true}}
-  compass_2: {{}}
-"""
-
 
 def main(estimators) -> None:
-    from rosbag_sim import T0, simulate_robot, write_robot_bag
+    from rosbag_sim import CONFIG, T0, simulate_robot, write_robot_bag
 
     from odofuse.config import config_from_dict, parse_yaml
     from odofuse.estimators import run_estimator

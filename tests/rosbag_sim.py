@@ -35,6 +35,20 @@ GPS_LEVER = (0.3, 0.1)
 IMU2_YAW = 0.5 * math.pi
 IMU2_YAW_SIGMA = 0.05
 GEOMETRY = {"wheel_radius": 0.1, "track_width": 0.5}
+#: The ten-line config a robot_localization user writes for the bag (docs/ros2.md shows the
+#: same); ``CONFIG.format(bag=..., estimator=...)``.
+CONFIG = """\
+log:
+  path: {bag}
+  topics: {{gyro: [/imu/data, /imu2/data]}}
+  joints: {{left: left_wheel_joint, right: right_wheel_joint}}
+robot: {{drive: differential, wheel_radius: 0.1, track_width: 0.5}}
+estimator: {estimator}
+sensors:
+  gps: {{datum: [45.0, 9.0]}}
+  gyro: {{calibrate: true}}
+  compass_2: {{}}
+"""
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,21 @@ def _cfg(estimator="ekf", **kw):
     return sim_config(estimator=estimator, **kw, **opts)
 
 
+def _live_gps_config(**ekf_options):
+    """A live EKF on 2-D increments and GPS at 0.5 m, no log (``Localizer.from_config``)."""
+    from odofuse.config import RunConfig
+
+    return RunConfig(
+        log="live",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
+        estimator="ekf",
+        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
+        sensors={"gps": {"sigma": 0.5}},
+        options={"ekf": ekf_options},
+    )
+
+
 def _stream(log, name, t, columns, values):
     streams = dict(log.streams)
     streams[name] = Stream(name, "sim", np.asarray(t, float), columns, np.asarray(values, float))
@@ -313,19 +328,10 @@ def test_live_localizer_memory_is_flat_after_the_first_window(monkeypatch):
     import tracemalloc
 
     import odofuse.estimators.localizer as localizer_module
-    from odofuse.config import RunConfig
 
     monkeypatch.setattr(localizer_module, "_KEEP_READINGS", 50)
     monkeypatch.setattr(localizer_module, "_TRIM_EVERY", 256)
-    cfg = RunConfig(
-        log="live",
-        robot={"drive": "increments"},
-        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
-        estimator="ekf",
-        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
-        sensors={"gps": {"sigma": 0.5}},
-        options={"ekf": {"late_window": 0.5, "nis_window": 10}},
-    )
+    cfg = _live_gps_config(late_window=0.5, nis_window=10)
     loc = localizer_module.Localizer.from_config(cfg, 0.0)
     u = np.array([0.02, 0.0])  # 0.2 m/s along x
     noise = np.random.default_rng(5).normal(0.0, 0.5, 4001).tolist()
@@ -364,21 +370,13 @@ def test_live_ekf_equals_odofuse_run_bit_for_bit_with_the_compiled_core():
     # Python streaming path to 1e-9 only. A live EKF Localizer now runs the same step kernels
     # (compiled.ekf.live), so online == offline bit for bit: odometry at 50 Hz, a GPS fix each
     # second arriving 0.3 s late (a replay of 15 steps each time).
-    from odofuse.config import RunConfig
     from odofuse.estimators.compiled import load_kernels
     from odofuse.estimators.localizer import Localizer
     from odofuse.motion import motion_model_from_config
 
     if load_kernels() is None:
         pytest.skip("numba not importable")
-    cfg = RunConfig(
-        log="live",
-        robot={"drive": "increments"},
-        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
-        estimator="ekf",
-        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
-        sensors={"gps": {"sigma": 0.5}},
-    )
+    cfg = _live_gps_config()
     rng = np.random.default_rng(16)
     n, dt = 3000, 0.02
     t = dt * np.arange(1, n + 1)
@@ -432,18 +430,9 @@ def test_a_burst_of_late_readings_costs_one_window_each(monkeypatch):
     # Issue 16: late bursts cost O(n^2) (1,000 late rows 13 s): each replay walked the whole
     # history. Now the Localizer keeps the late window's steps only and a late reading replays
     # the steps after it, at most one window. Counted in steps, not timed.
-    from odofuse.config import RunConfig
     from odofuse.estimators.localizer import Localizer
 
-    cfg = RunConfig(
-        log="live",
-        robot={"drive": "increments"},
-        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
-        estimator="ekf",
-        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
-        sensors={"gps": {"sigma": 0.5}},
-        options={"ekf": {"late_window": 0.5}},
-    )
+    cfg = _live_gps_config(late_window=0.5)
     loc = Localizer.from_config(cfg, 0.0)
     u = np.array([0.02, 0.0])
     for k in range(1, 2001):  # 200 s of history at 10 Hz
@@ -467,7 +456,6 @@ def test_live_compiled_ekf_recovers_as_the_python_one():
     # The kernel backend reads a recovery's innovation from the model (last_innovation) and
     # re-applies the reading through the kernel: the same recoveries as the Python backend,
     # poses to 1e-9. GPS fixes 20 m off from the start: rejected until the filter re-opens.
-    from odofuse.config import RunConfig
     from odofuse.estimators.compiled import load_kernels
     from odofuse.estimators.localizer import Localizer
 
@@ -475,15 +463,7 @@ def test_live_compiled_ekf_recovers_as_the_python_one():
         pytest.skip("numba not importable")
 
     def run(compiled):
-        cfg = RunConfig(
-            log="live",
-            robot={"drive": "increments"},
-            motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
-            estimator="ekf",
-            initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
-            sensors={"gps": {"sigma": 0.5}},
-            options={"ekf": {"compiled": compiled}},
-        )
+        cfg = _live_gps_config(compiled=compiled)
         loc = Localizer.from_config(cfg, 0.0)
         rng = np.random.default_rng(4)
         for k in range(1, 601):

@@ -19,6 +19,7 @@ import pytest
 pytest.importorskip("rosbags")
 
 from rosbag_sim import (  # noqa: E402
+    CONFIG,
     GPS_LEVER,
     GYRO_BIAS,
     GYRO_SIGMA,
@@ -42,19 +43,6 @@ from odofuse.trajectory import Trajectory  # noqa: E402
 
 TOPICS = {"gyro": ["/imu/data", "/imu2/data"]}
 JOINTS = {"left": "left_wheel_joint", "right": "right_wheel_joint"}
-# The ten-line config a robot_localization user writes (docs/ros2.md shows the same).
-CONFIG = """\
-log:
-  path: {bag}
-  topics: {{gyro: [/imu/data, /imu2/data]}}
-  joints: {{left: left_wheel_joint, right: right_wheel_joint}}
-robot: {{drive: differential, wheel_radius: 0.1, track_width: 0.5}}
-estimator: {estimator}
-sensors:
-  gps: {{datum: [45.0, 9.0]}}
-  gyro: {{calibrate: true}}
-  compass_2: {{}}
-"""
 
 
 @pytest.fixture(scope="module")
