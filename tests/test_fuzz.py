@@ -252,19 +252,14 @@ LATE_WINDOW = 0.5
 
 
 def _gps_gyro_config():
-    from odofuse.config import RunConfig
+    from test_localizer import _live_gps_config
 
-    return RunConfig(
-        log="live",
-        robot={"drive": "increments"},
-        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
-        estimator="ekf",
-        initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
+    return _live_gps_config(
         sensors={
             "gps": {"sigma": 0.5, "gate": 0.9999},
             "gyro": {"sigma": 0.01, "calibrate": True, "bias_sigma": 0.02},
         },
-        options={"ekf": {"late_window": LATE_WINDOW}},
+        late_window=LATE_WINDOW,
     )
 
 

@@ -29,8 +29,9 @@ def _cfg(estimator="ekf", **kw):
     return sim_config(estimator=estimator, **kw, **opts)
 
 
-def _live_gps_config(**ekf_options):
-    """A live EKF on 2-D increments and GPS at 0.5 m, no log (``Localizer.from_config``)."""
+def _live_gps_config(sensors=None, **ekf_options):
+    """A live EKF on 2-D increments and (by default) GPS at 0.5 m, no log
+    (``Localizer.from_config``)."""
     from odofuse.config import RunConfig
 
     return RunConfig(
@@ -39,7 +40,7 @@ def _live_gps_config(**ekf_options):
         motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
         estimator="ekf",
         initial={"pose": [0.0, 0.0, 0.0], "sigma": [0.1, 0.1, 0.02]},
-        sensors={"gps": {"sigma": 0.5}},
+        sensors=sensors or {"gps": {"sigma": 0.5}},
         options={"ekf": ekf_options},
     )
 

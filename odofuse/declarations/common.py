@@ -68,3 +68,5 @@ def gate_probability(value, key: str, source: str) -> float | None:
 
 _POSITIVE = {"minimum": 0, "exclusive_minimum": True}
 _NONNEG = {"minimum": 0}
+#: A probability or fraction strictly inside (0, 1).
+_OPEN_UNIT = {"minimum": 0, "maximum": 1, "exclusive_minimum": True, "exclusive_maximum": True}

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from odofuse.declarations.common import _NONNEG, _POSITIVE, DEFAULT_LATE_WINDOW
+from odofuse.declarations.common import _NONNEG, _OPEN_UNIT, _POSITIVE, DEFAULT_LATE_WINDOW
 from odofuse.errors import ConfigError
 from odofuse.options import option
 
@@ -130,10 +130,7 @@ class FilterOptions:
         0.999,
         unit="-",
         doc="chi-square probability of the per-step gyro-wheel disagreement",
-        minimum=0,
-        maximum=1,
-        exclusive_minimum=True,
-        exclusive_maximum=True,
+        **_OPEN_UNIT,
     )
 
 

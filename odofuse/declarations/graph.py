@@ -16,7 +16,7 @@ import types
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from odofuse.declarations.common import _NONNEG, _POSITIVE, robust_loss
+from odofuse.declarations.common import _NONNEG, _OPEN_UNIT, _POSITIVE, robust_loss
 from odofuse.errors import ConfigError
 from odofuse.options import explicit, from_mapping, option, to_mapping
 
@@ -62,10 +62,7 @@ class FreezeConvergence:
     rel_change: float = option(
         unit="-",
         doc="largest relative shrink over the window that counts as converged",
-        minimum=0,
-        maximum=1,
-        exclusive_minimum=True,
-        exclusive_maximum=True,
+        **_OPEN_UNIT,
     )
     window: float = option(unit="s", doc="log time over which the shrink is measured", **_POSITIVE)
     min_time: float = option(
@@ -207,10 +204,7 @@ class GraphOptions:
         0.999,
         unit="-",
         doc="chi-square probability of the per-interval gyro-wheel disagreement",
-        minimum=0,
-        maximum=1,
-        exclusive_minimum=True,
-        exclusive_maximum=True,
+        **_OPEN_UNIT,
     )
 
     def for_run(self, estimator: str, sensors: Mapping, source: str) -> GraphOptions:
