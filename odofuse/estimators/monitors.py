@@ -124,6 +124,41 @@ class _Recovery:
     readings: int
 
 
+def outage_findings(s: str, ts, t0: float, t1: float, reject_run: int) -> list[Finding]:
+    """A sensor silent for more than half of the run (the estimate is dead reckoning there).
+
+    The longest span of the run ``[t0, t1]`` (pose times) without a reading of ``s`` (reading
+    times ``ts``), counting a late start and an early end. The bound is issue 10's own for a
+    score (no score over less than half of the estimate's span without a warning): over most
+    of such a run the pose rests on odometry alone, a drift that no innovation or residual
+    check can see while the sensor is away, so the run does not claim to be the fused
+    estimate it was configured for. Used by the filters' monitor and the graph's checks.
+    """
+    ts = np.sort(np.asarray(ts, dtype=float))
+    step = np.diff(ts)
+    step = step[step > 0]
+    if step.size == 0:  # fewer than two readings: no rate to miss (live start-up)
+        return []
+    edges = np.concatenate([[t0], ts[(ts > t0) & (ts < t1)], [t1]])
+    gaps = np.diff(edges)
+    k = int(np.argmax(gaps))
+    # Also longer than reject_run readings of the stream: an outage, not its start-up.
+    long = max(int(reject_run), 1) * float(np.median(step))
+    if not (gaps[k] > 0.5 * (t1 - t0) and gaps[k] > long):
+        return []
+    return [
+        Finding(
+            "outage",
+            f"no reading for {gaps[k]:.1f} s of the run's {t1 - t0:.1f} s "
+            f"({ts.size} readings in all): over that span the estimate is dead reckoning",
+            sensor=s,
+            t_start=float(edges[k]),
+            t_end=float(edges[k + 1]),
+            figure=float(gaps[k]),
+        )
+    ]
+
+
 class FilterMonitor:
     """Per-stream innovation bookkeeping of one filter, its recovery trigger and its findings.
 
@@ -210,7 +245,8 @@ class FilterMonitor:
             out += self._nis_findings(s)
             out += self._run_findings(s)
             if t.size > 1:
-                out += self._outage_findings(s, float(t[0]), float(t[-1]))
+                ts = np.frombuffer(self._t[s], dtype=float)
+                out += outage_findings(s, ts, float(t[0]), float(t[-1]), self.options.reject_run)
         out += self._recovery_findings()
         out += covariance_health(t, P, self.options)
         out += self._calibration_findings(calibration)
@@ -263,40 +299,6 @@ class FilterMonitor:
                 )
             )
         return out
-
-    def _outage_findings(self, s: str, t0: float, t1: float) -> list[Finding]:
-        """A sensor silent for more than half of the run (the estimate is dead reckoning there).
-
-        The longest span ``[t0, t1]`` of the run (pose times) without a reading of ``s``,
-        counting a late start and an early end. The bound is issue 10's own for a score (no
-        score over less than half of the estimate's span without a warning): over most of
-        such a run the filter's pose rests on odometry alone, a drift that no innovation
-        check can see while the sensor is away, so the run does not claim to be the fused
-        estimate it was configured for.
-        """
-        ts = np.sort(np.frombuffer(self._t[s], dtype=float))
-        step = np.diff(ts)
-        step = step[step > 0]
-        if step.size == 0:  # fewer than two readings: no rate to miss (live start-up)
-            return []
-        edges = np.concatenate([[t0], ts[(ts > t0) & (ts < t1)], [t1]])
-        gaps = np.diff(edges)
-        k = int(np.argmax(gaps))
-        # Also longer than reject_run readings of the stream: an outage, not its start-up.
-        long = max(int(self.options.reject_run), 1) * float(np.median(step))
-        if not (gaps[k] > 0.5 * (t1 - t0) and gaps[k] > long):
-            return []
-        return [
-            Finding(
-                "outage",
-                f"no reading for {gaps[k]:.1f} s of the run's {t1 - t0:.1f} s "
-                f"({ts.size} readings in all): over that span the estimate is dead reckoning",
-                sensor=s,
-                t_start=float(edges[k]),
-                t_end=float(edges[k + 1]),
-                figure=float(gaps[k]),
-            )
-        ]
 
     def _run_findings(self, s: str) -> list[Finding]:
         k = max(int(self.options.reject_run), 1)

@@ -291,16 +291,14 @@ def window_findings(problem, residuals: dict, optimum: bool = True) -> list[Find
 def outage_findings(problem) -> list[Finding]:
     """A sensor silent for more than half of the run: the filters' ``outage`` check.
 
-    The rule and its bound are :class:`~odofuse.estimators.monitors.FilterMonitor`'s (issue
-    10 item 5: no score over less than half of the span without a warning; more than the
-    default ``reject_run`` of the stream's readings), fed the times of the rows that got a
+    The rule and its bound are the filters' (:func:`odofuse.estimators.monitors.outage_findings`,
+    issue 10 item 5: no score over less than half of the span without a warning; more than
+    the default ``reject_run`` of the stream's readings), given the times of the rows that got a
     factor (a gyro: the ends of its keyframe intervals). Over such a gap the graph's poses
     rest on odometry alone, a drift no residual can show.
     """
-    from types import SimpleNamespace
-
     from odofuse.declarations import FilterOptions
-    from odofuse.estimators.monitors import FilterMonitor
+    from odofuse.estimators.monitors import outage_findings as stream_outage
 
     times: dict[str, list] = {}
     for meas in problem.measurements:
@@ -309,13 +307,10 @@ def outage_findings(problem) -> list[Finding]:
         times[stream] = list(problem.kt[np.asarray(inc.interval, dtype=int) + 1])
     if len(problem.kt) < 2 or not times:
         return []
-    monitor = FilterMonitor(FilterOptions(), {s: SimpleNamespace(dim=1) for s in times})
-    t0, t1 = float(problem.kt[0]), float(problem.kt[-1])
+    t0, t1, run = float(problem.kt[0]), float(problem.kt[-1]), FilterOptions().reject_run
     out = []
     for stream, ts in sorted(times.items()):
-        for t in ts:
-            monitor.observe(stream, t, True, 1.0)
-        out += monitor._outage_findings(stream, t0, t1)
+        out += stream_outage(stream, ts, t0, t1, run)
     return out
 
 
