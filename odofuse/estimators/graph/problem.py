@@ -148,12 +148,12 @@ def _rotation_tracks(gyro_rows, models, t_odo, U, model) -> list:
     """Rotation tracks for :func:`attach_headings`: the first gyro stream (its bias prior
     value subtracted, its prior sigma as the bias uncertainty), then the wheels."""
     tracks = []
-    for name, rows in gyro_rows.items():
-        m = models[name]
-        bias, bias_sigma = getattr(m, "calib_prior", dict)().get("gyro_bias", (0.0, 0.0))
+    if gyro_rows:
+        name, rows = next(iter(gyro_rows.items()))
+        prior = getattr(models[name], "calib_prior", dict)()
+        bias, bias_sigma = prior.get("gyro_bias", (0.0, 0.0))
         t_prev, t, wz, var = np.array(rows).T
         tracks.append((*gyro_rotation_track(t_prev, t, wz, var, bias), float(bias_sigma)))
-        break
     tracks.append((*wheel_rotation_track(t_odo, U, model), 0.0))
     return tracks
 
@@ -275,12 +275,14 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
                 *attach_headings(t_r, z, var, kt, tracks), strict=True
             ):
                 row = {"heading": float(zk), "sigma": math.sqrt(vk)}
-                meas = Measurement(name, int(idx[first]), int(k), row, rows=int(n))
                 # causal for iSAM2's online estimate: added with the keyframe after the last
                 # reading (unless the fixed-lag window would have dropped keyframe k by then)
                 late = t_r[last] > kt[k] and k + 1 < kt.size
-                if late and not (estimator == "fixed_lag" and kt[k + 1] - kt[k] >= options.lag):
-                    meas.added_at = int(k) + 1
+                dropped = late and estimator == "fixed_lag" and kt[k + 1] - kt[k] >= options.lag
+                added_at = int(k) + 1 if late and not dropped else None
+                meas = Measurement(
+                    name, int(idx[first]), int(k), row, rows=int(n), added_at=added_at
+                )
                 pending.append((float(kt[k]), meas))
     pending.sort(key=lambda tm: (tm[1].keyframe, tm[1].stream))
     odo_cal = odometry_calibration_for(
