@@ -22,7 +22,7 @@ import numpy as np
 
 from odofuse.errors import InputError
 from odofuse.se2 import wrap
-from odofuse.trajectory import EstimateResult, Trajectory
+from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
 
 
 def trajectory_from_stream(stream) -> Trajectory:
@@ -82,29 +82,18 @@ def apply_alignment(traj: Trajectory, r: np.ndarray, t: np.ndarray) -> Trajector
     return Trajectory(traj.t, poses, covs)
 
 
-#: Poses per block of the per-pose metrics (interpolation, RPE, NEES): bounds their
-#: temporaries to a few MB whatever the trajectory's length. Every value is computed pose by
-#: pose, so the blocks give the same bits as one whole-array pass.
-BLOCK = 1 << 16
-
-
-def _blocks(n: int):
-    """Slices of ``range(n)`` of at most :data:`BLOCK` items."""
-    return (slice(k, min(k + BLOCK, n)) for k in range(0, n, BLOCK))
-
-
 def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
     """Poses of ``traj`` at times ``t`` (inside its time span), shape (M, 3).
 
     Positions are interpolated linearly; headings along the shorter arc between neighbours.
-    Computed in blocks of :data:`BLOCK` times (temporaries bounded, same values).
+    Computed in blocks of :data:`odofuse.trajectory.BLOCK` times (temporaries bounded, same values).
     """
     t = np.asarray(t, dtype=float).reshape(-1)
     tt = traj.t
     if tt.size == 1:
         return np.repeat(traj.poses[:1], t.size, axis=0)
     out = np.empty((t.size, 3))
-    for b in _blocks(t.size):
+    for b in pose_blocks(t.size):
         tb = t[b]
         k = np.clip(np.searchsorted(tt, tb, side="right") - 1, 0, tt.size - 2)
         dt = tt[k + 1] - tt[k]
@@ -134,7 +123,7 @@ def covered(est_t, gt_t, max_gap_intervals: float = MAX_GAP_INTERVALS) -> np.nda
     dt = np.diff(gt_t)
     pos = dt[dt > 0]
     limit = max_gap_intervals * (float(np.median(pos)) if pos.size else 0.0)
-    for b in _blocks(est_t.size):
+    for b in pose_blocks(est_t.size):
         tb = est_t[b]
         k = np.clip(np.searchsorted(gt_t, tb, side="right") - 1, 0, gt_t.size - 2)
         on_sample = (np.abs(tb - gt_t[k]) <= tol) | (np.abs(tb - gt_t[k + 1]) <= tol)
@@ -193,7 +182,7 @@ def ate(est: Trajectory, gt: Trajectory, align: bool = False) -> ATE:
         every = idx.size == len(est)  # all poses scored: the positions as a view, no copy
         r, t, _ = align_se2(est.poses[:, :2] if every else est.poses[idx, :2], g[:, :2])
     d, rot = np.empty(idx.size), np.empty(idx.size)
-    for b in _blocks(idx.size):
+    for b in pose_blocks(idx.size):
         pb = est.poses[idx[b]]
         if align:
             pb = apply_alignment(Trajectory(est.t[idx[b]], pb), r, t).poses
@@ -253,7 +242,7 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
     idx, g = associate(est, gt)
     if unit == "m":
         steps = np.empty(max(idx.size - 1, 0))  # travelled ground-truth path between poses
-        for b in _blocks(steps.size):
+        for b in pose_blocks(steps.size):
             steps[b] = np.linalg.norm(g[b.start + 1 : b.stop + 1, :2] - g[b, :2], axis=1)
         s = np.empty(idx.size)
         s[0] = 0.0
@@ -266,7 +255,7 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
     if pairs == 0:
         return RPE(math.nan, math.nan, 0, float(delta), unit)
     t_err, r_err = np.empty(pairs), np.empty(pairs)
-    for b in _blocks(pairs):
+    for b in pose_blocks(pairs):
         jb = j[b]
         e_i, e_j = est.poses[idx[b]], est.poses[idx[jb]]
         err = _between(_between(g[b], g[jb]), _between(e_i, e_j))
@@ -296,7 +285,7 @@ def nees_values(est: Trajectory, gt: Trajectory, dims=(0, 1, 2)) -> np.ndarray:
     idx, g = associate(est, gt)
     vals = np.empty(idx.size)
     ok = np.ones(idx.size, dtype=bool)
-    for b in _blocks(idx.size):
+    for b in pose_blocks(idx.size):
         vals[b], ok[b] = _nees_block(est, idx[b], g[b], dims)
     return vals if ok.all() else vals[ok]
 
@@ -344,7 +333,7 @@ def check_groundtruth(stream) -> None:
     Rows count as in the file (header = row 1). Coordinates beyond
     :data:`MAX_GT_COORDINATE` (e.g. ``1e308``) count as non-finite: their errors overflow.
     """
-    for b in _blocks(len(stream.t)):  # the first bad cell of the first block that has one
+    for b in pose_blocks(len(stream.t)):  # the first bad cell of the first block that has one
         cells = np.column_stack([stream.t[b], stream.values[b]])
         bad = ~np.isfinite(cells) | (np.abs(cells) > MAX_GT_COORDINATE)
         if not bad.any():

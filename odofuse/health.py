@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from odofuse.trajectory import pose_blocks
+
 #: A stream whose gate rejected more than this fraction of its readings is reported.
 MOSTLY_REJECTED = 0.5
 #: Smallest eigenvalue (relative to the largest) below which a covariance is not usable.
@@ -117,16 +119,16 @@ def covariance_findings(t, covariances) -> list[Finding]:
         return []
     C = np.asarray(covariances, dtype=float)
     bad = np.zeros(len(C), dtype=bool)
-    for k in range(0, len(C), 1 << 16):  # in blocks: temporaries of a few MB on any run
-        Cb = C[k : k + (1 << 16)]
+    for b in pose_blocks(len(C)):  # in blocks: temporaries of a few MB on any run
+        Cb = C[b]
         finite = np.isfinite(Cb).all(axis=(1, 2))
-        bad[k : k + len(Cb)] = ~finite
+        bad[b] = ~finite
         if finite.any():
             sym = 0.5 * (Cb[finite] + np.swapaxes(Cb[finite], 1, 2))
             eig = np.linalg.eigvalsh(sym)
             top = np.maximum(np.abs(eig[:, -1]), np.finfo(float).tiny)
             bad_f = eig[:, 0] <= MIN_EIGEN_RATIO * top
-            bad[k + np.flatnonzero(finite)[bad_f]] = True
+            bad[b.start + np.flatnonzero(finite)[bad_f]] = True
     if not bad.any():
         return []
     idx = np.flatnonzero(bad)

@@ -1,10 +1,22 @@
-"""Trajectories and estimator results: what every estimator returns."""
+"""Trajectories and estimator results: what every estimator returns, and the block size of
+every whole-run pass over them (:func:`pose_blocks`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
+
+#: Poses per block of a whole-run pass over per-pose arrays (metrics, covariance checks):
+#: bounds the temporaries to a few MB whatever the run's length. Each value is computed pose
+#: by pose, so the blocks give the same bits as one whole-array pass.
+BLOCK = 1 << 16
+
+
+def pose_blocks(n: int, block: int | None = None):
+    """Slices of ``range(n)`` of at most ``block`` (default :data:`BLOCK`) items."""
+    b = BLOCK if block is None else int(block)
+    return (slice(k, min(k + b, n)) for k in range(0, n, b))
 
 
 @dataclass(frozen=True)

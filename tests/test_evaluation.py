@@ -207,7 +207,7 @@ def _wiggly_run(n=500, seed=3):
 
 def test_metrics_in_blocks_give_the_same_bits(monkeypatch):
     """The per-pose metrics run in blocks of BLOCK poses: tiny blocks change no bit."""
-    from odofuse import evaluation
+    from odofuse import trajectory
 
     est, truth = _wiggly_run()
 
@@ -223,16 +223,16 @@ def test_metrics_in_blocks_give_the_same_bits(monkeypatch):
         )
 
     whole = scores()
-    monkeypatch.setattr(evaluation, "BLOCK", 7)
+    monkeypatch.setattr(trajectory, "BLOCK", 7)
     assert scores() == whole
     assert len(whole[4]) == len(est) - 1  # the singular start skipped, in any block
 
 
 def test_bad_groundtruth_cell_named_beyond_the_first_block(monkeypatch):
-    from odofuse import evaluation
+    from odofuse import evaluation, trajectory
     from odofuse.errors import InputError
 
-    monkeypatch.setattr(evaluation, "BLOCK", 16)
+    monkeypatch.setattr(trajectory, "BLOCK", 16)
     n = 100
     vals = np.zeros((n, 3))
     vals[57, 1] = np.nan

@@ -16,6 +16,7 @@ import numpy as np
 
 from odofuse.declarations import FilterOptions
 from odofuse.health import Finding
+from odofuse.trajectory import pose_blocks
 
 
 def _spans(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -30,16 +31,17 @@ def _s(x: float) -> str:
     return f"{x:.3g}"
 
 
-def _correlation_condition(P, block: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
+def _correlation_condition(P, block: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Which covariances of ``P`` (N, n, n) are finite with a positive diagonal (N,) bool, and
-    the condition numbers (M,) of their correlation matrices; in blocks, so the temporaries
-    stay a few MB on any run (whole-run copies were 4 x 130 MB on a 10 h log at 50 Hz)."""
+    the condition numbers (M,) of their correlation matrices; in blocks
+    (:func:`odofuse.trajectory.pose_blocks`), so the temporaries stay a few MB on any run
+    (whole-run copies were 4 x 130 MB on a 10 h log at 50 Hz)."""
     finite = np.empty(len(P), dtype=bool)
     out = []
-    for k in range(0, len(P), block):
-        Pb = P[k : k + block]
+    for b in pose_blocks(len(P), block):
+        Pb = P[b]
         diag = np.einsum("nii->ni", Pb)
-        f = finite[k : k + block]
+        f = finite[b]
         f[:] = np.isfinite(Pb).all(axis=(1, 2)) & (diag > 0).all(axis=1)
         db = np.sqrt(np.clip(diag[f], 1e-300, None))
         C = Pb[f] / (db[:, :, None] * db[:, None, :])
