@@ -193,6 +193,16 @@ def _record(mon, stream: str, t, ok, nis) -> bool:
     return False
 
 
+def _motion_args(model, cal) -> tuple:
+    """The kernels' motion model: ``(integrator code, M, K, floor, rate, odometry-calibration
+    drive code, its state indices)`` of ``model`` (:func:`linear_terms`) and ``cal`` (the
+    filter's odometry calibration, or None), shared by :func:`run` and :func:`live`."""
+    M, K, floor, rate = (np.ascontiguousarray(a, dtype=float) for a in linear_terms(model))
+    code = 0 if cal is None else _CAL_DRIVES[cal.drive]
+    cidx = np.asarray(cal.index if cal is not None else (), dtype=np.int64)
+    return INTEGRATORS.index(model.integrator), M, K, floor, rate, code, cidx
+
+
 def prepare(log, config):
     """``(kernels, loc, streams, args)`` of the compiled offline EKF, or None when the run
     is not covered: ``args`` are the arguments of :func:`~.kernels.ekf_offline` by name (in
@@ -229,11 +239,7 @@ def prepare(log, config):
     for si, s in enumerate(streams):
         loc.dropped_late[s] += int(np.count_nonzero(dropped & (ms == si)))
     mt, ms, mstep, mz, maux, mR = (a[keep] for a in (mt, ms, mstep, mz, maux, mR))
-    model = loc.motion_model
-    M, K, floor, rate = linear_terms(model)
-    cal = loc.backend.odo_cal
-    cal_code = 0 if cal is None else _CAL_DRIVES[cal.drive]
-    cidx = np.asarray(cal.index if cal is not None else (), dtype=np.int64)
+    integ, M, K, floor, rate, cal_code, cidx = _motion_args(loc.motion_model, loc.backend.odo_cal)
     x, P = loc.backend.x.copy(), loc.backend.P.copy()
     N = len(U)
     traj_x, traj_P = np.empty((N + 1, 3)), np.empty((N + 1, 3, 3))
@@ -241,8 +247,8 @@ def prepare(log, config):
     acc = np.zeros(len(mt), dtype=np.int8)
     nis = np.zeros(len(mt))
     args = dict(
-        x=x, P=P, walk=loc.backend.walk, tt=t, U=U, integ=INTEGRATORS.index(model.integrator),
-        M=np.ascontiguousarray(M), K=np.ascontiguousarray(K), floor=floor, rate=rate,
+        x=x, P=P, walk=loc.backend.walk, tt=t, U=U, integ=integ,
+        M=M, K=K, floor=floor, rate=rate,
         cal=cal_code, cidx=cidx, mt=mt, ms=ms, mstep=mstep, mz=np.ascontiguousarray(mz),
         maux=np.ascontiguousarray(maux), mR=mR, skind=skind, sidx=sidx, sgate=sgate, sR=sR,
         traj_x=traj_x, traj_P=traj_P, odom=odom, acc=acc, nis=nis,
@@ -388,12 +394,7 @@ def live(loc) -> None:
         return
     backend = object.__new__(kernel_backend_class(type(loc.backend)))
     backend.__dict__.update(loc.backend.__dict__)
-    model = loc.motion_model
-    M, K, floor, rate = (np.ascontiguousarray(a, dtype=float) for a in linear_terms(model))
-    cal = backend.odo_cal
-    cidx = np.asarray(cal.index if cal is not None else (), dtype=np.int64)
-    code = 0 if cal is None else _CAL_DRIVES[cal.drive]
-    backend._motion_args = (INTEGRATORS.index(model.integrator), M, K, floor, rate, code, cidx)
+    backend._motion_args = _motion_args(loc.motion_model, backend.odo_cal)
     backend._kern, backend._kinds, backend._pending = kern, kinds, None
     backend._innovation = None
     backend.kf.x = np.ascontiguousarray(backend.kf.x, dtype=float)
