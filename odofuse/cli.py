@@ -119,7 +119,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     """Run an estimator on a log (or compare the default estimators on Plaza1)."""
     from odofuse.config import load_config
     from odofuse.io.loader import load_log_for
-    from odofuse.rundir import run_one
+    from odofuse.rundir import run_one, smoother_reference
 
     if args.config:
         config = load_config(args.config)
@@ -144,9 +144,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     log = load_log_for(next(iter(configs.values())))
     out = Path(args.out or DEFAULT_OUT)
     rows, failed = [], 0
+    # one batch smoother run: the others' cross-check and the smoother's own row (rundir)
+    reference = smoother_reference(configs["smoother"], log) if "smoother" in configs else None
     for name in progress(names, desc="estimators", unit="run"):
         try:
-            rows.append(run_one(configs[name], log, out / name))
+            rows.append(run_one(configs[name], log, out / name, reference))
         except Exception as exc:  # one failing estimator must not hide the others
             failed += 1
             rows.append({"estimator": name, "status": f"failed: {_one_line(exc)}"})

@@ -6,7 +6,8 @@
 It combines the file writers of :mod:`odofuse.outputs` with the picture of
 :mod:`odofuse.plotting` (which do not know each other); ``metrics.json`` comes last and marks a
 complete run. The folder is written whole: claimed by one run, written beside it and swapped
-in (:func:`write_outputs`).
+in (:func:`write_outputs`). Every run's metrics go through :func:`checked_metrics`: the
+batch smoother's second opinion (:mod:`odofuse.cross_check`) before the self-judged status.
 """
 
 from __future__ import annotations
@@ -146,24 +147,68 @@ def _check_replaceable(out: Path, estimator: str) -> None:
             )
 
 
-def run_one(config, log, out_dir: Path) -> dict:
-    """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics."""
-    from odofuse.estimators import run_estimator
+def run_one(config, log, out_dir: Path, reference=None) -> dict:
+    """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics.
+
+    ``reference`` (an :class:`odofuse.cross_check.Reference` or a function returning one) is
+    the batch smoother run of the cross-check, shared by several runs on one log; None: run
+    when the check applies. A smoother run given its own reference reuses it.
+    """
     from odofuse.log_defaults import apply_log_defaults
 
     config, log = apply_log_defaults(config, log)  # what a bag says where the config is silent
     with claim_folder(out_dir):  # a second run into out_dir fails now, not after its estimate
-        t0 = time.perf_counter()
-        result = run_estimator(config.estimator, log, config)
-        return finish_run(config, log, result, time.perf_counter() - t0, out_dir)
+        result, runtime = estimate(config, log, reference)
+        return finish_run(config, log, result, runtime, out_dir, reference)
 
 
-def finish_run(config, log, result, runtime: float, out_dir: Path) -> dict:
-    """Metrics of ``result`` on ``log`` and the run's outputs in ``out_dir``; returns metrics."""
+def smoother_reference(config, log):
+    """A function returning the batch smoother run of ``config`` on ``log``, run once on its
+    first call (:class:`odofuse.cross_check.Reference`): ``reference`` of :func:`run_one` for
+    several runs on one log."""
+    import functools
+
+    from odofuse.cross_check import reference_of
+    from odofuse.log_defaults import apply_log_defaults
+
+    return functools.cache(lambda: reference_of(*apply_log_defaults(config, log)))
+
+
+def estimate(config, log, reference=None) -> tuple[EstimateResult, float]:
+    """``(result, runtime_s)`` of ``config.estimator`` on ``log``; the smoother reuses a
+    given ``reference`` (its result and runtime) instead of running twice."""
+    from odofuse.estimators import run_estimator
+
+    if config.estimator == "smoother" and reference is not None:
+        ref = reference() if callable(reference) else reference
+        return ref.result, ref.runtime_s
+    t0 = time.perf_counter()
+    result = run_estimator(config.estimator, log, config)
+    return result, time.perf_counter() - t0
+
+
+def checked_metrics(config, log, result, runtime: float, reference=None) -> dict:
+    """Metrics of ``result`` on ``log`` after the batch smoother's second opinion.
+
+    The one path from an estimate to its ``metrics.json`` content, shared by
+    :func:`finish_run` and the trust scenarios' runs
+    (:func:`odofuse.teaching.trust_scenarios.run`): :func:`odofuse.cross_check.cross_check`
+    adds its findings (so ``status`` and ``warnings`` follow) and the ``cross_check`` block.
+    """
+    from odofuse.cross_check import cross_check
     from odofuse.evaluation import metrics
+
+    result, block = cross_check(config, log, result, reference)
+    m = metrics(result, log, runtime)
+    m["cross_check"] = block
+    return m
+
+
+def finish_run(config, log, result, runtime: float, out_dir: Path, reference=None) -> dict:
+    """Metrics of ``result`` on ``log`` and the run's outputs in ``out_dir``; returns metrics."""
     from odofuse.outputs_ros import mcap_options
 
-    m = metrics(result, log, runtime)
+    m = checked_metrics(config, log, result, runtime, reference)
     m["log"] = config.log
     m["config"] = config.source
     if log.ros.get("defaults"):

@@ -61,7 +61,7 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
         True,
         ("odofuse.evaluation", "odofuse.outputs", "odofuse.outputs_ros", "odofuse.plotting"),
     ),
-    ("run folder", False, ("odofuse.rundir", "odofuse.tune")),
+    ("run folder", False, ("odofuse.rundir", "odofuse.cross_check", "odofuse.tune")),
     ("fleet", False, ("odofuse.batch",)),
     ("command line", False, ("odofuse.cli", "odofuse.__main__")),
     # May import anything; imported only by itself and by odofuse.cli (see TEACHING_USERS).

@@ -51,7 +51,9 @@ from odofuse.declarations.graph import (
 )
 from odofuse.declarations.run import (
     BLOCK_OPTIONS,
+    CROSS_CHECK_MODES,
     RUN_OPTIONS,
+    CrossCheckOptions,
     EncoderOptions,
     InitialOptions,
     LogOptions,
@@ -79,6 +81,7 @@ from odofuse.options import markdown_table, render_docs
 
 __all__ = [
     "BLOCK_OPTIONS",
+    "CROSS_CHECK_MODES",
     "DEFAULT_INITIAL_SIGMA",
     "DEFAULT_LATE_WINDOW",
     "DOC_FILES",
@@ -94,6 +97,7 @@ __all__ = [
     "STREAM_DEFAULTS",
     "BearingOptions",
     "CompassOptions",
+    "CrossCheckOptions",
     "DeadReckoningOptions",
     "EkfOptions",
     "EncoderOptions",
@@ -129,7 +133,7 @@ __all__ = [
 
 
 #: The docs files whose ``<!-- options:NAME -->`` tables are generated.
-DOC_FILES = ("docs/filters.md", "docs/formats.md", "docs/graph.md")
+DOC_FILES = ("docs/filters.md", "docs/formats.md", "docs/graph.md", "docs/trust.md")
 
 
 def catalogue() -> dict[str, tuple[type, str]]:

@@ -1,5 +1,5 @@
 """Declarations of the run's blocks: ``motion``, ``initial``, ``robot.encoder``, ``log`` and
-``options.output`` (:data:`BLOCK_OPTIONS`, :data:`RUN_OPTIONS`)."""
+``options.output`` and ``options.cross_check`` (:data:`BLOCK_OPTIONS`, :data:`RUN_OPTIONS`)."""
 
 from __future__ import annotations
 
@@ -154,8 +154,38 @@ class OutputOptions:
     )
 
 
+#: Values of ``options.cross_check.smoother``.
+CROSS_CHECK_MODES = ("auto", "on", "off")
+
+
+@dataclass(frozen=True)
+class CrossCheckOptions:
+    """``options.cross_check``: an offline run's second opinion from the batch smoother.
+
+    ``odofuse run`` / ``odofuse batch`` also run the batch smoother on the same log and config
+    and compare (:mod:`odofuse.cross_check`, docs/trust.md). ``auto`` checks when the config
+    fuses an absolute sensor and the log has at most ``max_odometry_steps`` odometry steps:
+    the smoother costs about 6 s per hour of a 50 Hz log, so the default (200,000 steps) checks
+    a 1 h 50 Hz log (180,000) and skips a 10 h one.
+    """
+
+    smoother: str = option(
+        "auto",
+        unit="-",
+        doc="compare with the batch smoother of the same log: auto (absolute sensor and a "
+        "bounded log), on, off",
+        choices=CROSS_CHECK_MODES,
+    )
+    max_odometry_steps: int = option(
+        200_000,
+        unit="steps",
+        doc="auto: largest log (odometry steps) checked; 200,000 covers 1 h at 50 Hz",
+        **_POSITIVE,
+    )
+
+
 #: ``options.<name>`` blocks that configure the run rather than an estimator.
-RUN_OPTIONS: dict[str, type] = {"output": OutputOptions}
+RUN_OPTIONS: dict[str, type] = {"output": OutputOptions, "cross_check": CrossCheckOptions}
 
 #: Config block -> options class.
 BLOCK_OPTIONS: dict[str, type] = {

@@ -4,7 +4,10 @@ A scenario is a simulated (or real) log plus the run config a user would write f
 judgement (:func:`judge`) is the issue's: an estimator *holds* when its position RMSE is
 within 2x of the batch smoother's and its position NEES is below 10 (dead reckoning, which
 fuses no absolute sensor, on its NEES alone), and otherwise it must report ``degraded``.
-A run that neither holds nor says ``degraded`` is a *silent failure*.
+A run that neither holds nor says ``degraded`` is a *silent failure*. :func:`run` gives a
+run's metrics through the path ``odofuse run`` takes (:func:`odofuse.rundir.checked_metrics`,
+with the batch smoother's second opinion of :mod:`odofuse.cross_check`), or, with
+``check=False``, the estimator alone, as a live pipeline has it.
 
 Faults the simulator does not produce itself are applied to the simulated log in memory:
 a stuck encoder (one wheel's counter frozen, :func:`stuck_encoder`) and a disturbed compass
@@ -19,12 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from odofuse.cross_check import HOLD_NEES, HOLD_RMSE_RATIO, UNAIDED
 from odofuse.io.log import Stream
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository (configs/)
-#: RMSE ratio to the smoother and position NEES below which an estimator holds.
-HOLD_RMSE_RATIO = 2.0
-HOLD_NEES = 10.0
 
 _BASE = {
     "seed": 7,
@@ -139,8 +140,9 @@ def _as_user_reads_it(sim, name: str):
         return load_log_for(cfg), cfg
 
 
-def simulated(name: str, laps: int | None = None):
-    """``(log, config)`` of a simulated scenario (``laps`` shortens it for tests)."""
+def simulated(name: str, laps: int | None = None, seed: int | None = None):
+    """``(log, config)`` of a simulated scenario (``laps`` shortens it for tests; ``seed``
+    replaces the scenario's seed, 7)."""
     from odofuse.teaching.scenario import scenario_from_dict
     from odofuse.teaching.simulate import simulate
 
@@ -148,6 +150,8 @@ def simulated(name: str, laps: int | None = None):
     d = _merge(_BASE, over)
     if laps is not None:
         d = _merge(d, {"path": {"laps": laps}})
+    if seed is not None:
+        d = {**d, "seed": int(seed)}
     log, cfg = _as_user_reads_it(simulate(scenario_from_dict(d, name)), name)
     if fault and fault[0] == "stuck":
         log = stuck_encoder(log, fault[1], fault[2])
@@ -176,22 +180,48 @@ def plaza2(estimator: str):
     return load_log("builtin:plaza2"), cfg
 
 
-def run(log, config, estimator: str, options: dict | None = None) -> dict:
-    """Metrics of ``estimator`` on ``log`` (``options`` merged into its option block)."""
-    from odofuse.estimators import run_estimator
-    from odofuse.evaluation import metrics
+def run(
+    log, config, estimator: str, options: dict | None = None, reference=None, check: bool = True
+) -> dict:
+    """Metrics of ``estimator`` on ``log`` (``options`` merged into its option block).
 
+    Parameters
+    ----------
+    log, config
+        The scenario (:func:`simulated`, :func:`figure_eight`, :func:`plaza2`).
+    estimator : str
+    options : dict, optional
+        Merged into ``options.<estimator>``.
+    reference : odofuse.cross_check.Reference, optional
+        The batch smoother of this log and config (:func:`smoother_reference`), computed once
+        and shared; None: run when the check applies. A smoother run reuses it.
+    check : bool
+        The cross-check as ``odofuse run`` applies it (its ``auto`` rule); False: the estimator
+        alone (``options.cross_check.smoother: off``), as in a live pipeline.
+    """
+    from odofuse.rundir import checked_metrics, estimate
+
+    cfg = run_config(config, estimator, options, check)
+    result, runtime = estimate(cfg, log, reference)
+    return checked_metrics(cfg, log, result, runtime, reference)
+
+
+def run_config(config, estimator: str, options: dict | None = None, check: bool = True):
+    """``config`` for a run of ``estimator`` (:func:`run`'s ``options`` and ``check``)."""
     opts = dict(config.options or {})
     if options:
         opts[estimator] = {**dict(opts.get(estimator) or {}), **options}
-    cfg = dataclasses.replace(config, estimator=estimator, options=opts)
-    return metrics(run_estimator(estimator, log, cfg), log)
+    if not check:
+        opts["cross_check"] = {"smoother": "off"}
+    return dataclasses.replace(config, estimator=estimator, options=opts)
 
 
-#: Estimators that fuse no absolute sensor: their drift is expected, their covariance is the
-#: promise (dead reckoning integrates the wheels; a gyro only checks it, see
-#: :func:`odofuse.estimators.pose_checks.gyro_wheel_findings`).
-UNAIDED = frozenset({"dead_reckoning"})
+def smoother_reference(log, config):
+    """The batch smoother run of ``log`` with ``config`` (:class:`odofuse.cross_check.Reference`),
+    to share between the runs of one scenario."""
+    from odofuse.cross_check import reference_of
+
+    return reference_of(config, log)
 
 
 def judge(m: dict, reference_rmse: float | None) -> str:

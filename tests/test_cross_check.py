@@ -1,0 +1,161 @@
+"""The batch smoother's second opinion (odofuse.cross_check): its arithmetic on hand-made
+trajectories, when it applies, and how it reaches metrics.json through odofuse.rundir."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from odofuse import cross_check as xc
+from odofuse.config import config_from_dict
+from odofuse.io.log import SensorLog, Stream
+from odofuse.rundir import checked_metrics, run_one
+from odofuse.trajectory import EstimateResult, Trajectory
+
+SIGMA = 0.01  # m, the hand-made smoother's per-axis position sigma: s = sqrt(2) * SIGMA
+
+
+def _line(n=201, dy=0.0, var=SIGMA**2):
+    """A straight 20 m run at 10 Hz, shifted ``dy`` m sideways, covariance diag(var, var, 1e-4)."""
+    t = np.linspace(0.0, 20.0, n)
+    poses = np.column_stack([t, np.full(n, dy), np.zeros(n)])
+    return Trajectory(t, poses, np.tile(np.diag([var, var, 1e-4]), (n, 1, 1)))
+
+
+def _smoother():
+    t = np.arange(0.0, 20.01, 1.0)  # keyframes: 1 s apart, interpolated to the estimate's times
+    traj = _line(t.size)
+    return Trajectory(t, np.column_stack([t, np.zeros(t.size), np.zeros(t.size)]), traj.covariances)
+
+
+def _checks(found):
+    return [f.check for f in found]
+
+
+def test_a_fused_estimate_3_sigma_from_the_smoother_is_flagged():
+    s = math.sqrt(2) * SIGMA
+    block, found = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), fused=True)
+    assert block["departure_rms_m"] == pytest.approx(3 * s)
+    assert block["smoother_sigma_m"] == pytest.approx(s)
+    assert block["predicted_ratio"] == pytest.approx(math.sqrt(10.0))  # sqrt(1 + 3^2)
+    assert block["departure_nees"] == pytest.approx((3 * s) ** 2 / 1.0)
+    assert _checks(found) == ["cross_check"]
+    assert found[0].figure == pytest.approx(math.sqrt(10.0)) and found[0].degrades
+    assert "likely more than 2x its error" in found[0].line()
+    assert (found[0].t_start, found[0].t_end) == (0.0, 20.0)
+
+
+def test_a_fused_estimate_within_the_smoothers_sigma_is_not_flagged():
+    s = math.sqrt(2) * SIGMA
+    block, found = xc.compare(_line(dy=s, var=1.0), _smoother(), fused=True)
+    assert block["predicted_ratio"] == pytest.approx(math.sqrt(2.0))
+    assert found == []
+    # just above the bound: ratio sqrt(1 + 1.8^2) = 2.06 > 2
+    assert _checks(xc.compare(_line(dy=1.8 * s, var=1.0), _smoother(), True)[1]) == ["cross_check"]
+
+
+def test_dead_reckoning_is_held_to_its_covariance_not_to_the_smoothers_accuracy():
+    # 0.5 m off: far outside the smoother's sigma, but inside its own 1 m sigma: no finding.
+    block, found = xc.compare(_line(dy=0.5, var=1.0), _smoother(), fused=False)
+    assert block["predicted_ratio"] > 30 and block["ratio_bound"] is None and found == []
+    # The same drift claimed with a 0.1 m sigma: departure NEES 0.25 / 0.01 = 25 > 10.
+    block, found = xc.compare(_line(dy=0.5, var=0.01), _smoother(), fused=False)
+    assert block["departure_nees"] == pytest.approx(25.0)
+    assert _checks(found) == ["cross_check_nees"] and "overconfident" in found[0].message
+
+
+def test_poses_outside_the_smoothers_span_are_not_compared():
+    est = _line()
+    late = Trajectory(est.t + 100.0, est.poses, est.covariances)
+    block, found = xc.compare(late, _smoother(), fused=True)
+    assert "skipped" in block and found == []
+
+
+def _log(odometry_rows=50, gps=True, loops=False):
+    t = np.linspace(0.0, 10.0, odometry_rows)
+    streams = {
+        "odometry": Stream("odometry", "odometry.csv", t, ("ds", "dtheta"), np.zeros((t.size, 2)))
+    }
+    if gps:
+        tg = np.arange(0.0, 10.0)
+        streams["gps"] = Stream("gps", "gps.csv", tg, ("x", "y"), np.zeros((tg.size, 2)))
+    if loops:
+        streams["loop_closures"] = Stream("loop_closures", "l.csv", t[:1], ("i",), np.zeros((1, 1)))
+    return SensorLog("log", streams)
+
+
+def _config(estimator="ekf", cross=None, gps=True, options=None):
+    d = {
+        "log": "x",
+        "robot": {"drive": "increments"},
+        "estimator": estimator,
+        "sensors": {"gps": {"sigma": 1.0}} if gps else {},
+        "options": dict(options or {}),
+    }
+    if cross is not None:
+        d["options"]["cross_check"] = cross
+    return config_from_dict(d, "c.yaml")
+
+
+def test_when_the_check_applies():
+    assert xc.skip_reason(_config(), _log()) is None
+    assert "off" in xc.skip_reason(_config(cross={"smoother": "off"}), _log())
+    assert "is the batch smoother" in xc.skip_reason(_config("smoother"), _log())
+    assert "no absolute sensor" in xc.skip_reason(_config(gps=False), _log(gps=False))
+    assert xc.skip_reason(_config(gps=False, cross={"smoother": "on"}), _log(gps=False)) is None
+    assert "pose-graph" in xc.skip_reason(_config(), _log(loops=True))
+    slam = {"smoother": {"slam": True}}
+    assert "SLAM" in xc.skip_reason(_config(options=slam), _log())
+    # auto's size bound: a 1 h 50 Hz log (180,000 steps) is checked, a 10 h one
+    # (benchmarks/bench_io.py: 1,800,000) is not; the bound is one option
+    assert xc.skip_reason(_config(), _log(180_000)) is None
+    assert "1800000 odometry steps" in xc.skip_reason(_config(), _log(1_800_000))
+    assert "max_odometry_steps" in xc.skip_reason(
+        _config(cross={"max_odometry_steps": 49}), _log(50)
+    )
+
+
+def _reference(status="ok"):
+    return xc.Reference(EstimateResult("smoother", _smoother()), status, 1.0, "c.yaml")
+
+
+def test_a_degraded_smoother_disables_the_check():
+    s = math.sqrt(2) * SIGMA
+    far = EstimateResult("ekf", _line(dy=10 * s, var=1.0))
+    result, block = xc.cross_check(_config(), _log(), far, _reference("degraded"))
+    assert block == {
+        "skipped": "the batch smoother's own status is degraded",
+        "smoother_status": "degraded",
+    }
+    assert result is far
+    result, block = xc.cross_check(_config(), _log(), far, _reference)  # lazily, the same ok
+    assert block["smoother_status"] == "ok" and "smoother_config" not in block
+    assert [f.check for f in result.findings] == ["cross_check"]
+
+
+def test_the_check_reaches_status_warnings_and_a_skip_is_recorded_not_warned():
+    s = math.sqrt(2) * SIGMA
+    far = EstimateResult("ekf", _line(dy=3 * s, var=1.0))
+    m = checked_metrics(_config(), _log(), far, 0.1, _reference())
+    assert m["status"] == "degraded"
+    assert m["warnings"] == [
+        f.line() for f in xc.cross_check(_config(), _log(), far, _reference())[0].findings
+    ]
+    assert m["cross_check"]["predicted_ratio"] == pytest.approx(math.sqrt(10.0))
+    off = checked_metrics(_config(cross={"smoother": "off"}), _log(), far, 0.1, _reference())
+    assert off["status"] == "ok" and off["warnings"] == []
+    assert off["cross_check"] == {"skipped": "off (options.cross_check.smoother)"}
+    json.dumps(m)  # metrics.json-ready
+
+
+def test_a_shared_reference_names_its_config_and_a_smoother_run_reuses_it(tmp_path):
+    ref = xc.Reference(EstimateResult("smoother", _smoother()), "ok", 1.0, "other.yaml")
+    cfg = _config("smoother")
+    m = run_one(cfg, _log(), tmp_path / "s", ref)
+    assert m["poses"] == len(_smoother()) and m["runtime_s"] == 1.0  # not run again
+    assert m["cross_check"] == {"skipped": "the estimate is the batch smoother"}
+    stored = json.loads((tmp_path / "s" / "metrics.json").read_text(encoding="utf-8"))
+    assert stored["cross_check"] == m["cross_check"]
+    result, block = xc.cross_check(_config(), _log(), EstimateResult("ekf", _line()), ref)
+    assert block["smoother_config"] == "other.yaml"
