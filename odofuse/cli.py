@@ -144,8 +144,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     log = load_log_for(next(iter(configs.values())))
     out = Path(args.out or DEFAULT_OUT)
     rows, failed = [], 0
-    # one batch smoother run: the others' cross-check and the smoother's own row (rundir)
-    reference = smoother_reference(configs["smoother"], log) if "smoother" in configs else None
+    # one packaged batch smoother run (when needed): the others' cross-check, the smoother's row
+    reference = smoother_reference(configs.get("smoother") or default_config("smoother"), log)
     for name in progress(names, desc="estimators", unit="run"):
         try:
             rows.append(run_one(configs[name], log, out / name, reference))
