@@ -166,8 +166,9 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
 #: (scenario, estimator) pairs that still fail silently at one lap when the filter runs alone
 #: (cross-check off, as in a live pipeline; measured, not hidden: each is a strict xfail, so a
 #: fix shows up as an unexpected pass; docs/trust.md has the figures). Through the path of
-#: ``odofuse run`` the batch smoother's second opinion flags every one of them
-#: (test_scenarios_as_odofuse_run_does_have_no_silent_failure, docs/trust.md section 6).
+#: ``odofuse run`` the batch smoother's second opinion flags three of the five
+#: (test_scenarios_as_odofuse_run_does_have_no_silent_failure, KNOWN_SILENT_CHECKED below,
+#: docs/trust.md section 6).
 #: All are the start-up with an unknown gyro bias on GPS alone (1 m sigma), seed 7: the bias
 #: is learnt from the wheels while the heading runs ~0.1 rad off inside the filter's own
 #: covariance (consistent innovations), where the smoother, which sees the whole log, is not.
@@ -236,13 +237,39 @@ def test_scenarios_have_no_silent_failure(name, est, opts):
     assert ts.judge(m, ref) != "SILENT", (m["ate_rmse_m"], ref, m["nees_position_mean"])
 
 
+#: Pairs the cross-check misses too (measured, strict xfails; docs/trust.md section 6): on
+#: one-lap gps_outage (GPS lost from 60 s to the end, 94 s) the smoother's own sigma, 0.204 m
+#: rms, is well above its realised error, 0.132 m (position NEES 1.14), so the predicted ratio
+#: stays under 2 where the realised one is above: EKF d 0.221 m, predicted 1.47x, realised
+#: 2.33x; particle d 0.255 m, predicted 1.60x, realised 2.73x.
+KNOWN_SILENT_CHECKED = {("gps_outage", "ekf"), ("gps_outage", "particle")}
+
+
 @pytest.mark.parametrize(
     ("name", "est", "opts"),
-    [pytest.param(n, e, o, id=f"{n}-{e}") for n in ts.SIMULATED for e, o in _TRUST_ESTIMATORS],
+    [
+        pytest.param(
+            n,
+            e,
+            o,
+            marks=[
+                pytest.mark.xfail(
+                    reason="known silent failure through odofuse run's path (issue 10): the "
+                    "smoother's sigma exceeds its realised error",
+                    strict=True,
+                )
+            ]
+            if (n, e) in KNOWN_SILENT_CHECKED
+            else [],
+            id=f"{n}-{e}",
+        )
+        for n in ts.SIMULATED
+        for e, o in _TRUST_ESTIMATORS
+    ],
 )
 def test_scenarios_as_odofuse_run_does_have_no_silent_failure(name, est, opts):
     """The same runs through the path of ``odofuse run`` (rundir.checked_metrics), with the
-    batch smoother's second opinion (cross_check auto): no silent failure at all."""
+    batch smoother's second opinion (cross_check auto)."""
     log, cfg, smoother, reference = _scenario_and_smoother(name)
     m = ts.run(log, cfg, est, opts, reference=reference)
     verdict = ts.judge(m, smoother["ate_rmse_m"])
