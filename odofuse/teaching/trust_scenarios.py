@@ -181,7 +181,13 @@ def plaza2(estimator: str):
 
 
 def run(
-    log, config, estimator: str, options: dict | None = None, reference=None, check: bool = True
+    log,
+    config,
+    estimator: str,
+    options: dict | None = None,
+    reference=None,
+    check: bool = True,
+    estimated: tuple | None = None,
 ) -> dict:
     """Metrics of ``estimator`` on ``log`` (``options`` merged into its option block).
 
@@ -198,11 +204,14 @@ def run(
     check : bool
         The cross-check as ``odofuse run`` applies it (its ``auto`` rule); False: the estimator
         alone (``options.cross_check.smoother: off``), as in a live pipeline.
+    estimated : tuple, optional
+        ``(result, runtime_s)`` of :func:`odofuse.rundir.estimate` for this run, already
+        made (scored again, e.g. with and without the check); None: estimated here.
     """
     from odofuse.rundir import checked_metrics, estimate
 
     cfg = run_config(config, estimator, options, check)
-    result, runtime = estimate(cfg, log, reference)
+    result, runtime = estimated if estimated is not None else estimate(cfg, log, reference)
     return checked_metrics(cfg, log, result, runtime, reference)
 
 
