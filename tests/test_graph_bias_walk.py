@@ -121,3 +121,20 @@ def test_incremental_smoothers_take_the_walking_bias(seed41, estimator):
     assert m["nees_position_mean"] < ts.HOLD_NEES, m["nees_position_mean"]
     assert np.isfinite(m["extra"]["calibration"]["gyro_bias"])
     assert m["status"] == "ok", m["warnings"]
+
+
+def test_simulate_writes_the_simulated_bias_walk():
+    """``odofuse simulate``'s config states the simulated noise (gyro, GPS, range sigmas, the
+    wheels' ``k``): the gyro's bias walk follows the same rule; without a walk the config is
+    as before (no key)."""
+    from odofuse.teaching.scenario import scenario_from_dict
+    from odofuse.teaching.simlog import run_config
+    from odofuse.teaching.simulate import simulate
+
+    over, _ = ts.SIMULATED["gyro_bias_walk"]
+    for walk in (WALK, 0.0):
+        d = ts._merge(ts._merge(ts._BASE, over), {"path": {"laps": 1}})
+        d = ts._merge(d, {"sensors": {"gyro": {"bias_walk": walk}}})
+        gyro = run_config(simulate(scenario_from_dict(d)))["sensors"]["gyro"]
+        assert gyro.get("bias_walk") == (walk or None)
+        assert gyro["sigma"] == d["sensors"]["gyro"]["sigma"]
