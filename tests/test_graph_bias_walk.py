@@ -138,3 +138,26 @@ def test_simulate_writes_the_simulated_bias_walk():
         gyro = run_config(simulate(scenario_from_dict(d)))["sensors"]["gyro"]
         assert gyro.get("bias_walk") == (walk or None)
         assert gyro["sigma"] == d["sensors"]["gyro"]["sigma"]
+
+
+@pytest.mark.parametrize("estimator", ["smoother", "isam2", "fixed_lag"])
+def test_two_walking_gyros_each_have_their_own_chain(seed41, estimator):
+    """A second IMU ``gyro_2`` reading the first one's rates 0.02 rad/s lower (with noise of its
+    own): two chains with distinct keys, and their final biases 0.02 rad/s apart."""
+    from odofuse.io.log import Stream
+
+    log, cfg = seed41
+    g = log.streams["gyro"]
+    rng = np.random.default_rng(5)
+    wz2 = g["wz"] - 0.02 + rng.normal(0.0, 0.002, len(g))
+    streams = {**log.streams, "gyro_2": Stream("gyro_2", "sim", g.t, ("wz",), wz2[:, None])}
+    log2 = dataclasses.replace(log, streams=streams)
+    cfg2 = dataclasses.replace(cfg, sensors={**cfg.sensors, "gyro_2": cfg.sensors["gyro"]})
+    problem = build_problem(log2, cfg2, estimator)
+    assert set(problem.bias_walk) == {"gyro_bias", "gyro_bias:gyro_2"}
+    last = len(problem.kt) - 2
+    assert problem.bias_key("gyro_bias", last) != problem.bias_key("gyro_bias:gyro_2", last)
+    m = ts.run(log2, cfg2, estimator)
+    cal = m["extra"]["calibration"]
+    assert abs(cal["gyro_bias"] - cal["gyro_bias:gyro_2"] - 0.02) < 2e-3, cal
+    assert m["nees_position_mean"] < ts.HOLD_NEES
