@@ -69,7 +69,8 @@ def slip_scales(problem: GraphProblem) -> np.ndarray:
     covariance is widened so that the accumulated wheel heading variance of the run of
     consecutive slipping intervals is the square of its summed disagreement. ``sigma_b`` is
     the bias prior's sigma (the graph estimates the bias, but the noise of a factor must not
-    depend on the solution): a conservative test, never a looser one.
+    depend on the solution): a conservative test, never a looser one. A walking bias
+    (``bias_walk`` > 0) has ``sigma_b^2 + bias_walk^2 (t - t_0)`` at the interval's end ``t``.
 
     Returns
     -------
@@ -92,7 +93,11 @@ def slip_scales(problem: GraphProblem) -> np.ndarray:
     i = np.asarray(inc.interval, dtype=int)
     d = se2.wrap(inc.dtheta - bias * inc.T - problem.deltas[i, 2])
     var_odo = problem.covs[i, 2, 2]
-    var_ref = inc.var + (bias_sigma * inc.T) ** 2
+    sigma_b = bias_sigma
+    if "gyro_bias" in problem.bias_walk:  # the prior of a walking bias widens with time
+        walk = problem.bias_walk["gyro_bias"]
+        sigma_b = np.sqrt(bias_sigma**2 + walk**2 * (problem.kt[i + 1] - problem.kt[0]))
+    var_ref = inc.var + (sigma_b * inc.T) ** 2
     gate = gate_threshold(problem.options.slip_gate, 1)
     run, prev = 0.0, -2
     for n in np.flatnonzero(d * d > gate * (var_odo + var_ref)):
