@@ -68,7 +68,7 @@ def test_healthy_gyro_run_has_no_slip_and_no_window_finding():
     assert not {"slip", "residual_windows"} & {f["check"] for f in m["findings"]}
 
 
-def _problem(d_wheels, d_gyro, var_odo=1e-4, var_gyro=1e-8, T=0.5, bias_sigma=0.0):
+def _problem(d_wheels, d_gyro, var_odo=1e-4, var_gyro=1e-8, T=0.5, bias_sigma=0.0, bias_walk=0.0):
     n = len(d_wheels)
     deltas = np.zeros((n, 3))
     deltas[:, 2] = d_wheels
@@ -86,6 +86,7 @@ def _problem(d_wheels, d_gyro, var_odo=1e-4, var_gyro=1e-8, T=0.5, bias_sigma=0.
         options=GraphOptions(),
         pose_graph=False,
         kt=np.arange(n + 1) * T,
+        bias_walk={"gyro_bias": bias_walk} if bias_walk else {},
     )
 
 
@@ -99,6 +100,9 @@ def test_slip_scales_are_the_filters_rule_with_runs_of_intervals():
     assert s[2] == pytest.approx(monitors.slip_scale(0.1, 1e-4, 1e-8, gate, 0.1))
     # the bias prior's sigma widens the test: 0.1 rad over 0.5 s against sigma_b = 0.1 rad/s
     assert np.all(slip_scales(_problem([0.0] * 3, [0.1] * 3, bias_sigma=0.1)) == 1.0)
+    # a walking bias widens it with time: sigma_b^2 + walk^2 t at the interval's end t
+    walking = slip_scales(_problem([0.0] * 3, [0.1] * 3, bias_walk=0.07))
+    np.testing.assert_array_equal(walking == 1.0, [False, True, True])
     off = _problem([0.0] * 3, [0.1] * 3)
     off.options = GraphOptions(slip=False)
     assert np.all(slip_scales(off) == 1.0)

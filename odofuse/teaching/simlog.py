@@ -53,6 +53,8 @@ def run_config(sim: Simulation, estimator: str = "ekf") -> dict:
     sensors: dict = {}
     if sc.gyro is not None:
         sensors["gyro"] = {"sigma": float(max(sc.gyro.sigma, 1e-6)), "calibrate": True}
+        if sc.gyro.bias_walk > 0:  # the simulated walk, as the sigmas are the simulated ones
+            sensors["gyro"]["bias_walk"] = float(sc.gyro.bias_walk)
     if sc.gps is not None:
         sensors["gps"] = {"sigma": float(sc.gps.sigma), "gate": 0.999}
     if sc.compass is not None:

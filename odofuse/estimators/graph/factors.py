@@ -2,9 +2,11 @@
 
 Owns :class:`Factors`: the priors on the first pose, the calibration states and the landmarks,
 the odometry between factors, each sensor row's factor with its stream's robust loss, and the
-frozen-calibration variants iSAM2 switches to; and the noise models (:func:`robust_noise`,
-Huber / Cauchy / Tukey, and the floored odometry covariance). The factors GTSAM has no
-built-in factor for are in :mod:`odofuse.estimators.graph.custom_factors`.
+frozen-calibration variants iSAM2 switches to, the between factors of a walking gyro bias
+(one bias variable per keyframe interval, :meth:`Factors.bias_segment`); and the noise
+models (:func:`robust_noise`, Huber / Cauchy / Tukey, and the floored odometry covariance).
+The factors GTSAM has no built-in factor for are in
+:mod:`odofuse.estimators.graph.custom_factors`.
 """
 
 from __future__ import annotations
@@ -67,7 +69,8 @@ def slip_scales(problem: GraphProblem) -> np.ndarray:
     covariance is widened so that the accumulated wheel heading variance of the run of
     consecutive slipping intervals is the square of its summed disagreement. ``sigma_b`` is
     the bias prior's sigma (the graph estimates the bias, but the noise of a factor must not
-    depend on the solution): a conservative test, never a looser one.
+    depend on the solution): a conservative test, never a looser one. A walking bias
+    (``bias_walk`` > 0) has ``sigma_b^2 + bias_walk^2 (t - t_0)`` at the interval's end ``t``.
 
     Returns
     -------
@@ -90,7 +93,11 @@ def slip_scales(problem: GraphProblem) -> np.ndarray:
     i = np.asarray(inc.interval, dtype=int)
     d = se2.wrap(inc.dtheta - bias * inc.T - problem.deltas[i, 2])
     var_odo = problem.covs[i, 2, 2]
-    var_ref = inc.var + (bias_sigma * inc.T) ** 2
+    sigma_b = bias_sigma
+    if "gyro_bias" in problem.bias_walk:  # the prior of a walking bias widens with time
+        walk = problem.bias_walk["gyro_bias"]
+        sigma_b = np.sqrt(bias_sigma**2 + walk**2 * (problem.kt[i + 1] - problem.kt[0]))
+    var_ref = inc.var + (sigma_b * inc.T) ** 2
     gate = gate_threshold(problem.options.slip_gate, 1)
     run, prev = 0.0, -2
     for n in np.flatnonzero(d * d > gate * (var_odo + var_ref)):
@@ -168,6 +175,9 @@ class Factors:
         self.gyro_created: list = []
         self.odometry_created: list = []  # (keyframe i, factor from i-1 to i)
         self.slip = slip_scales(problem)  # (K-1,) odometry covariance factors (wheel slip)
+        # walking gyro bias (calib name) -> key of its newest segment (the fixed-lag window
+        # keeps that one; older segments leave the window with their keyframes)
+        self.bias_current: dict[str, int] = {n: problem.calib[n][0] for n in problem.bias_walk}
         self._theta_guess: dict[int, float] = {}
 
     def _landmark_variable_needed(self, lid) -> bool:
@@ -321,12 +331,15 @@ class Factors:
         the tangent coordinates of the three variables, so a ``LinearContainerFactor``
         (linearised at the keyframes' initial headings) is that factor exactly, in C++, as
         long as no heading moves by more than pi from its initial value; with a robust loss
-        it is :func:`gyro_increment_factor` (Python).
+        it is :func:`gyro_increment_factor` (Python). A walking bias
+        (:attr:`GraphProblem.bias_walk`) enters through its segment of interval ``i-1``.
         """
         gtsam = self.gtsam
         inc = self.p.gyro[stream]
         dtheta, var, T = float(inc.dtheta[n]), float(inc.var[n]), float(inc.T[n])
         bias_key = self.model_calib(self.p.models[stream]).get("gyro_bias")
+        if bias_key is not None:  # the segment of interval i-1 when the bias walks
+            bias_key = self.p.bias_key(self.p.state_name(stream, "gyro_bias"), i - 1)
         loss, k = self.p.robust.get(stream, ("none", 0.0))
         if bias_key is None:
             nm = gtsam.noiseModel.Diagonal.Precisions(np.array([0.0, 0.0, 1.0 / var]))
@@ -358,6 +371,23 @@ class Factors:
         lin.insert(X(i), gtsam.Pose2(0.0, 0.0, th1))
         lin.insert(bias_key, np.array([b0]))
         return gtsam.LinearContainerFactor(jf, lin)
+
+    def bias_segment(self, name: str, i: int, g, v) -> None:
+        """Adds segment ``i-1`` of the walking bias ``name`` to ``g``/``v`` (keyframe ``i >= 2``).
+
+        A new variable (initial value: the prior's) tied to segment ``i-2`` by GTSAM's
+        ``BetweenFactorVector`` with zero mean and sigma
+        :meth:`GraphProblem.bias_step_sigma`: the random walk, discretised per keyframe
+        interval.
+        """
+        gtsam = self.gtsam
+        j = i - 1
+        key, prev = self.p.bias_key(name, j), self.p.bias_key(name, j - 1)
+        v.insert(key, np.array([self.p.calib[name][1]]))
+        nm = gtsam.noiseModel.Isotropic.Sigma(1, self.p.bias_step_sigma(name, j))
+        g.add(gtsam.BetweenFactorVector(prev, key, np.zeros(1), nm))
+        self.dims[key] = 1
+        self.bias_current[name] = key
 
     def _frozen_beacon_range(self, m, meas, loss, k):
         """A frozen ``s ||p - b|| + o = z`` range as built-in GTSAM factors.
@@ -397,6 +427,9 @@ class Factors:
             self.odometry_created.append((i, f))
             v.insert(X(i), values_guess)
             self.dims[X(i)] = 3
+            if i > 1:
+                for name in self.p.bias_walk:
+                    self.bias_segment(name, i, g, v)
             for stream, n in self.gyro_by_interval.get(i - 1, ()):
                 f = self.gyro(stream, n, i)
                 g.add(f)

@@ -87,10 +87,10 @@ def gyro_error(problem, values, stream: str, n: int) -> float:
     i = int(inc.interval[n])
     b = 0.0
     name = problem.state_name(stream, "gyro_bias")  # a second gyro's own bias
-    if name in problem.calib and values.exists(problem.calib[name][0]):
+    if name in problem.calib and values.exists(problem.bias_key(name, i)):
         m = problem.models[stream]
         if "gyro_bias" in getattr(m, "calib_states", ()):
-            b = float(values.atVector(problem.calib[name][0])[0])
+            b = float(values.atVector(problem.bias_key(name, i))[0])
     th0, th1 = values.atPose2(X(i)).theta(), values.atPose2(X(i + 1)).theta()
     return float(se2.wrap(th1 - th0 + b * float(inc.T[n]) - float(inc.dtheta[n])))
 
@@ -359,8 +359,15 @@ def gauge_findings(problem) -> list[Finding]:
 
 
 def calibration_findings(problem, values) -> list[Finding]:
-    """A finding per calibration variable more than :data:`CALIBRATION_SIGMAS` from its prior."""
-    states = [(name, key, 0, value, sigma) for name, (key, value, sigma) in problem.calib.items()]
+    """A finding per calibration variable more than :data:`CALIBRATION_SIGMAS` from its prior.
+
+    A walking bias is judged by its final value against its prior grown by the walk
+    (:meth:`~odofuse.estimators.graph.problem.GraphProblem.prior_sigma_at_end`).
+    """
+    states = [
+        (name, problem.final_key(name), 0, value, problem.prior_sigma_at_end(name))
+        for name, (_, value, _) in problem.calib.items()
+    ]
     oc = problem.odometry_calibration
     if oc is not None:
         states += [

@@ -79,7 +79,7 @@ def _with_poses(est, poses: np.ndarray, keys):
     for key in keys:
         if gtsam.Symbol(key).chr() != ord("x") and est.exists(key):
             # calibration vectors (c<n>, o0) and landmark / beacon points (l<id>, b<n>)
-            is_vector = gtsam.Symbol(key).chr() in (ord("c"), ord("o"))
+            is_vector = gtsam.Symbol(key).chr() in (ord("c"), ord("o"), ord("w"))
             out.insert(key, est.atVector(key) if is_vector else est.atPoint2(key))
     for i in range(len(poses)):
         out.insert(X(i), gtsam.Pose2(*poses[i]))
@@ -409,7 +409,8 @@ def run_fixed_lag(log, config) -> EstimateResult:
     params = _isam2_params(problem.options)
     smoother = gtsam.IncrementalFixedLagSmoother(lag, params)
     graph, values = fac.static()
-    persistent = [k for k in values.keys() if k != X(0)]
+    walking = set(fac.bias_current.values())  # stamped while current, then marginalised
+    persistent = [k for k in values.keys() if k != X(0) and k not in walking]
     K = len(problem.kt)
     poses = np.empty((K, 3))
     covs = np.empty((K, 3, 3)) if problem.options.covariances else None
@@ -440,7 +441,7 @@ def run_fixed_lag(log, config) -> EstimateResult:
         values.insert(v)
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         stamps.insert((X(i), t))
-        for key in persistent:
+        for key in (*persistent, *fac.bias_current.values()):
             stamps.insert((key, t))
         t0 = time.perf_counter()
         try:
@@ -462,6 +463,7 @@ def run_fixed_lag(log, config) -> EstimateResult:
     else:
         freeze(K)
     poses[:, 2] = se2.wrap(poses[:, 2])
-    final_values = _with_poses(smoother.calculateEstimate(), poses, persistent)
+    final_keys = [*persistent, *fac.bias_current.values()]
+    final_values = _with_poses(smoother.calculateEstimate(), poses, final_keys)
     extra = {"latency": _latency_summary(latency), "lag_s": lag}
     return finish(problem, fac, final_values, covs, "fixed_lag", extra, findings, stitched=True)

@@ -1,8 +1,9 @@
 """GTSAM keys of the graph's variables and the sensor-kind names the graph dispatches on.
 
 Poses are ``x<i>`` (keyframe ``i``), landmarks ``l<id>``, the private beacon copies of frozen
-range factors ``b<n>`` and the sensor calibration states ``c<n>``; the odometry calibration
-vector is ``o0`` (:attr:`odofuse.estimators.graph.problem.GraphProblem.odometry_key`).
+range factors ``b<n>``, the sensor calibration states ``c<n>`` and the later segments of a
+walking gyro bias ``w<n, j>`` (:func:`W`); the odometry calibration vector is ``o0``
+(:attr:`odofuse.estimators.graph.problem.GraphProblem.odometry_key`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,13 @@ def C(i: int) -> int:
     import gtsam
 
     return gtsam.symbol("c", int(i))
+
+
+def W(n: int, j: int) -> int:
+    """GTSAM key of segment ``j >= 1`` of the walking bias whose first segment is ``C(n)``."""
+    import gtsam
+
+    return gtsam.symbol("w", (int(n) << 32) | int(j))
 
 
 def model_kind(model) -> str:

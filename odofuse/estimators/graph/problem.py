@@ -2,7 +2,8 @@
 
 Owns which sensor rows get a factor (inside the odometry span, finite, a known landmark, a
 positive gyro interval) and which are counted as rejected, the keyframe of each row, the
-calibration states with their priors, the robust loss per stream, the pre-integrated
+calibration states with their priors (and the segments of a walking gyro bias,
+:meth:`GraphProblem.bias_key`), the robust loss per stream, the pre-integrated
 odometry and the dead-reckoned initial guess. The factors themselves are made by
 :mod:`odofuse.estimators.graph.factors`.
 """
@@ -27,7 +28,7 @@ from odofuse.estimators.graph.keyframes import (
     preintegrate_gyro,
     wheel_rotation_track,
 )
-from odofuse.estimators.graph.keys import C, model_kind
+from odofuse.estimators.graph.keys import C, W, model_kind
 from odofuse.estimators.graph.loops import (
     STREAM,
     file_odometry,
@@ -96,6 +97,11 @@ class GraphProblem:
         Gyro stream -> :class:`GyroIncrements` (one heading-increment factor per keyframe
         interval; gyro times are not keyframes). Several gyro streams each get their own
         factors and, when calibrated, their own bias (``gyro_bias``, ``gyro_bias:gyro_2``).
+    bias_walk : dict
+        ``calib`` name -> random walk (rad/s/sqrt(s)) of a gyro bias whose ``bias_walk`` is
+        positive. Such a bias is piecewise constant: one variable per keyframe interval
+        (:meth:`bias_key`), consecutive ones tied by :meth:`bias_step_sigma`. Without an entry
+        the bias is one constant variable.
     """
 
     kt: np.ndarray
@@ -120,6 +126,41 @@ class GraphProblem:
     # (stream, model state) -> name in ``calib`` where a stream has its own copy of a state
     # its model shares by name: ``gyro_bias:gyro_2``, the bias of a second gyro
     calib_alias: dict = field(default_factory=dict)
+    bias_walk: dict = field(default_factory=dict)
+
+    def bias_key(self, name: str, interval: int) -> int:
+        """GTSAM key of calibration state ``name`` over keyframe interval ``interval``.
+
+        The state's one key (``calib[name][0]``) unless it walks (:attr:`bias_walk`): then
+        interval 0 has that key (and its prior) and interval ``j >= 1`` its own ``W(n, j)``.
+        """
+        key = self.calib[name][0]
+        if name not in self.bias_walk or interval <= 0:
+            return key
+        import gtsam
+
+        return W(gtsam.Symbol(key).index(), interval)
+
+    def final_key(self, name: str) -> int:
+        """GTSAM key of ``name``'s value at the end of the log (its last segment if it walks)."""
+        return self.bias_key(name, len(self.kt) - 2)
+
+    def bias_step_sigma(self, name: str, j: int) -> float:
+        """rad/s, sigma of ``b_j - b_{j-1}`` for a walking bias (``j >= 1``).
+
+        ``bias_walk * sqrt(tau)`` with ``tau`` the time between the centres of keyframe
+        intervals ``j-1`` and ``j`` (each variable is the bias over its interval).
+        """
+        tau = 0.5 * float(self.kt[j + 1] - self.kt[j - 1])
+        return float(self.bias_walk[name]) * math.sqrt(tau)
+
+    def prior_sigma_at_end(self, name: str) -> float:
+        """The prior sigma of ``name``'s final value: its prior sigma, grown by the walk."""
+        sigma = float(self.calib[name][2])
+        if name not in self.bias_walk:
+            return sigma
+        walk = float(self.bias_walk[name])
+        return math.sqrt(sigma**2 + walk**2 * float(self.kt[-1] - self.kt[0]))
 
     def state_name(self, stream: str, state: str) -> str:
         """The ``calib`` name of ``stream``'s calibration state ``state``."""
@@ -307,6 +348,7 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
 
     calib: dict[str, tuple[int, float, float]] = {}
     alias: dict[tuple[str, str], str] = {}
+    walks: dict[str, float] = {}
     for stream, m in models.items():
         clones = set(getattr(m, "clones", lambda: {})())
         prior = getattr(m, "calib_prior", lambda: {})()
@@ -320,6 +362,9 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
                 continue
             value, sigma = prior.get(state, (0.0, 1.0))
             calib[name] = (C(len(calib)), float(value), float(sigma))
+            walk = float(getattr(m, "calib_walk", dict)().get(state, 0.0))
+            if state == "gyro_bias" and stream in gyro and walk > 0 and kt.size > 2:
+                walks[name] = walk
 
     robust = {s: options.robust.get(s, ("none", 0.0)) for s in models}
     robust[odometry_stream_name(model)] = options.robust.get(
@@ -346,6 +391,7 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         gyro=gyro,
         pose_graph=pose_graph,
         calib_alias=alias,
+        bias_walk=walks,
     )
     if loops_cfg is not None:
         lag = options.lag if estimator == "fixed_lag" else None

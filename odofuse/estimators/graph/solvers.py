@@ -146,9 +146,21 @@ def pose_array(values, K) -> np.ndarray:
 def _extra(problem: GraphProblem, fac: Factors, values, estimator: str) -> dict:
     extra: dict = {"keyframes": int(len(problem.kt)), "python_factors": fac.python_factors}
     cal = {}
-    for name, (key, _, _) in problem.calib.items():
+    for name in problem.calib:  # a walking bias: its value at the end of the log
+        key = problem.final_key(name)
         if values.exists(key):
             cal[name] = float(values.atVector(key)[0])
+    walks = {
+        name: {
+            "bias_walk": float(walk),
+            "segments": int(len(problem.kt) - 1),
+            "first": float(values.atVector(problem.calib[name][0])[0]),
+        }
+        for name, walk in problem.bias_walk.items()
+        if values.exists(problem.calib[name][0])
+    }
+    if walks:
+        extra["calibration_walk"] = walks
     oc = problem.odometry_calibration
     if oc is not None and values.exists(problem.odometry_key):
         vec = values.atVector(problem.odometry_key)
@@ -392,7 +404,7 @@ def run_smoother(log, config) -> EstimateResult:
     covs = None
     if opts.covariances:
         keys = [X(i) for i in range(len(problem.kt))]
-        keys += [key for key, _, _ in problem.calib.values()]
+        keys += [problem.final_key(name) for name in problem.calib]
         landmark_keys = [key for key in fac.landmark_keys.values() if result.exists(key)]
         cov, bad = marginal_covariances(graph, out.values, keys + landmark_keys, fac.dims)
         findings += bad
@@ -401,8 +413,8 @@ def run_smoother(log, config) -> EstimateResult:
             covs = world_covs(problem, poses, cov.__getitem__)
             if problem.calib:
                 extra["calibration_sigma"] = {
-                    name: float(np.sqrt(cov[key][0, 0]))
-                    for name, (key, _, _) in problem.calib.items()
+                    name: float(np.sqrt(cov[problem.final_key(name)][0, 0]))
+                    for name in problem.calib
                 }
             if opts.slam:
                 extra["landmark_covariances"] = landmark_covariances(fac, result, cov.__getitem__)
