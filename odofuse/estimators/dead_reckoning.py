@@ -5,6 +5,12 @@ changes are compared over short windows
 (:func:`odofuse.estimators.pose_checks.gyro_wheel_findings`);
 a disagreement the error models cannot explain (wheel slip, a stuck encoder, a gyro fault)
 becomes a finding, since dead reckoning keeps every such error.
+
+Systematic errors (issue 11): with ``options.dead_reckoning.odometry_calibration`` declared,
+the covariance also carries the prior of the odometry's systematic errors (ds/dtheta scale and
+heading bias, or wheel-radius ratio and track scale: :mod:`odofuse.estimators.odocal`), which
+dead reckoning never observes (:func:`calibration_covariances`). The poses do not change;
+without the option the run is bit-identical to the plain one.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ import numpy as np
 from odofuse.estimators import pose_checks
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.compiled.dead_reckoning import dead_reckon
+from odofuse.estimators.odocal import filter_odometry_calibration
 from odofuse.motion import motion_model_from_config
 from odofuse.trajectory import EstimateResult, Trajectory
 
@@ -28,18 +35,69 @@ def _heading_steps(model, U) -> tuple[np.ndarray, np.ndarray]:
     return d, v
 
 
+def calibration_covariances(model, cal, pose0, t, U, poses, mode: str = "auto") -> np.ndarray:
+    """Pose covariance ``(N+1, 3, 3)`` of the unobserved systematic errors' prior.
+
+    An unscented transform of the constant parameters ``p`` (prior mean ``cal.nominal``,
+    sigmas ``cal.sigma``, ``m`` of them) through the whole integration: ``2 m`` sigma points
+    ``p_i = nominal +- sqrt(m) sigma_i e_i`` (weights ``1 / 2m``, none on the centre), each
+    dead-reckoned with the calibrated inputs ``cal.apply(U, p_i, dt)``, and the second moment
+    of their poses about the estimate ``poses`` (heading differences wrapped). For a linear
+    model this is ``J Sigma_p J^T``, the augmented EKF's prediction without measurements; it
+    stays faithful where the heading uncertainty a bias builds reaches radians, which the
+    linearisation does not (docs/filters.md, "Dead reckoning and systematic errors").
+    The random walk of the filters' calibration states is not modelled.
+
+    Parameters
+    ----------
+    model : MotionModel
+    cal : FilterOdometryCalibration
+    pose0 : ndarray (3,)
+        Initial pose (m, m, rad), world frame.
+    t : ndarray (N+1,)
+        Odometry times (s); ``dt`` of the heading bias.
+    U : ndarray (N, n)
+        Drive inputs.
+    poses : ndarray (N+1, 3)
+        The dead-reckoned estimate (nominal parameters).
+    mode : str
+        ``options.dead_reckoning.compiled``.
+
+    Returns
+    -------
+    ndarray (N+1, 3, 3)
+        To be added to the white-noise covariance of the same poses (independent sources).
+    """
+    nominal, sigma = np.asarray(cal.nominal), np.asarray(cal.sigma)
+    m = len(nominal)
+    dt = np.diff(np.asarray(t, dtype=float))
+    C = np.zeros((len(poses), 3, 3))
+    for i in range(m):
+        for sign in (1.0, -1.0):
+            p = nominal.copy()
+            p[i] += sign * np.sqrt(m) * sigma[i]
+            q, _ = dead_reckon(model, pose0, np.zeros((3, 3)), cal.apply(U, p, dt), False, mode)
+            d = q - poses
+            d[:, 2] = (d[:, 2] + np.pi) % (2.0 * np.pi) - np.pi
+            C += d[:, :, None] * d[:, None, :] / (2.0 * m)
+    return C
+
+
 def run(log, config) -> EstimateResult:
     """Integrate the log's odometry from the initial state (vectorised, with covariance)."""
     model = motion_model_from_config(config)
     t, U = odometry_inputs(log, model)
     pose0, P0 = initial_state(config, log)
-    mode = config.estimator_options("dead_reckoning").compiled
+    opts = config.estimator_options("dead_reckoning")
+    mode = opts.compiled
     poses, covs = dead_reckon(model, pose0, P0, U, mode=mode)  # numba core or numpy
+    cal = filter_odometry_calibration(model, opts, "options.dead_reckoning", config.source)
+    if cal is not None:
+        covs += calibration_covariances(model, cal, pose0, t, U, poses, mode)
     stream = odometry_stream_name(model)
     findings = []
     gyro = log.streams.get("gyro")
     if gyro is not None and len(gyro) > 1 and "wz" in gyro.columns:
-        opts = config.estimator_options("dead_reckoning")
         sigma = float(getattr(config.sensors.get("gyro"), "sigma", 0.0) or 0.0)
         d, v = _heading_steps(model, U)
         findings = pose_checks.gyro_wheel_findings(t, d, v, gyro.t, gyro["wz"], sigma, opts)
