@@ -4,7 +4,8 @@
 errors, unobserved, to the covariance (:func:`odofuse.estimators.dead_reckoning.
 calibration_covariances`). Checked here: the poses never change and the plain run stays
 bit-identical; for small sigmas the term equals the augmented EKF's prediction without
-measurements; on simulated increment robots whose true systematic errors are drawn from the
+measurements (the estimate is quasi-Monte Carlo over the prior, exact in every regime up to its
+sampling error); on simulated increment robots whose true systematic errors are drawn from the
 declared prior the position NEES is inside issue 11's band (0.5x-2x of its dimension) where the
 plain covariance is far above it; on Plaza2 the Plaza1 configs' default prior brings the NEES
 into the band (RMSE unchanged).
@@ -94,22 +95,23 @@ def test_calibration_keeps_the_poses_and_only_widens_the_covariance():
 
 
 def test_small_prior_equals_the_augmented_ekf_prediction_without_measurements():
-    """In the linear regime the unscented term is ``J Sigma_p J^T``: the pose block of the
-    EKF's augmented prediction (odometry-calibration states, no walk, no sensor) minus the
-    same EKF without them."""
+    """In the linear regime the prior's term is ``J Sigma_p J^T``: the pose block of the EKF's
+    augmented prediction (odometry-calibration states, no walk, no sensor) minus the same EKF
+    without them. The quasi-Monte Carlo estimate is within 2 % of each step's largest entry
+    (0.9 % measured with 256 draws)."""
     log = _simulated((1.0, 1.0, 0.0), seed=2, steps=800)
     sig = [1e-4, 1e-4, 1e-5]
     ekf = {"odometry_calibration_sigma": sig, "odometry_calibration_walk": [0.0] * 3}
     with_cal = run_estimator("ekf", log, _config("ekf", odometry_calibration=True, **ekf))
     without = run_estimator("ekf", log, _config("ekf"))
-    linear = with_cal.trajectory.covariances - without.trajectory.covariances
+    linear = (with_cal.trajectory.covariances - without.trajectory.covariances)[1:]
     cfg = _config(odometry_calibration=True, odometry_calibration_sigma=sig)
     dr = run_estimator("dead_reckoning", log, cfg)
     plain = run_estimator("dead_reckoning", log, _config())
-    unscented = dr.trajectory.covariances - plain.trajectory.covariances
-    scale = np.abs(linear[-1]).max()
-    assert scale > 1e-6
-    np.testing.assert_allclose(unscented, linear, rtol=0, atol=1e-3 * scale)
+    qmc = (dr.trajectory.covariances - plain.trajectory.covariances)[1:]
+    scale = np.abs(linear).max(axis=(1, 2))
+    assert scale[-1] > 1e-6
+    assert np.all(np.abs(qmc - linear).max(axis=(1, 2)) <= 0.02 * scale)
 
 
 def test_nees_is_in_band_when_the_true_errors_come_from_the_declared_prior():
@@ -120,13 +122,13 @@ def test_nees_is_in_band_when_the_true_errors_come_from_the_declared_prior():
     with_cal, plain = [], []
     for seed in range(40):
         p = np.array([1.0, 1.0, 0.0]) + rng.normal(0.0, 1.0, 3) * SIGMA
-        log = _simulated(p, seed=seed)
+        log = _simulated(p, seed=seed, steps=1500)
         with_cal.append(metrics(run_estimator("dead_reckoning", log, cal_cfg), log))
         plain.append(metrics(run_estimator("dead_reckoning", log, _config()), log))
     nees = np.mean([m["nees_position_mean"] for m in with_cal])
     nees0 = np.mean([m["nees_position_mean"] for m in plain])
-    assert 1.0 <= nees <= 4.0, nees
-    assert nees0 > 4.0 * nees, nees0
+    assert 1.0 <= nees <= 4.0, nees  # 1.54 (median 0.78: heavy-tailed across robots)
+    assert nees0 > 4.0 * nees, nees0  # 89
     for a, b in zip(with_cal, plain, strict=True):
         assert a["ate_rmse_m"] == b["ate_rmse_m"]
 
@@ -178,6 +180,6 @@ def test_plaza2_with_the_plaza1_default_prior():
         assert m1["ate_rmse_m"] == m0["ate_rmse_m"]
         out[name] = m0["nees_position_mean"], m1["nees_position_mean"]
     assert out["builtin:plaza2"][0] > 30.0  # 38.6: the heading bias the white noise misses
-    assert 1.0 <= out["builtin:plaza2"][1] <= 4.0  # 2.83 with the prior
-    # Plaza1's own bias is far smaller than the prior: underconfident (0.32 -> 0.014).
+    assert 1.0 <= out["builtin:plaza2"][1] <= 4.0  # 1.59 with the prior
+    # Plaza1's own bias is far smaller than the prior: underconfident (0.32 -> 0.015).
     assert out["builtin:plaza1"][1] < out["builtin:plaza1"][0]
