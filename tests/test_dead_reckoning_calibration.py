@@ -183,3 +183,24 @@ def test_plaza2_with_the_plaza1_default_prior():
     assert 1.0 <= out["builtin:plaza2"][1] <= 4.0  # 1.59 with the prior
     # Plaza1's own bias is far smaller than the prior: underconfident (0.32 -> 0.015).
     assert out["builtin:plaza1"][1] < out["builtin:plaza1"][0]
+
+
+@pytest.mark.parametrize("estimator", ["dead_reckoning", "ekf"])
+def test_several_wheels_per_side_are_refused_not_misread(estimator):
+    """The calibrated input reads inputs 0 and 1 as left and right: with two wheels per side
+    those are left1 and left2 (the EKF ran on them, silently wrong), so it is a config error."""
+    t = np.arange(50) * 0.1
+    wheels = np.cumsum(np.ones((50, 4)) * [1.0, 1.0, 1.1, 1.1], axis=0) * 0.1
+    names = ("left1", "left2", "right1", "right2")
+    log = SensorLog("sim", {"wheels": Stream("wheels", "sim", t, names, wheels)}, {})
+    robot = {"drive": "differential", "wheel_radius": 0.1, "track_width": 0.5}
+    cfg = RunConfig(
+        log="sim",
+        robot={**robot, "wheels_per_side": 2},
+        estimator=estimator,
+        options={estimator: {"odometry_calibration": True}},
+        source="four.yaml",
+    )
+    with pytest.raises(ConfigError, match="one wheel per side") as info:
+        run_estimator(estimator, log, cfg)
+    assert info.value.key == f"options.{estimator}.odometry_calibration"

@@ -119,6 +119,14 @@ def filter_odometry_calibration(model, options, key: str, source: str):
     )
     if base is None:
         return None
+    if base.drive != "increments" and tuple(model.drive.input_names) != ("left", "right"):
+        # the transformation reads inputs 0 and 1 as the left and right wheel
+        raise ConfigError(
+            "odometry calibration needs one wheel per side (inputs left, right), not "
+            f"{', '.join(model.drive.input_names)}",
+            file=source,
+            key=f"{key}.odometry_calibration",
+        )
     # Dead reckoning declares no walk: it propagates the prior alone (dead_reckoning.py).
     walk = getattr(options, "odometry_calibration_walk", None)
     if walk is None:
