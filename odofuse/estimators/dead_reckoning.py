@@ -36,7 +36,8 @@ def _heading_steps(model, U) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: Draws of the systematic errors' prior (scrambled Sobol points, seeded: the result is
-#: deterministic); the covariance's sampling error is about 1-3 % (tests).
+#: deterministic); in the linear regime the covariance is within 0.9 % of the exact
+#: ``J Sigma_p J^T`` (each step's largest entry; 3 % with 64 draws, 0.3 % with 1024).
 CALIBRATION_DRAWS = 256
 
 
