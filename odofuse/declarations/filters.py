@@ -33,7 +33,8 @@ def _compiled_option():
 
 @dataclass(frozen=True)
 class DeadReckoningOptions:
-    """``options.dead_reckoning``: the gyro-vs-wheels heading check (when a gyro is logged)."""
+    """``options.dead_reckoning``: the gyro-vs-wheels heading check (when a gyro is logged),
+    the compiled core and the prior of the odometry's systematic errors."""
 
     heading_window: float = option(
         1.0,
@@ -51,6 +52,20 @@ class DeadReckoningOptions:
         0.01, unit="rad/s", doc="prior sigma of an unmodelled gyro bias in that test", **_NONNEG
     )
     compiled: str = _compiled_option()
+    odometry_calibration: bool = option(
+        False,
+        unit="-",
+        doc=(
+            "widen the covariance by the prior of the odometry's systematic errors, "
+            "unobserved (as options.ekf.odometry_calibration; docs/filters.md)"
+        ),
+    )
+    odometry_calibration_sigma: tuple[float, ...] | None = option(
+        None,
+        unit="-, -, rad/s",
+        doc="prior sigmas of those errors; null: the graph's defaults (docs/filters.md)",
+        **_POSITIVE,
+    )
 
 
 @dataclass(frozen=True)

@@ -106,7 +106,8 @@ def filter_odometry_calibration(model, options, key: str, source: str):
     """The run's :class:`FilterOdometryCalibration`, or None when it is off.
 
     ``options`` are the filter's typed options (``odometry_calibration``,
-    ``odometry_calibration_sigma``, ``odometry_calibration_walk``).
+    ``odometry_calibration_sigma``, ``odometry_calibration_walk``), or dead reckoning's (no
+    walk: the default walk is set and not used).
     """
     if not getattr(options, "odometry_calibration", False):
         return None
@@ -118,7 +119,16 @@ def filter_odometry_calibration(model, options, key: str, source: str):
     )
     if base is None:
         return None
-    walk = options.odometry_calibration_walk
+    if base.drive != "increments" and tuple(model.drive.input_names) != ("left", "right"):
+        # the transformation reads inputs 0 and 1 as the left and right wheel
+        raise ConfigError(
+            "odometry calibration needs one wheel per side (inputs left, right), not "
+            f"{', '.join(model.drive.input_names)}",
+            file=source,
+            key=f"{key}.odometry_calibration",
+        )
+    # Dead reckoning declares no walk: it propagates the prior alone (dead_reckoning.py).
+    walk = getattr(options, "odometry_calibration_walk", None)
     if walk is None:
         walk = tuple(DEFAULT_WALK[s] for s in base.names)
     elif len(walk) != len(base.names):
