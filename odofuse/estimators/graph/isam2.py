@@ -444,7 +444,11 @@ def run_fixed_lag(log, config) -> EstimateResult:
 
     Each keyframe's pose (and world-frame covariance) is the one held just before it leaves
     the window, i.e. smoothed with ``lag`` seconds of future data; memory is bounded by the
-    window. Calibration and landmark variables are kept in the window.
+    window. Calibration and landmark variables are kept in the window, so each covariance is
+    the marginal of the window's joint (the calibration's uncertainty included), taken with
+    the estimate; the calibration vectors are relinearised at every check
+    (:func:`_fixed_lag_params`) so that it is the marginal at that estimate. Keyframes still
+    in the window at the end get the final estimate (less than ``lag`` s of future data).
     """
     import gtsam
 
