@@ -1,7 +1,8 @@
 """Incremental graph solvers: iSAM2 with the calibration freeze, and the fixed-lag smoother.
 
-Owns :func:`run_isam2` (one ``ISAM2.update`` per keyframe, its latency figures and the
-``calibration_freeze`` of converged sensor and odometry calibration states) and
+Owns :func:`run_isam2` (one ``ISAM2.update`` per keyframe, its latency figures, the
+``calibration_freeze`` of converged sensor and odometry calibration states, and the final
+batch LM pass that makes its result the optimum of iSAM2's own graph) and
 :func:`run_fixed_lag`
 (GTSAM's ``IncrementalFixedLagSmoother``, each keyframe's pose taken just before it leaves
 the window), with the iSAM2 parameters both use.
