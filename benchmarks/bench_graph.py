@@ -1,7 +1,7 @@
 """Benchmarks of the factor-graph back end (prints figures and ratios; asserts nothing).
 
-Run: ``python benchmarks/bench_graph.py [plaza|isam2|hour|gyro|all] [--custom]
-[--seconds S]``
+Run: ``python benchmarks/bench_graph.py [plaza|isam2|isam2-ratios|hour|gyro|all] [--custom]
+[--seconds S] [--repeat N]``
 
 * ``plaza``: Plaza1 batch smoothing with odofuse (``run_smoother``, no covariances) against a
   minimal hand-written GTSAM script that builds the same graph from the same arrays
@@ -18,6 +18,11 @@ Run: ``python benchmarks/bench_graph.py [plaza|isam2|hour|gyro|all] [--custom]
   600 s); then a one-hour simulated log (50 Hz odometry, 1 Hz GPS) without and with odometry
   calibration. Each prints the last-to-first-quarter ratio of the median (target <= 1.5),
   and GTSAM's own update on a plain chain of the same length is printed as the reference.
+* ``isam2-ratios [--repeat N]``: issue 17's four judged iSAM2 cases (Plaza1 packaged config,
+  Plaza1 built-in factors without calibration, the one-hour log without and with odometry
+  calibration + freeze), each run N times (default 3): per run the last-to-first-quarter
+  ratio of the median ``ISAM2.update`` and whole step (CPU time), then the median of the N
+  ratios (single runs on a shared machine move a quarter's median by up to 2x).
 * ``hour``: a one-hour 100 Hz simulated log (360 000 odometry steps, 1 Hz GPS) smoothed in
   batch; wall time (target <= 60 s) and peak resident memory (target <= 2 GiB).
 * ``gyro``: iSAM2 and the fixed-lag smoother on a simulated 100 Hz odometry log (``--seconds``,
@@ -179,7 +184,7 @@ def bench_plaza(custom=False):
 def bench_isam2():
     import yaml
 
-    from odofuse.config import RunConfig, config_from_dict
+    from odofuse.config import config_from_dict
     from odofuse.estimators.graph import isam2, run_isam2
     from odofuse.evaluation import ate, trajectory_from_stream
     from odofuse.io.builtin import load_builtin
@@ -234,20 +239,8 @@ def bench_isam2():
             _print_gtsam_chain(len(res.trajectory))
     # a one-hour simulated log (50 Hz odometry, 1 Hz GPS): 3600 keyframes
     log = simulate_hour(rate=50.0)
-    base = {
-        "log": "sim",
-        "robot": {"drive": "increments"},
-        "motion": {"integrator": "exact", "k": [1e-4, 1e-4], "var_floor": [1e-8, 1e-8]},
-        "estimator": "isam2",
-        "initial": {"pose": [0, 0, 0], "sigma": [0.1, 0.1, 0.05]},
-        "sensors": {"gps": {"sigma": 0.5}},
-    }
-    calibrated = {
-        "odometry_calibration": True,
-        "calibration_freeze": {"rel_change": 0.1, "window": 300.0},
-    }
-    for label, options in (("no calibration", {}), ("odometry calibration + freeze", calibrated)):
-        cfg = RunConfig(**base, options={"isam2": options})
+    for label, calibrated in (("no calibration", False), ("odometry calibration + freeze", True)):
+        cfg = _hour_config(calibrated)
         t0 = time.perf_counter()
         res = run_isam2(log, cfg)
         wall = time.perf_counter() - t0
@@ -255,6 +248,62 @@ def bench_isam2():
         print(f"simulated 1 h, 50 Hz, 1 Hz GPS iSAM2, {label}: {wall:.1f} s, RMSE {rmse:.3f} m")
         _print_quarters(res)
     _print_gtsam_chain(len(res.trajectory))
+
+
+def _hour_config(calibrated: bool):
+    """The one-hour log's iSAM2 config, without or with odometry calibration + its freeze."""
+    from odofuse.config import RunConfig
+
+    options = (
+        {"odometry_calibration": True, "calibration_freeze": {"rel_change": 0.1, "window": 300.0}}
+        if calibrated
+        else {}
+    )
+    return RunConfig(
+        log="sim",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-4, 1e-4], "var_floor": [1e-8, 1e-8]},
+        estimator="isam2",
+        initial={"pose": [0, 0, 0], "sigma": [0.1, 0.1, 0.05]},
+        sensors={"gps": {"sigma": 0.5}},
+        options={"isam2": options},
+    )
+
+
+def bench_isam2_ratios(repeat: int = 3) -> None:
+    """Issue 17's judged cases, ``repeat`` runs each: last/first-quarter median ratios."""
+    from odofuse.config import load_config
+    from odofuse.estimators.graph import isam2, run_isam2
+    from odofuse.io.builtin import load_builtin
+
+    isam2._clock = time.thread_time  # CPU time of this thread, as in bench_isam2
+    plaza, hour = load_builtin("builtin:plaza1"), simulate_hour(rate=50.0)
+    cases = (
+        (
+            "Plaza1, configs/plaza1-isam2.yaml",
+            plaza,
+            load_config(REPO / "configs" / "plaza1-isam2.yaml"),
+        ),
+        ("Plaza1, built-in factors, no calibration", plaza, _plaza_config("isam2")),
+        ("1 h log, no calibration", hour, _hour_config(False)),
+        ("1 h log, odometry calibration + freeze", hour, _hour_config(True)),
+    )
+    print(f"iSAM2 last/first-quarter median latency (CPU time), {repeat} runs each (target <= 1.5)")
+    for label, log, cfg in cases:
+        ratios = {"latency": [], "latency_step": []}
+        for _ in range(repeat):
+            res = run_isam2(log, cfg)
+            for key, r in ratios.items():
+                q = res.extra[key]["quarters_median_ms"]
+                r.append(q[-1] / q[0])
+        print(
+            f"  {label}: ISAM2.update",
+            " ".join(f"{r:.2f}" for r in ratios["latency"]),
+            f"(median {np.median(ratios['latency']):.2f}x); whole step",
+            " ".join(f"{r:.2f}" for r in ratios["latency_step"]),
+            f"(median {np.median(ratios['latency_step']):.2f}x);",
+            f"final LM {res.extra['final_s']:.1f} s",
+        )
 
 
 def _print_gtsam_chain(n: int) -> None:
@@ -430,6 +479,9 @@ if __name__ == "__main__":
         bench_plaza("--custom" in sys.argv)
     if what in ("isam2", "all"):
         bench_isam2()
+    if what == "isam2-ratios":
+        n = int(sys.argv[sys.argv.index("--repeat") + 1]) if "--repeat" in sys.argv else 3
+        bench_isam2_ratios(n)
     if what in ("hour", "all"):
         bench_hour()
     if what in ("gyro", "all"):
