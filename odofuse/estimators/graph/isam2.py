@@ -437,7 +437,8 @@ def _slam_result(problem, isam, fac, extra, findings=()) -> EstimateResult:
 
 def _fixed_lag_params(problem: GraphProblem):
     """iSAM2 parameters of the fixed-lag smoother: :func:`_isam2_params`, but the calibration
-    vectors (sensor states ``c<n>``, the odometry calibration ``o0``) are relinearised at
+    vectors (sensor states ``c<n>`` and a walking bias's segments ``w``, the odometry
+    calibration ``o0``) are relinearised at
     every relinearisation check in which they moved at all.
 
     With the common ``relinearize_threshold`` (0.1) a calibration state that converges by less
@@ -460,7 +461,7 @@ def _fixed_lag_params(problem: GraphProblem):
     -------
     gtsam.ISAM2Params
         With a per-variable-type threshold map: ``relinearize_threshold`` for poses
-        (``x``) and points (``l``, ``b``), 0 for ``c`` and ``o``.
+        (``x``) and points (``l``, ``b``), 0 for ``c``, ``w`` and ``o``.
     """
     import gtsam
 
@@ -473,6 +474,7 @@ def _fixed_lag_params(problem: GraphProblem):
         ("l", 2, r),
         ("b", 2, r),
         ("c", 1, 0.0),
+        ("w", 1, 0.0),  # a walking gyro bias's later segments, calibration like c<n>
         ("o", len(oc.nominal) if oc is not None else 1, 0.0),
     ):
         thresholds.insert((kind, np.full(dim, value)))
