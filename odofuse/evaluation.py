@@ -179,8 +179,12 @@ def ate(est: Trajectory, gt: Trajectory, align: bool = False) -> ATE:
     if align:
         if idx.size < 2:
             raise InputError("alignment needs at least two poses that overlap the ground truth")
-        every = idx.size == len(est)  # all poses scored: the positions as a view, no copy
-        r, t, _ = align_se2(est.poses[:, :2] if every else est.poses[idx, :2], g[:, :2])
+        # one run of consecutive poses scored (all, or all but the start before the truth's
+        # first stamp): the positions as a view, no copy
+        run = idx[-1] - idx[0] + 1 == idx.size
+        xy = est.poses[idx[0] : idx[-1] + 1, :2] if run else est.poses[idx, :2]
+        r, t, _ = align_se2(xy, g[:, :2])
+        del xy
     d, rot = np.empty(idx.size), np.empty(idx.size)
     for b in pose_blocks(idx.size):
         pb = est.poses[idx[b]]
@@ -250,8 +254,11 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
         del steps
     else:
         s = est.t[idx]
-    j = np.searchsorted(s, s + delta * (1 - 1e-12), side="left")
+    j = np.empty(s.size, dtype=np.intp)  # the first pose delta on from each, in blocks
+    for b in pose_blocks(s.size):
+        j[b] = np.searchsorted(s, s[b] + delta * (1 - 1e-12), side="left")
     pairs = int(np.count_nonzero(j < len(s)))  # j is non-decreasing: pairs start at 0..pairs-1
+    del s
     if pairs == 0:
         return RPE(math.nan, math.nan, 0, float(delta), unit)
     t_err, r_err = np.empty(pairs), np.empty(pairs)
@@ -261,9 +268,10 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
         err = _between(_between(g[b], g[jb]), _between(e_i, e_j))
         t_err[b] = np.linalg.norm(err[:, :2], axis=1)
         r_err[b] = np.abs(wrap(err[:, 2]))
-    return RPE(
-        float(np.sqrt(np.mean(t_err**2))),
-        float(np.sqrt(np.mean(r_err**2))),
+    del idx, g, j
+    return RPE(  # squared in place: the same mean as of t_err**2, without its copy
+        float(np.sqrt(np.mean(np.square(t_err, out=t_err)))),
+        float(np.sqrt(np.mean(np.square(r_err, out=r_err)))),
         pairs,
         float(delta),
         unit,
@@ -429,6 +437,7 @@ def metrics(
         a = ate(traj, gt)
         out["ate_rmse_m"] = a.rmse_m
         out["final_error_m"] = a.final_m
+        del a  # its per-pose errors: not held through the passes below
         if np.count_nonzero((traj.t >= gt.t[0]) & (traj.t <= gt.t[-1])) >= 2:
             out["ate_aligned_rmse_m"] = ate(traj, gt, align=True).rmse_m
         r = rpe(traj, gt, rpe_delta_m, "m")
