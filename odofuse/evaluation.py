@@ -142,7 +142,8 @@ def associate(est: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]:
             f"estimate times [{est.t[0]:.6g}, {est.t[-1]:.6g}] s do not overlap the "
             f"ground truth [{gt.t[0]:.6g}, {gt.t[-1]:.6g}] s"
         )
-    return idx, interpolate_poses(gt, np.clip(est.t[idx], gt.t[0], gt.t[-1]))
+    t = est.t[idx]
+    return idx, interpolate_poses(gt, np.clip(t, gt.t[0], gt.t[-1], out=t))  # clipped in place
 
 
 @dataclass(frozen=True)
@@ -363,15 +364,17 @@ def _coverage(out: dict, traj: Trajectory, gt: Trajectory) -> list:
 
     mask = covered(traj.t, gt.t)
     span = float(traj.t[-1] - traj.t[0])
-    t_in = traj.t[mask]
+    scored = int(mask.sum())
+    first, last = int(np.argmax(mask)), mask.size - 1 - int(np.argmax(mask[::-1]))
     # Time covered: the estimate's steps whose both ends are scored.
     steps = np.diff(traj.t)[mask[1:] & mask[:-1]] if traj.t.size > 1 else np.empty(0)
     covered_s = float(steps.sum())
+    del steps
     out["groundtruth"] = {
-        "poses_scored": int(mask.sum()),
+        "poses_scored": scored,
         "poses": len(traj),
-        "t_start": float(t_in[0]) if t_in.size else None,
-        "t_end": float(t_in[-1]) if t_in.size else None,
+        "t_start": float(traj.t[first]) if scored else None,
+        "t_end": float(traj.t[last]) if scored else None,
         "covered_s": covered_s,
         "estimate_span_s": span,
     }
@@ -380,7 +383,7 @@ def _coverage(out: dict, traj: Trajectory, gt: Trajectory) -> list:
             Finding(
                 "scoring",
                 f"ground truth covers {covered_s:.3g} s of the estimate's {span:.3g} s "
-                f"({int(mask.sum())} of {len(traj)} poses): the scores describe only that part",
+                f"({scored} of {len(traj)} poses): the scores describe only that part",
                 t_start=out["groundtruth"]["t_start"],
                 t_end=out["groundtruth"]["t_end"],
                 figure=covered_s / span,
