@@ -142,7 +142,8 @@ def associate(est: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]:
             f"estimate times [{est.t[0]:.6g}, {est.t[-1]:.6g}] s do not overlap the "
             f"ground truth [{gt.t[0]:.6g}, {gt.t[-1]:.6g}] s"
         )
-    return idx, interpolate_poses(gt, np.clip(est.t[idx], gt.t[0], gt.t[-1]))
+    t = est.t[idx]
+    return idx, interpolate_poses(gt, np.clip(t, gt.t[0], gt.t[-1], out=t))  # clipped in place
 
 
 @dataclass(frozen=True)
@@ -179,8 +180,12 @@ def ate(est: Trajectory, gt: Trajectory, align: bool = False) -> ATE:
     if align:
         if idx.size < 2:
             raise InputError("alignment needs at least two poses that overlap the ground truth")
-        every = idx.size == len(est)  # all poses scored: the positions as a view, no copy
-        r, t, _ = align_se2(est.poses[:, :2] if every else est.poses[idx, :2], g[:, :2])
+        # one run of consecutive poses scored (all, or all but the start before the truth's
+        # first stamp): the positions as a view, no copy
+        run = idx[-1] - idx[0] + 1 == idx.size
+        xy = est.poses[idx[0] : idx[-1] + 1, :2] if run else est.poses[idx, :2]
+        r, t, _ = align_se2(xy, g[:, :2])
+        del xy
     d, rot = np.empty(idx.size), np.empty(idx.size)
     for b in pose_blocks(idx.size):
         pb = est.poses[idx[b]]
@@ -250,8 +255,11 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
         del steps
     else:
         s = est.t[idx]
-    j = np.searchsorted(s, s + delta * (1 - 1e-12), side="left")
+    j = np.empty(s.size, dtype=np.intp)  # the first pose delta on from each, in blocks
+    for b in pose_blocks(s.size):
+        j[b] = np.searchsorted(s, s[b] + delta * (1 - 1e-12), side="left")
     pairs = int(np.count_nonzero(j < len(s)))  # j is non-decreasing: pairs start at 0..pairs-1
+    del s
     if pairs == 0:
         return RPE(math.nan, math.nan, 0, float(delta), unit)
     t_err, r_err = np.empty(pairs), np.empty(pairs)
@@ -261,9 +269,10 @@ def rpe(est: Trajectory, gt: Trajectory, delta: float = 10.0, unit: str = "m") -
         err = _between(_between(g[b], g[jb]), _between(e_i, e_j))
         t_err[b] = np.linalg.norm(err[:, :2], axis=1)
         r_err[b] = np.abs(wrap(err[:, 2]))
-    return RPE(
-        float(np.sqrt(np.mean(t_err**2))),
-        float(np.sqrt(np.mean(r_err**2))),
+    del idx, g, j
+    return RPE(  # squared in place: the same mean as of t_err**2, without its copy
+        float(np.sqrt(np.mean(np.square(t_err, out=t_err)))),
+        float(np.sqrt(np.mean(np.square(r_err, out=r_err)))),
         pairs,
         float(delta),
         unit,
@@ -355,15 +364,17 @@ def _coverage(out: dict, traj: Trajectory, gt: Trajectory) -> list:
 
     mask = covered(traj.t, gt.t)
     span = float(traj.t[-1] - traj.t[0])
-    t_in = traj.t[mask]
+    scored = int(mask.sum())
+    first, last = int(np.argmax(mask)), mask.size - 1 - int(np.argmax(mask[::-1]))
     # Time covered: the estimate's steps whose both ends are scored.
     steps = np.diff(traj.t)[mask[1:] & mask[:-1]] if traj.t.size > 1 else np.empty(0)
     covered_s = float(steps.sum())
+    del steps
     out["groundtruth"] = {
-        "poses_scored": int(mask.sum()),
+        "poses_scored": scored,
         "poses": len(traj),
-        "t_start": float(t_in[0]) if t_in.size else None,
-        "t_end": float(t_in[-1]) if t_in.size else None,
+        "t_start": float(traj.t[first]) if scored else None,
+        "t_end": float(traj.t[last]) if scored else None,
         "covered_s": covered_s,
         "estimate_span_s": span,
     }
@@ -372,7 +383,7 @@ def _coverage(out: dict, traj: Trajectory, gt: Trajectory) -> list:
             Finding(
                 "scoring",
                 f"ground truth covers {covered_s:.3g} s of the estimate's {span:.3g} s "
-                f"({int(mask.sum())} of {len(traj)} poses): the scores describe only that part",
+                f"({scored} of {len(traj)} poses): the scores describe only that part",
                 t_start=out["groundtruth"]["t_start"],
                 t_end=out["groundtruth"]["t_end"],
                 figure=covered_s / span,
@@ -429,6 +440,7 @@ def metrics(
         a = ate(traj, gt)
         out["ate_rmse_m"] = a.rmse_m
         out["final_error_m"] = a.final_m
+        del a  # its per-pose errors: not held through the passes below
         if np.count_nonzero((traj.t >= gt.t[0]) & (traj.t <= gt.t[-1])) >= 2:
             out["ate_aligned_rmse_m"] = ate(traj, gt, align=True).rmse_m
         r = rpe(traj, gt, rpe_delta_m, "m")

@@ -22,7 +22,7 @@ import numpy as np
 from odofuse.errors import InputError
 from odofuse.io.atomic import atomic_write, atomic_write_text
 from odofuse.se2 import wrap
-from odofuse.trajectory import Trajectory
+from odofuse.trajectory import Trajectory, pose_blocks
 
 CSV_HEADER = (
     "t",
@@ -212,13 +212,18 @@ def evo_t_max_diff(t_est, t_gt) -> float:
     ``t_max_diff``: this is the largest such distance over the estimate poses within the
     ground truth's time span (0 when they share stamps).
     """
-    t_est, t_gt = np.asarray(t_est, dtype=float), np.sort(np.asarray(t_gt, dtype=float))
-    t_est = t_est[(t_est >= t_gt[0]) & (t_est <= t_gt[-1])]
-    if t_est.size == 0:
-        return math.nan
-    i = np.clip(np.searchsorted(t_gt, t_est), 1, t_gt.size - 1)
-    gap = np.minimum(np.abs(t_est - t_gt[i - 1]), np.abs(t_gt[i] - t_est))
-    return float(gap.max())
+    t_est, t_gt = np.asarray(t_est, dtype=float), np.asarray(t_gt, dtype=float)
+    if np.any(t_gt[1:] < t_gt[:-1]):
+        t_gt = np.sort(t_gt)
+    largest = -math.inf  # the max over blocks of estimate times: the same value, bounded memory
+    for b in pose_blocks(t_est.size):
+        tb = t_est[b]
+        tb = tb[(tb >= t_gt[0]) & (tb <= t_gt[-1])]
+        if tb.size:
+            i = np.clip(np.searchsorted(t_gt, tb), 1, t_gt.size - 1)
+            gap = np.minimum(np.abs(tb - t_gt[i - 1]), np.abs(t_gt[i] - tb))
+            largest = max(largest, float(gap.max()))
+    return math.nan if largest == -math.inf else largest
 
 
 def read_trajectory_csv(path: str | Path) -> Trajectory:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from odofuse.errors import OdofuseError
+from odofuse.evaluation import trajectory_from_stream
 from odofuse.io.atomic import claim_folder, clean_stale, publish, temp_folder
 from odofuse.outputs import (
     evo_t_max_diff,
@@ -28,7 +29,7 @@ from odofuse.outputs import (
     write_trajectory_csv,
     write_tum,
 )
-from odofuse.trajectory import EstimateResult, Trajectory
+from odofuse.trajectory import EstimateResult
 
 OUTPUT_NAMES = (
     "trajectory.csv",
@@ -108,7 +109,7 @@ def write_outputs(
                     result.extra.get("landmark_covariances"),
                 )
             if gt is not None and len(gt):
-                gt_traj = Trajectory(gt.t, np.column_stack([gt["x"], gt["y"], gt["theta"]]))
+                gt_traj = trajectory_from_stream(gt)  # the log's own arrays, not a copy
                 written["groundtruth"] = write_tum(tmp / "groundtruth.tum", gt_traj)
                 t_max = evo_t_max_diff(result.trajectory.t, gt.t)
                 metrics = {**metrics, "evo_t_max_diff_s": t_max}

@@ -240,3 +240,23 @@ def test_bad_groundtruth_cell_named_beyond_the_first_block(monkeypatch):
     with pytest.raises(InputError) as err:
         evaluation.check_groundtruth(gt)
     assert (err.value.file, err.value.row, err.value.column) == ("gt.csv", 59, "y")
+
+
+def test_aligned_ate_scores_the_same_poses_with_and_without_a_gap_in_the_truth():
+    """The aligned ATE aligns exactly the scored poses: one consecutive run (read as a view) or
+    a run broken by a ground-truth gap (gathered), as the alignment of those poses by hand."""
+    from odofuse.evaluation import associate
+
+    est, truth = _wiggly_run()
+    keep = np.ones(len(truth), dtype=bool)
+    keep[20:40] = False  # a gap of 20 samples: the estimate poses inside it are not scored
+    for gt in (
+        Trajectory(truth.t[1:], truth.poses[1:]),
+        Trajectory(truth.t[keep], truth.poses[keep]),
+    ):
+        idx, g = associate(est, gt)
+        r, t, _ = align_se2(est.poses[idx, :2], g[:, :2])
+        moved = apply_alignment(Trajectory(est.t[idx], est.poses[idx]), r, t)
+        want = float(np.sqrt(np.mean(np.sum((moved.poses[:, :2] - g[:, :2]) ** 2, axis=1))))
+        assert ate(est, gt, align=True).rmse_m == pytest.approx(want, rel=1e-12)
+    assert idx.size < len(est) - 1  # the gap left poses unscored

@@ -216,3 +216,20 @@ def test_block_writer_equals_per_row_format(tmp_path, monkeypatch):
     tum = np.column_stack([traj.t, poses[:, :2], np.zeros((n, 3)), np.sin(half), np.cos(half)])
     want_tum = "".join(" ".join(f"{v:.17g}" for v in r) + "\n" for r in tum)
     assert outputs.trajectory_tum_text(traj) == want_tum
+
+
+def test_evo_t_max_diff_in_blocks_is_the_largest_nearest_stamp_distance(monkeypatch):
+    """Blocks of 7 estimate times (unsorted ground truth, times outside its span): the largest
+    distance to the nearest ground-truth stamp, as one whole-array pass computes it."""
+    from odofuse import trajectory
+    from odofuse.outputs import evo_t_max_diff
+
+    monkeypatch.setattr(trajectory, "BLOCK", 7)
+    rng = np.random.default_rng(5)
+    t_gt = np.cumsum(rng.uniform(0.01, 0.2, 40))
+    t_est = np.sort(rng.uniform(t_gt[0] - 1.0, t_gt[-1] + 1.0, 60))
+    inside = t_est[(t_est >= t_gt[0]) & (t_est <= t_gt[-1])]
+    want = max(float(np.abs(t_gt - s).min()) for s in inside)
+    assert evo_t_max_diff(t_est, rng.permutation(t_gt)) == want
+    assert evo_t_max_diff(t_gt, t_gt) == 0.0
+    assert math.isnan(evo_t_max_diff(t_gt[:3] - 10.0, t_gt))
