@@ -223,27 +223,19 @@ def _estimated(name, est, opts):
     return _ESTIMATE_CACHE[key]
 
 
-@pytest.mark.parametrize(
-    ("name", "est", "opts"),
-    [
-        pytest.param(
-            n,
-            e,
-            o,
-            marks=[
-                pytest.mark.xfail(
-                    reason="known silent failure of the filter alone, cross-check off "
-                    "(issue 10): still silent in a live pipeline",
-                    strict=True,
-                )
-            ]
-            if (n, e) in KNOWN_SILENT
-            else [],
-            id=f"{n}-{e}",
-        )
+def _scenario_params(known: set, reason: str) -> list:
+    """Every (scenario, estimator) pair of the trust set; the ``known`` ones strict xfails."""
+    xfail = pytest.mark.xfail(reason=f"known silent failure (issue 10): {reason}", strict=True)
+    return [
+        pytest.param(n, e, o, marks=[xfail] if (n, e) in known else [], id=f"{n}-{e}")
         for n in ts.SIMULATED
         for e, o in _TRUST_ESTIMATORS
-    ],
+    ]
+
+
+@pytest.mark.parametrize(
+    ("name", "est", "opts"),
+    _scenario_params(KNOWN_SILENT, "the filter alone, cross-check off: still silent live"),
 )
 def test_scenarios_have_no_silent_failure(name, est, opts):
     """The estimator alone (filter alone, cross-check off): what a live pipeline has."""
@@ -264,25 +256,9 @@ KNOWN_SILENT_CHECKED = {("gps_outage", "ekf"), ("gps_outage", "particle")}
 
 @pytest.mark.parametrize(
     ("name", "est", "opts"),
-    [
-        pytest.param(
-            n,
-            e,
-            o,
-            marks=[
-                pytest.mark.xfail(
-                    reason="known silent failure through odofuse run's path (issue 10): the "
-                    "smoother's sigma exceeds its realised error",
-                    strict=True,
-                )
-            ]
-            if (n, e) in KNOWN_SILENT_CHECKED
-            else [],
-            id=f"{n}-{e}",
-        )
-        for n in ts.SIMULATED
-        for e, o in _TRUST_ESTIMATORS
-    ],
+    _scenario_params(
+        KNOWN_SILENT_CHECKED, "through odofuse run: the smoother's sigma exceeds its error"
+    ),
 )
 def test_scenarios_as_odofuse_run_does_have_no_silent_failure(name, est, opts):
     """The same runs through the path of ``odofuse run`` (rundir.checked_metrics), with the
