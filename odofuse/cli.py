@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from odofuse.errors import OdofuseError
+from odofuse.errors import OdofuseError, one_line
 
 #: Estimators compared by ``odofuse run`` without a config, each with its packaged config.
 DEFAULT_ESTIMATORS = ("dead_reckoning", "ekf", "ukf", "smoother")
@@ -64,11 +64,6 @@ def progress(iterable, **kw):
     from tqdm import tqdm
 
     return tqdm(iterable, file=sys.stderr, disable=not sys.stderr.isatty(), **kw)
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
 
 
 # --------------------------------------------------------------------------------------- run
@@ -151,7 +146,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             rows.append(run_one(configs[name], log, out / name, reference))
         except Exception as exc:  # one failing estimator must not hide the others
             failed += 1
-            rows.append({"estimator": name, "status": f"failed: {_one_line(exc)}"})
+            rows.append({"estimator": name, "status": f"failed: {one_line(exc)}"})
     print(
         f"builtin:{DEFAULT_DATASET}: {len(log.streams['odometry'])} odometry steps, "
         f"{len(log.streams['ranges'])} ranges to {len(log.landmarks)} beacons"

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from odofuse.errors import one_line
 from odofuse.health import Finding, assess, status_of
 from odofuse.trajectory import EstimateResult, Trajectory
 
@@ -245,15 +246,18 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     block : dict
         ``metrics.json``'s ``cross_check``: the figures and ``smoother_status`` (and
         ``smoother_config`` when the reference ran with another config than the run's), or
-        ``skipped: <reason>``.
+        ``skipped: <reason>`` (also when the smoother raised: the run it only checks goes on).
     """
     reason = skip_reason(config, log)
     if reason is not None:
         return result, {"skipped": reason}
-    if reference is None:
-        ref = reference_of(config, log)
-    else:
-        ref = reference() if callable(reference) else reference
+    try:  # a smoother that cannot run this log must not fail the run it only checks
+        if reference is None:
+            ref = reference_of(config, log)
+        else:
+            ref = reference() if callable(reference) else reference
+    except Exception as exc:
+        return result, {"skipped": f"the batch smoother failed: {one_line(exc)}"}
     # no wall-clock time here: metrics.json is the same for the same inputs (odofuse batch
     # equals odofuse run to the last digit); the config only when it is not the run's own
     about = {"smoother_status": ref.status}

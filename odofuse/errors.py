@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 
+def one_line(exc: BaseException) -> str:
+    """``"Type: first line of the message"``: an exception as one line of a table or a log."""
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
+
+
 class OdofuseError(ValueError):
     """Base class of every error odofuse raises for bad input; the CLI prints it on one line."""
 

@@ -159,3 +159,20 @@ def test_a_shared_reference_names_its_config_and_a_smoother_run_reuses_it(tmp_pa
     assert stored["cross_check"] == m["cross_check"]
     result, block = xc.cross_check(_config(), _log(), EstimateResult("ekf", _line()), ref)
     assert block["smoother_config"] == "other.yaml"
+
+
+def test_a_smoother_that_raises_skips_the_check_and_the_run_goes_on():
+    from odofuse.errors import ConfigError
+
+    def broken():
+        raise ConfigError("options.smoother.lag: not a smoother option\nsecond line")
+
+    est = EstimateResult("ekf", _line())
+    result, block = xc.cross_check(_config(), _log(), est, broken)
+    assert result is est
+    assert block == {
+        "skipped": "the batch smoother failed: ConfigError: options.smoother.lag: not a "
+        "smoother option"
+    }
+    m = checked_metrics(_config(), _log(), est, 0.1, broken)
+    assert m["status"] == "ok" and m["warnings"] == [] and m["cross_check"] == block

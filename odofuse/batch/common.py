@@ -9,6 +9,8 @@ import json
 import sys
 from pathlib import Path
 
+from odofuse.errors import one_line
+
 #: Columns of ``summary.csv`` (and keys of each record), in order.
 SUMMARY_COLUMNS = (
     "log",
@@ -42,11 +44,6 @@ class BatchSummary(list):
     def failed(self) -> list[dict]:
         """The records of the logs that did not run."""
         return [r for r in self if r["status"] == "failed"]
-
-
-def one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
 
 
 def record(spec: str, name: str, metrics: dict | None, *, resumed=False, error=None) -> dict:

@@ -46,10 +46,9 @@ from odofuse.batch.common import (
     BatchSummary,
     gather_records,
     is_complete,
-    one_line,
     record,
 )
-from odofuse.errors import ConfigError, InputError
+from odofuse.errors import ConfigError, InputError, one_line
 from odofuse.io.atomic import clean_stale
 
 _GLOB_CHARS = set("*?[")

@@ -133,7 +133,7 @@ def smooth_window(config, log_window) -> tuple[EstimateResult | None, float, str
     try:
         result = run_estimator(config.estimator, log_window, config)
     except Exception as exc:  # the window's log fails as one row with this message
-        from odofuse.batch.common import one_line
+        from odofuse.errors import one_line
 
         return None, time.perf_counter() - t0, one_line(exc)
     return result, time.perf_counter() - t0, None
@@ -286,12 +286,8 @@ def run_split_logs(client, config, specs, names, root: Path, split, overlap, for
     A log whose complete outputs exist is reused unless ``force``; a log that cannot be
     loaded, or one of whose windows fails, is one failed record.
     """
-    from odofuse.batch.common import (
-        gather_records,
-        is_complete,
-        one_line,
-        record,
-    )
+    from odofuse.batch.common import gather_records, is_complete, record
+    from odofuse.errors import one_line
     from odofuse.rundir import finish_run
 
     overlap = DEFAULT_OVERLAP_FRACTION * split if overlap is None else overlap
