@@ -8,6 +8,7 @@ check (:func:`odofuse.estimators.graph.health.window_findings`), on the one-lap 
 
 from __future__ import annotations
 
+import functools
 import math
 from types import SimpleNamespace
 
@@ -20,7 +21,7 @@ from odofuse.declarations import GraphOptions  # noqa: E402
 from odofuse.estimators import monitors  # noqa: E402
 from odofuse.estimators.graph import health  # noqa: E402
 from odofuse.estimators.graph.factors import slip_scales  # noqa: E402
-from odofuse.estimators.graph.problem import GyroIncrements  # noqa: E402
+from odofuse.estimators.graph.problem import GraphProblem, GyroIncrements  # noqa: E402
 from odofuse.measurements import gate_threshold  # noqa: E402
 from odofuse.teaching import trust_scenarios as ts  # noqa: E402
 
@@ -77,7 +78,7 @@ def _problem(d_wheels, d_gyro, var_odo=1e-4, var_gyro=1e-8, T=0.5, bias_sigma=0.
         np.arange(n), np.asarray(d_gyro, float), np.full(n, var_gyro), np.full(n, T), np.ones(n)
     )
     model = SimpleNamespace(calib_states=("gyro_bias",))
-    return SimpleNamespace(
+    problem = SimpleNamespace(
         deltas=deltas,
         covs=covs,
         gyro={"gyro": inc},
@@ -88,6 +89,8 @@ def _problem(d_wheels, d_gyro, var_odo=1e-4, var_gyro=1e-8, T=0.5, bias_sigma=0.
         kt=np.arange(n + 1) * T,
         bias_walk={"gyro_bias": bias_walk} if bias_walk else {},
     )
+    problem.prior_sigma_at = functools.partial(GraphProblem.prior_sigma_at, problem)
+    return problem
 
 
 def test_slip_scales_are_the_filters_rule_with_runs_of_intervals():

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from odofuse import se2
 from odofuse.estimators import pose_checks
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.compiled.dead_reckoning import dead_reckon
@@ -85,7 +86,7 @@ def calibration_covariances(model, cal, pose0, t, U, poses, mode: str = "auto") 
         Uc = cal.apply(U, nominal + zi * sigma, dt)
         q, _ = dead_reckon(model, pose0, np.zeros((3, 3)), Uc, False, mode)
         d = (q - poses).T
-        d[2] = (d[2] + np.pi) % (2.0 * np.pi) - np.pi
+        d[2] = se2.wrap(d[2])
         for row, (a, b) in zip(acc, upper, strict=True):
             row += d[a] * d[b]
     C = np.empty((len(poses), 3, 3))

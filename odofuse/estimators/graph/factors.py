@@ -95,8 +95,7 @@ def slip_scales(problem: GraphProblem) -> np.ndarray:
     var_odo = problem.covs[i, 2, 2]
     sigma_b = bias_sigma
     if "gyro_bias" in problem.bias_walk:  # the prior of a walking bias widens with time
-        walk = problem.bias_walk["gyro_bias"]
-        sigma_b = np.sqrt(bias_sigma**2 + walk**2 * (problem.kt[i + 1] - problem.kt[0]))
+        sigma_b = problem.prior_sigma_at("gyro_bias", problem.kt[i + 1])
     var_ref = inc.var + (sigma_b * inc.T) ** 2
     gate = gate_threshold(problem.options.slip_gate, 1)
     run, prev = 0.0, -2

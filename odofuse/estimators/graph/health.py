@@ -362,10 +362,16 @@ def calibration_findings(problem, values) -> list[Finding]:
     """A finding per calibration variable more than :data:`CALIBRATION_SIGMAS` from its prior.
 
     A walking bias is judged by its final value against its prior grown by the walk
-    (:meth:`~odofuse.estimators.graph.problem.GraphProblem.prior_sigma_at_end`).
+    (:meth:`~odofuse.estimators.graph.problem.GraphProblem.prior_sigma_at` the last keyframe).
     """
     states = [
-        (name, problem.final_key(name), 0, value, problem.prior_sigma_at_end(name))
+        (
+            name,
+            problem.final_key(name),
+            0,
+            value,
+            float(problem.prior_sigma_at(name, problem.kt[-1])),
+        )
         for name, (_, value, _) in problem.calib.items()
     ]
     oc = problem.odometry_calibration

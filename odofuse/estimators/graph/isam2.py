@@ -150,6 +150,28 @@ class _PrivateBeaconFactors(Factors):
         return super().measurement(meas)
 
 
+def _polish(isam, params, fac, options):
+    """:func:`~odofuse.estimators.graph.solvers.polish_isam2` with what a run reports of it.
+
+    Returns ``(isam, values, extra, findings)``: the iSAM2 at the optimum of its own final
+    graph, that optimum, ``{"final_iterations", "final_error", "final_s"}`` and the
+    ``solver`` findings of the final LM (its iteration cap, no decrease).
+    """
+    t0 = time.perf_counter()
+    isam, out = polish_isam2(isam, params, fac, options)
+    extra = {
+        "final_iterations": int(out.iterations),
+        "final_error": float(out.error),
+        "final_s": time.perf_counter() - t0,
+    }
+    return (
+        isam,
+        out.values,
+        extra,
+        solver_findings("final Levenberg-Marquardt", out.reason, out.iterations),
+    )
+
+
 def _isam2_params(options: GraphOptions):
     """iSAM2 parameters. Relinearisation is kept coarse (0.1 m / rad every 10 updates by
     default) because a calibration variable touches every range factor: relinearising it
@@ -303,11 +325,8 @@ def run_isam2(log, config) -> EstimateResult:
     if problem.options.slam:  # unknown landmarks: odofuse.estimators.graph.isam2_slam
         params = _isam2_params(problem.options)
         isam, fac, lat = incremental_slam(problem, params, getattr(config, "source", "<config>"))
-        t0 = time.perf_counter()  # LM on the final graph (graph.solvers.polish_isam2)
-        isam, out = polish_isam2(isam, params, fac, problem.options)
-        extra = {"latency": _latency_summary(lat), "final_iterations": int(out.iterations)}
-        extra.update(final_error=float(out.error), final_s=time.perf_counter() - t0)
-        bad = solver_findings("final Levenberg-Marquardt", out.reason, out.iterations)
+        isam, _, polished, bad = _polish(isam, params, fac, problem.options)
+        extra = {"latency": _latency_summary(lat), **polished}
         return _slam_result(problem, isam, fac, extra, bad)
     fac = _PrivateBeaconFactors(problem)
     groups = _freeze_groups(problem, fac, getattr(config, "source", "<config>"))
@@ -403,13 +422,9 @@ def run_isam2(log, config) -> EstimateResult:
             # iSAM2's estimate solves a graph linearised at stale points (each variable is
             # relinearised only once its update exceeds relinearize_threshold): the offline
             # result is the optimum of iSAM2's own final graph, batch LM from its estimate
-            t0 = time.perf_counter()
-            isam, out = polish_isam2(isam, params, fac, problem.options)
-            extra.update(final_iterations=int(out.iterations), final_error=float(out.error))
-            extra["final_s"] = time.perf_counter() - t0
-            lm = "final Levenberg-Marquardt"
-            findings.extend(solver_findings(lm, out.reason, out.iterations))
-            result = out.values
+            isam, result, polished, bad = _polish(isam, params, fac, problem.options)
+            extra.update(polished)
+            findings.extend(bad)
             if problem.options.covariances:
                 poses = pose_array(result, len(problem.kt))
                 covs = world_covs(problem, poses, isam.marginalCovariance)

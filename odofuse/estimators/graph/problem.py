@@ -154,13 +154,14 @@ class GraphProblem:
         tau = 0.5 * float(self.kt[j + 1] - self.kt[j - 1])
         return float(self.bias_walk[name]) * math.sqrt(tau)
 
-    def prior_sigma_at_end(self, name: str) -> float:
-        """The prior sigma of ``name``'s final value: its prior sigma, grown by the walk."""
+    def prior_sigma_at(self, name: str, t):
+        """The prior sigma of ``name``'s value at times ``t`` (s): its prior sigma, grown by
+        the walk since the first keyframe (``sqrt(sigma^2 + walk^2 (t - t_0))``)."""
         sigma = float(self.calib[name][2])
         if name not in self.bias_walk:
             return sigma
         walk = float(self.bias_walk[name])
-        return math.sqrt(sigma**2 + walk**2 * float(self.kt[-1] - self.kt[0]))
+        return np.sqrt(sigma**2 + walk**2 * (np.asarray(t, dtype=float) - float(self.kt[0])))
 
     def state_name(self, stream: str, state: str) -> str:
         """The ``calib`` name of ``stream``'s calibration state ``state``."""
