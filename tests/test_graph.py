@@ -832,3 +832,28 @@ def test_calibration_freeze_states_are_validated(sigma, key):
     with pytest.raises(ConfigError) as exc:
         graph.run_isam2(log, cfg)
     assert exc.value.key == key and exc.value.file == "test.yaml"
+
+
+@pytest.mark.parametrize("calibrate", [False, True])
+def test_isam2_window_marginalises_old_keyframes_and_keeps_the_optimum(monkeypatch, calibrate):
+    """Issue 17: iSAM2's tree holds at most KEEP + EVERY keyframes (the older ones are
+    marginalised out in batches, isam2_window); the final pass still solves the whole graph,
+    so the result and its covariances are those of a run that keeps every keyframe."""
+    from odofuse.estimators.graph import isam2_window
+
+    log = _simulate(seed=14, T=120.0, scale=1.03 if calibrate else 1.0)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": calibrate}}
+    cfg = _config("isam2", sensors)
+    monkeypatch.setattr(isam2_window, "KEEP", 10**9)
+    whole = graph.run_isam2(log, cfg)
+    monkeypatch.setattr(isam2_window, "KEEP", 40)
+    monkeypatch.setattr(isam2_window, "EVERY", 15)
+    windowed = graph.run_isam2(log, cfg)
+    assert whole.extra["marginalised_keyframes"] == 0
+    assert windowed.extra["marginalised_keyframes"] >= len(log.groundtruth.t) // 10 > 0
+    assert not windowed.findings
+    np.testing.assert_allclose(windowed.trajectory.poses, whole.trajectory.poses, atol=1e-6)
+    np.testing.assert_allclose(
+        windowed.trajectory.covariances, whole.trajectory.covariances, rtol=1e-3, atol=1e-9
+    )
+    assert windowed.extra["final_error"] == pytest.approx(whole.extra["final_error"], rel=1e-9)

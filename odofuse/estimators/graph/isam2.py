@@ -21,6 +21,7 @@ from odofuse.errors import ConfigError
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.health import solver_findings
 from odofuse.estimators.graph.isam2_slam import incremental_slam
+from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, model_kind
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.estimators.graph.solvers import (
@@ -150,15 +151,16 @@ class _PrivateBeaconFactors(Factors):
         return super().measurement(meas)
 
 
-def _polish(isam, params, fac, options):
-    """:func:`~odofuse.estimators.graph.solvers.polish_isam2` with what a run reports of it.
+def _polish(isam, params, fac, options, graph=None, values=None):
+    """:func:`~odofuse.estimators.graph.solvers.polish_isam2` with what a run reports of it
+    (``graph`` / ``values``: the whole graph and a start when iSAM2 no longer holds them).
 
     Returns ``(isam, values, extra, findings)``: the iSAM2 at the optimum of its own final
     graph, that optimum, ``{"final_iterations", "final_error", "final_s"}`` and the
     ``solver`` findings of the final LM (its iteration cap, no decrease).
     """
     t0 = time.perf_counter()
-    isam, out = polish_isam2(isam, params, fac, options)
+    isam, out = polish_isam2(isam, params, fac, options, graph, values)
     extra = {
         "final_iterations": int(out.iterations),
         "final_error": float(out.error),
@@ -360,6 +362,7 @@ def run_isam2(log, config) -> EstimateResult:
         key, j = state_key(s)
         return float(isam.calculateEstimateVector(key)[j])
 
+    window = KeyframeWindow()
     current = gtsam.Pose2(*problem.pose0)
     online = np.empty((len(problem.kt), 3))  # each keyframe's estimate right after its update
     findings: list[Finding] = []
@@ -370,9 +373,14 @@ def run_isam2(log, config) -> EstimateResult:
         g, v = fac.keyframe(i, current)
         graph.push_back(g)
         values.insert(v)
+        window.add(graph, values)
         t0 = _clock()
         try:
-            isam.update(graph, values, noRelinKeys=frozen)
+            if window.due(i):  # the oldest keyframes leave iSAM2's tree (isam2_window)
+                isam.update(graph, values, window.update_params(isam, i, graph, values, frozen))
+                window.marginalise(isam, i)
+            else:
+                isam.update(graph, values, noRelinKeys=frozen)
         except RuntimeError as exc:  # indeterminate system: report, never a traceback
             findings.append(_failure("iSAM2", problem, i, exc))
             break
@@ -415,6 +423,7 @@ def run_isam2(log, config) -> EstimateResult:
         step.append(_clock() - t_step)
     covs = None
     extra = {"latency": _latency_summary(latency), "latency_step": _latency_summary(step)}
+    extra["marginalised_keyframes"] = window.marginalised  # left iSAM2's tree (isam2_window)
     if not findings:
         try:
             for _ in range(problem.options.final_relinearizations):
@@ -422,7 +431,9 @@ def run_isam2(log, config) -> EstimateResult:
             # iSAM2's estimate solves a graph linearised at stale points (each variable is
             # relinearised only once its update exceeds relinearize_threshold): the offline
             # result is the optimum of iSAM2's own final graph, batch LM from its estimate
-            isam, result, polished, bad = _polish(isam, params, fac, problem.options)
+            isam, result, polished, bad = _polish(
+                isam, params, fac, problem.options, window.graph, window.estimate(isam)
+            )
             extra.update(polished)
             findings.extend(bad)
             if problem.options.covariances:
@@ -430,11 +441,11 @@ def run_isam2(log, config) -> EstimateResult:
                 covs = world_covs(problem, poses, isam.marginalCovariance)
         except RuntimeError as exc:
             findings.append(_failure("iSAM2 (final relinearisation)", problem, len(online), exc))
-            covs, result = None, _with_poses(isam.calculateEstimate(), online, fac.dims)
+            covs, result = None, _with_poses(window.estimate(isam), online, fac.dims)
     else:
         failed = int(findings[-1].figure)
         _dead_reckoned_from(problem, online, failed)
-        result = _with_poses(isam.calculateEstimate(), online, fac.dims)
+        result = _with_poses(window.estimate(isam), online, fac.dims)
     if groups:
         extra["calibration_freeze"] = freeze_info
     return finish(problem, fac, result, covs, "isam2", extra, findings)

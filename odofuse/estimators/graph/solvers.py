@@ -267,7 +267,7 @@ def incremental_initial_values(problem: GraphProblem, values):
     return out, {"init_s": time.perf_counter() - t0}
 
 
-def polish_isam2(isam, params, fac: Factors, opts):
+def polish_isam2(isam, params, fac: Factors, opts, graph=None, values=None):
     """Batch LM on an iSAM2 run's whole graph from its estimate, as a fresh ISAM2 there.
 
     iSAM2 relinearises only the variables whose update exceeds ``relinearize_threshold``,
@@ -279,6 +279,9 @@ def polish_isam2(isam, params, fac: Factors, opts):
     update of a new ``gtsam.ISAM2(params)`` with that graph at the optimum, so that
     ``calculateEstimate`` and ``marginalCovariance`` are those of the optimum.
 
+    ``graph`` and ``values`` replace ``isam.getFactorsUnsafe()`` and its estimate when iSAM2
+    has marginalised part of the run (odofuse.estimators.graph.isam2_window).
+
     Returns
     -------
     isam : gtsam.ISAM2
@@ -287,8 +290,9 @@ def polish_isam2(isam, params, fac: Factors, opts):
     """
     import gtsam
 
-    graph = isam.getFactorsUnsafe()
-    out = _solve(graph, isam.calculateEstimate(), fac, opts)
+    if graph is None:
+        graph, values = isam.getFactorsUnsafe(), isam.calculateEstimate()
+    out = _solve(graph, values, fac, opts)
     fresh = gtsam.ISAM2(params)
     fresh.update(graph, out.values)
     return fresh, out

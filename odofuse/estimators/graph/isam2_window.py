@@ -1,0 +1,125 @@
+"""A bounded Bayes tree for :func:`~odofuse.estimators.graph.isam2.run_isam2`.
+
+Owns :class:`KeyframeWindow`: the oldest keyframes of an iSAM2 run are marginalised out of
+iSAM2 in batches (``ISAM2.marginalizeLeaves``), while a copy of every factor and the
+estimate each marginalised variable had when it left are kept for the final batch pass.
+
+Why: in the GTSAM 4.3 wheel every ``ISAM2.update`` destroys the local Bayes tree of the
+re-eliminated top, and ``BayesTree::~BayesTree`` walks (breadth first, to avoid recursion)
+every clique below its roots, i.e. the whole old tree re-attached beneath them. That walk is
+O(n) per update: on Plaza1 without calibration ``perf`` puts 23 % of the run in it and the
+median update grows 8x from the first to the last quarter. A tree that never holds more
+than ``KEEP + EVERY`` keyframes keeps that walk bounded.
+
+What is given up: a marginalised keyframe is no longer relinearised by iSAM2 (its factors
+become one linear factor on what it was connected to, at the linearisation point it had).
+Only the online estimates feel it; the offline result is the batch LM optimum of the *whole*
+graph (:attr:`KeyframeWindow.graph`), started from :meth:`KeyframeWindow.estimate`.
+"""
+
+from __future__ import annotations
+
+# Keyframes kept in iSAM2's tree, and the batch size in which older ones leave it. A
+# marginalising update re-eliminates the whole (bounded) tree so that the leaving keyframes
+# are eliminated first (the leaves that ``marginalizeLeaves`` requires); batching spreads
+# that cost over ``EVERY`` updates. Chosen for latency alone (docs/graph.md).
+KEEP = 300
+EVERY = 100
+
+
+class KeyframeWindow:
+    """The keyframes of one iSAM2 run, the oldest marginalised out of iSAM2 in batches.
+
+    Only pose keys ``x<i>`` and the private pinned beacon copies ``b<n>`` of a keyframe's
+    ranges leave; calibration vectors, walking-bias segments and shared landmarks stay in
+    iSAM2 for the whole run.
+
+    Attributes
+    ----------
+    graph : gtsam.NonlinearFactorGraph
+        Every factor given to iSAM2, in order (the full graph for the final pass).
+    first : int
+        The oldest keyframe still in iSAM2.
+    marginalised : int
+        Keyframes marginalised so far.
+    """
+
+    def __init__(self):
+        import gtsam
+
+        self.gtsam = gtsam
+        self.graph = gtsam.NonlinearFactorGraph()
+        self._taken = gtsam.Values()  # marginalised keys at their estimate when they left
+        self._added: list[list[int]] = []  # per keyframe, the x / b keys it added
+        self.first = 0
+        self.marginalised = 0
+
+    def due(self, i: int) -> bool:
+        """Whether the update of keyframe ``i`` marginalises the oldest ``EVERY`` keyframes."""
+        return i + 1 - self.first >= KEEP + EVERY
+
+    def add(self, graph, values) -> None:
+        """Record the next keyframe's factors and new values (given to iSAM2 in this step)."""
+        gtsam = self.gtsam
+        self.graph.push_back(graph)
+        leaving = (ord("x"), ord("b"))
+        self._added.append([k for k in values.keys() if gtsam.Symbol(k).chr() in leaving])
+
+    def update_params(self, isam, i: int, graph, values, no_relin):
+        """``ISAM2UpdateParams`` of keyframe ``i``'s update when it is :meth:`due`.
+
+        The whole tree is re-eliminated (``extraReelimKeys``) with the leaving keys first,
+        the keys of the new factors last (where iSAM2 puts them by default, so that the
+        newest pose stays in the root clique) and everything else between.
+        """
+        gtsam = self.gtsam
+        leaving = {k for j in range(self.first, i + 1 - KEEP) for k in self._added[j]}
+        last = set(graph.keyVector()) | set(values.keys())
+        groups, reelim = gtsam.KeyGroupMap(), gtsam.KeyList()
+        for k in isam.getLinearizationPoint().keys():
+            reelim.push_back(k)
+            groups.insert2(k, 0 if k in leaving else 2 if k in last else 1)
+        for k in values.keys():
+            groups.insert2(k, 2)
+        params = gtsam.ISAM2UpdateParams()
+        params.constrainedKeys = groups
+        params.extraReelimKeys = reelim
+        params.noRelinKeys = no_relin
+        return params
+
+    def marginalise(self, isam, i: int) -> None:
+        """After the :meth:`due` update of keyframe ``i``: take the leaving keys' estimates,
+        then marginalise them out of ``isam``.
+
+        Raises
+        ------
+        RuntimeError
+            If iSAM2 removed other variables than the leaving ones (it then is inconsistent;
+            the caller reports it like any failed update).
+        """
+        gtsam = self.gtsam
+        cut = i + 1 - KEEP
+        leaving = [k for j in range(self.first, cut) for k in self._added[j]]
+        est = isam.calculateEstimate()
+        keys = gtsam.KeyList()
+        for k in leaving:
+            pose = gtsam.Symbol(k).chr() == ord("x")
+            self._taken.insert(k, est.atPose2(k) if pose else est.atPoint2(k))
+            keys.push_back(k)
+        before = est.size()
+        isam.marginalizeLeaves(keys)
+        after = isam.getLinearizationPoint().size()
+        if after != before - len(leaving):
+            raise RuntimeError(
+                f"marginalising keyframes {self.first}-{cut - 1} removed {before - after} "
+                f"variables instead of {len(leaving)}"
+            )
+        self.marginalised += cut - self.first
+        self.first = cut
+
+    def estimate(self, isam):
+        """``gtsam.Values`` of every variable of the run: iSAM2's current estimate and the
+        marginalised keys at their estimate when they left."""
+        out = self.gtsam.Values(self._taken)
+        out.insert(isam.calculateEstimate())
+        return out
