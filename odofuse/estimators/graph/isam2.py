@@ -381,10 +381,12 @@ def run_isam2(log, config) -> EstimateResult:
                 window.marginalise(isam, i)
             else:
                 isam.update(graph, values, noRelinKeys=frozen)
+            latency.append(_clock() - t0)
+            if i > 0:  # the root clique's marginal can be indeterminate too (a diverged run)
+                current = _newest_estimate(isam, X(i), current)
         except RuntimeError as exc:  # indeterminate system: report, never a traceback
             findings.append(_failure("iSAM2", problem, i, exc))
             break
-        latency.append(_clock() - t0)
         for meas in fac.by_kf.get(i, ()):
             n_factors[meas.stream] = n_factors.get(meas.stream, 0) + 1
         n_factors[problem.odometry_stream] = i  # odometry factors so far
@@ -416,8 +418,6 @@ def run_isam2(log, config) -> EstimateResult:
                     if stream == problem.odometry_stream:  # later odometry: built-in factors
                         names = problem.odometry_calibration.names
                         fac.odometry_fixed = np.array([fac.frozen[s] for s in names])
-        if i > 0:
-            current = _newest_estimate(isam, X(i), current)
         online[i] = (current.x(), current.y(), current.theta())
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         step.append(_clock() - t_step)
