@@ -300,7 +300,10 @@ def run_isam2(log, config) -> EstimateResult:
     against 0.232 m at the optimum of the same graph). ``extra["latency"]`` summarises the
     wall time of each ``ISAM2.update`` and ``extra["latency_step"]`` that of the whole
     per-keyframe step (factor creation, update, freeze check, current-pose estimate), median /
-    p99 / max and per quarter of the log, ms.
+    p99 / max and per quarter of the log, ms. Keyframes older than the last
+    :data:`~odofuse.estimators.graph.isam2_window.KEEP` leave iSAM2's tree online in batches
+    (:class:`~odofuse.estimators.graph.isam2_window.KeyframeWindow`, bounded update cost;
+    ``extra["marginalised_keyframes"]``); the final pass still solves the whole graph.
 
     Calibration freezing (``options.isam2.calibration_freeze``): a calibration variable
     (e.g. range scale/offset) is connected to every factor of its sensor, so each update
