@@ -1,8 +1,10 @@
 """Batch solving of the graph, and the results every graph solver returns.
 
 Owns :func:`build_graph` (the whole graph with its dead-reckoned / SLAM-initialised values),
-the batch smoother :func:`run_smoother` (GTSAM's Levenberg-Marquardt for graphs of built-in
-factors, :func:`levenberg_marquardt` when the graph holds Python factors) and the conversion
+the batch smoother :func:`run_smoother` (GTSAM's Levenberg-Marquardt iterated to odofuse's
+stopping rule, :func:`_gtsam_lm`, for graphs of built-in factors; :func:`levenberg_marquardt`
+when the graph holds Python factors), its start with loop closures
+(:func:`loop_initial_values`: chordal or dead-reckoned, by graph error) and the conversion
 of a solution into an :class:`~odofuse.trajectory.EstimateResult` (:func:`finish`: keyframe
 poses, world-frame marginal covariances, calibration, landmarks, outlier counts). The
 incremental solvers are in :mod:`odofuse.estimators.graph.isam2`.
