@@ -8,6 +8,12 @@ is plain GTSAM (``gtsam.load2D`` / ``gtsam.readG2o``, ``LevenbergMarquardtOptimi
   readers add none, so the graph is gauge free).
 * :func:`lm_optimum` is GTSAM's batch LM from the reader's initial values (:func:`lm_solve`
   also returns its iteration count).
+* :func:`converged_optimum` is GTSAM's LM iterated with its tolerances at 0 until an
+  iteration no longer lowers the error, then GTSAM's Gauss-Newton (QR) while it lowers it:
+  the reference where ``LevenbergMarquardtOptimizer.optimize()`` with its defaults stops
+  short (``w20000.txt``), started from :func:`chordal_start` (a complex-number chordal
+  relaxation of the ``BetweenFactorPose2`` measurements, written here independently of
+  odofuse's ``graph.chordal``).
 * :func:`isam2_incremental` is the incremental solve of GTSAM's iSAM2 examples: poses in
   order, each new pose initialised by composing the odometry onto the current estimate, each
   new landmark from its first bearing-range sighting off the current pose estimate, one
@@ -69,6 +75,84 @@ def lm_solve(graph, values, max_iterations: int = 100):
     params.setRelativeErrorTol(1e-6)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     return optimizer.optimize(), int(optimizer.iterations())
+
+
+def chordal_start(graph, values, pose_keys):
+    """``values`` with its poses from the chordal relaxation of the graph's ``BetweenFactorPose2``.
+
+    Headings as complex numbers ``z`` (``z_j = z_i exp(i dtheta)``, weight
+    ``1 / sigma_theta``, the first pose held), normalised; then positions as complex numbers
+    (``t_j - t_i = z_i (dx + i dy)``, weight ``1 / sigma_xy``, the first pose held): two
+    sparse linear least-squares solves.
+    """
+    import gtsam
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as sla
+
+    index = {k: n for n, k in enumerate(pose_keys)}
+    edges = []
+    for n in range(graph.size()):
+        f = graph.at(n)
+        if isinstance(f, gtsam.BetweenFactorPose2):
+            a, b = f.keys()
+            m, cov = f.measured(), f.noiseModel().covariance()
+            sxy = math.sqrt(0.5 * (cov[0, 0] + cov[1, 1]))
+            edges.append((index[a], index[b], m.x(), m.y(), m.theta(), math.sqrt(cov[2, 2]), sxy))
+    e = np.array(edges)
+    i, j, M, N = e[:, 0].astype(int), e[:, 1].astype(int), len(e), len(pose_keys)
+
+    def solve(coef_i, w, rhs, fixed):  # min sum |w (u_j - coef_i u_i) - w rhs|^2, u_0 fixed
+        r = np.arange(M)
+        A = sp.csr_matrix(
+            (np.r_[w, -w * coef_i], (np.r_[r, r], np.r_[j, i])), shape=(M, N), dtype=complex
+        )
+        b = w * rhs - A[:, 0].toarray().ravel() * fixed
+        Af = A[:, 1:]
+        u = sla.spsolve((Af.conj().T @ Af).tocsc(), Af.conj().T @ b)
+        return np.r_[fixed, u]
+
+    first = values.atPose2(pose_keys[0])
+    z = solve(np.exp(1j * e[:, 4]), 1.0 / e[:, 5], np.zeros(M), np.exp(1j * first.theta()))
+    z /= np.abs(z)
+    step = z[i] * (e[:, 2] + 1j * e[:, 3])
+    t = solve(np.ones(M), 1.0 / e[:, 6], step, first.x() + 1j * first.y())
+    out = gtsam.Values(values)
+    for n, k in enumerate(pose_keys):
+        out.update(k, gtsam.Pose2(t[n].real, t[n].imag, float(np.angle(z[n]))))
+    return out
+
+
+def converged_optimum(graph, values, max_iterations: int = 1000):
+    """GTSAM's LM run to a standstill, then GTSAM Gauss-Newton (QR) while it lowers the error.
+
+    ``LevenbergMarquardtOptimizer`` with ``relativeErrorTol = absoluteErrorTol = 0`` is
+    iterated until three iterations in a row lower the error by less than 1e-12 of it (a
+    minimum: no damping finds a lower point) or ``max_iterations``; Gauss-Newton with
+    ``MULTIFRONTAL_QR`` (accurate on ill-conditioned systems) then takes steps while they
+    lower the error, at most 10. Returns ``(values, lm_iterations, gn_steps)``.
+    """
+    import gtsam
+
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(0.0)
+    params.setAbsoluteErrorTol(0.0)
+    lm = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    err, still = lm.error(), 0
+    while still < 3 and lm.iterations() < max_iterations:
+        lm.iterate()
+        still = still + 1 if err - lm.error() < 1e-12 * err else 0
+        err = min(err, lm.error())
+    best, steps = lm.values(), 0
+    gn_params = gtsam.GaussNewtonParams()
+    gn_params.setLinearSolverType("MULTIFRONTAL_QR")
+    gn = gtsam.GaussNewtonOptimizer(graph, best, gn_params)
+    for _ in range(10):
+        gn.iterate()
+        if not gn.error() < err:
+            break
+        best, err, steps = gn.values(), gn.error(), steps + 1
+    return best, int(lm.iterations()), steps
 
 
 def isam2_incremental(graph, pose_keys, extra_updates: int = 3):
