@@ -66,6 +66,12 @@ def _kinds():
     return {BeaconRange: RANGE, GpsPosition: GPS, CompassHeading: COMPASS, GyroYawRate: GYRO}
 
 
+def _symmetric_two_wheels(cal) -> bool:
+    """One wheel a side and the track matrix of equal radii and ``y_l = -y_r``."""
+    sym = np.array([[-0.5, 0.5], [0.5, -0.5]])
+    return cal.wheels_per_side == 1 and np.allclose(cal.track, sym, rtol=0.0, atol=1e-12)
+
+
 def unsupported(loc, log, streams) -> str | None:
     """Why this run cannot take the compiled path (None when it can)."""
     from odofuse.io.csvlog import MAX_MAGNITUDE
@@ -80,6 +86,9 @@ def unsupported(loc, log, streams) -> str | None:
     cal = loc.backend.odo_cal
     if cal is not None and cal.drive not in _CAL_DRIVES:
         return f"odometry calibration of '{cal.drive}'"
+    if cal is not None and cal.drive != "increments" and not _symmetric_two_wheels(cal):
+        # the kernel's calibrated input reads (left, right) and Borenstein's half difference
+        return "odometry calibration with several wheels a side, unequal radii or offset ICRs"
     kinds = _kinds()
     for s in streams:
         m = loc.models.get(s)

@@ -23,17 +23,28 @@ class OdometryCalibration:
       dtheta_bias)``, ``u' = (a ds, b dtheta + c dt)`` (``c`` in rad/s), nominal ``(1, 1, 0)``.
     * ``differential`` / ``skid_steer`` (Borenstein's systematic errors,
       ``002_88fc37db58155723.txt``): ``p = (wheel_radius_ratio E_d = r_R / r_L,
-      track_width_scale E_b)`` with the mean radius kept: ``phi_R' = phi_R 2 E_d / (1 + E_d)``,
-      ``phi_L' = phi_L 2 / (1 + E_d)``, then the half difference ``h = (phi_R' - phi_L') / 2``
-      divided by ``E_b``; nominal ``(1, 1)``.
+      track_width_scale E_b)``, nominal ``(1, 1)``. ``E_d`` splits the radii keeping their
+      mean: every right wheel's angle times ``2 E_d / (1 + E_d)``, every left wheel's times
+      ``2 / (1 + E_d)``. ``E_b`` scales the lateral geometry that turns wheel travel into
+      rotation: the differential's ``track_width``, the skid steer's ICR coordinates ``y_l,
+      y_r`` (``x_G`` kept), so ``omega`` and ``v_y`` scale by ``1 / E_b`` and ``v_x`` is kept.
+      As an input change it moves each side's mean angle by ``(1 - 1/E_b) C (L, R)`` (every
+      wheel of a side alike), ``C = F2^-1 diag(-1, 0) F2`` with ``F2`` the ``omega, v_x`` rows
+      of the drive's one-wheel-per-side matrix (:func:`track_matrix`); with equal radii and
+      ``y_l = -y_r`` that is Borenstein's half difference ``h = (R - L) / 2`` divided by ``E_b``.
 
-    The graph uses the first-order Jacobian ``D = du'/dp`` at the nominal values.
+    Inputs are ``left1 .. leftn, right1 .. rightn`` (``wheels_per_side = n``,
+    :mod:`odofuse.drives.differential`). The graph uses the first-order Jacobian
+    ``D = du'/dp`` at the nominal values.
     """
 
     names: tuple[str, ...]
     nominal: tuple[float, ...]
     sigma: tuple[float, ...]
     drive: str
+    wheels_per_side: int = 1
+    #: ``C`` of the class docstring, ``((c00, c01), (c10, c11))``; equal radii, symmetric ICRs
+    track: tuple[tuple[float, float], tuple[float, float]] = ((-0.5, 0.5), (0.5, -0.5))
 
     def input_jacobian(self, pieces, durations) -> np.ndarray:
         """``D = d u' / d p`` at the nominal parameters, shape ``(P, n, m)``."""
@@ -43,12 +54,29 @@ class OdometryCalibration:
             D[:, 0, 0] = pieces[:, 0]
             D[:, 1, 1] = pieces[:, 1]
             D[:, 1, 2] = np.asarray(durations, dtype=float)
-        else:  # (left, right) wheel angles
-            left, right = pieces[:, 0], pieces[:, 1]
-            half = 0.5 * (right - left)
-            D[:, 0, 0], D[:, 1, 0] = -0.5 * left, 0.5 * right
-            D[:, 0, 1], D[:, 1, 1] = half, -half
+        else:  # left1 .. leftn, right1 .. rightn wheel angles
+            n = self.wheels_per_side
+            D[:, :n, 0], D[:, n:, 0] = -0.5 * pieces[:, :n], 0.5 * pieces[:, n:]
+            D[:, :, 1] = np.repeat(side_means(pieces, n) @ np.asarray(self.track).T, n, axis=1)
         return D
+
+
+def side_means(u, n: int) -> np.ndarray:
+    """Mean angle of the left and of the right wheels, ``(..., 2)``, of inputs ``(..., 2n)``."""
+    u = np.asarray(u, dtype=float)
+    return np.stack([u[..., :n].mean(-1), u[..., n:].mean(-1)], -1)
+
+
+def track_matrix(drive) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``C = F2^-1 diag(-1, 0) F2`` of a two-sided drive (:class:`OdometryCalibration`).
+
+    ``F2`` is ``drive.side_matrix()[:2]`` (``omega, v_x`` over the left and right mean wheel
+    angles); ``C (L, R)`` is the side-mean input change per unit ``E_b`` that turns ``omega``
+    by ``-omega`` and keeps ``v_x`` (and so moves ``v_y = -x_G omega`` by ``-v_y``).
+    """
+    F2 = np.asarray(drive.side_matrix(), dtype=float)[:2]
+    C = np.linalg.solve(F2, np.diag([-1.0, 0.0]) @ F2)
+    return tuple(tuple(float(c) for c in row) for row in C)
 
 
 _ODO_CAL = {
@@ -88,4 +116,9 @@ def odometry_calibration_for(model, value, key, source) -> OdometryCalibration |
         sigma = tuple(float(v) for v in value)
         if min(sigma) <= 0:
             raise ConfigError("prior sigmas must be positive", file=source, key=key)
-    return OdometryCalibration(names, nominal, tuple(sigma), name)
+    if name == "increments":
+        return OdometryCalibration(names, nominal, tuple(sigma), name)
+    drive = model.drive
+    return OdometryCalibration(
+        names, nominal, tuple(sigma), name, drive.wheels_per_side, track_matrix(drive)
+    )
