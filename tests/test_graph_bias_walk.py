@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import odofuse.teaching.trust_scenarios as ts
+from odofuse import se2
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.problem import build_problem
 
@@ -161,3 +162,97 @@ def test_two_walking_gyros_each_have_their_own_chain(seed41, estimator):
     cal = m["extra"]["calibration"]
     assert abs(cal["gyro_bias"] - cal["gyro_bias:gyro_2"] - 0.02) < 2e-3, cal
     assert m["nees_position_mean"] < ts.HOLD_NEES
+
+
+def _walk_with_truth(seed: int):
+    """A one-lap ``gyro_bias_walk`` log (no systematic wheel errors), its config, the simulated
+    bias per gyro row and the true heading: ``(log, config, (t_gyro, bias), (t, heading))``.
+
+    The simulator does not return the bias it drew; the same scenario with a noise-free gyro
+    (``sigma: 0``) draws the same random numbers (a zero-sigma normal still consumes its
+    draws), so its gyro reads the true rate plus the bias, and the truth's heading gives the
+    rate. The config is the one ``odofuse simulate`` writes, its initial sigma set to 1e-6:
+    the simulated robot starts exactly at the stated pose (a declared 0.01 rad that is never
+    realised makes every heading look over-covered, see docs/graph.md).
+    """
+    from odofuse.config import load_config
+    from odofuse.io.loader import load_log_for
+    from odofuse.teaching.scenario import scenario_from_dict
+    from odofuse.teaching.simlog import write_log
+    from odofuse.teaching.simulate import simulate
+
+    over, _ = ts.SIMULATED["gyro_bias_walk"]
+    d = ts._merge(ts._BASE, over)
+    d = ts._merge(d, {"path": {"laps": 1}, "systematic": {"E_d": 1.0, "E_b": 1.0}})
+    sim = simulate(scenario_from_dict(d, "walk"), seed=seed)
+    quiet = simulate(scenario_from_dict(ts._merge(d, {"sensors": {"gyro": {"sigma": 0.0}}})), seed)
+    assert np.array_equal(sim.truth, quiet.truth)
+    g = quiet.streams["gyro"]
+    heading = np.unwrap(sim.truth[:, 2])
+    step = np.searchsorted(sim.t, g.t - 1e-9)  # a gyro row per simulation step here
+    rate = (heading[step] - heading[step - 1]) / (sim.t[step] - sim.t[step - 1])
+    with tempfile.TemporaryDirectory() as folder:
+        write_log(sim, folder)
+        cfg = load_config(Path(folder) / "config.yaml")
+        log = load_log_for(cfg)
+    cfg = dataclasses.replace(cfg, initial=dataclasses.replace(cfg.initial, sigma=(1e-6,) * 3))
+    return log, cfg, (g.t, g.values[:, 0] - rate), (sim.t, heading)
+
+
+#: Monte Carlo seeds; none of them was used while looking for the cause of the low NEES
+MC_SEEDS = range(500, 516)
+
+
+@pytest.fixture(scope="module")
+def monte_carlo():
+    """Per seed: the final segment's bias and the final heading, each as (error, sigma), and
+    the true segment means' steps over their modelled sigmas."""
+    from odofuse.estimators.graph.solvers import run_smoother
+
+    bias, heading, steps = [], [], []
+    for seed in MC_SEEDS:
+        log, cfg, (tg, b), (t, theta) = _walk_with_truth(seed)
+        problem = build_problem(log, cfg, "smoother")
+        kt = problem.kt
+        means = np.array([b[(tg > kt[j]) & (tg <= kt[j + 1])].mean() for j in range(len(kt) - 1)])
+        sig = np.array([problem.bias_step_sigma("gyro_bias", j) for j in range(1, len(kt) - 1)])
+        steps.append(np.diff(means) / sig)
+        res = run_smoother(log, cfg)
+        cal, sd = res.extra["calibration"], res.extra["calibration_sigma"]
+        bias.append((cal["gyro_bias"] - means[-1], sd["gyro_bias"]))
+        traj = res.trajectory
+        err = float(se2.wrap(traj.poses[-1, 2] - np.interp(traj.t[-1], t, theta)))
+        heading.append((err, math.sqrt(traj.covariances[-1][2, 2])))
+    return bias, heading, np.concatenate(steps)
+
+
+def _chi2_band(n: int) -> tuple[float, float]:
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(0.001, n)), float(chi2.ppf(0.999, n))
+
+
+def test_walking_bias_marginal_is_consistent_monte_carlo(monte_carlo):
+    """Issue 10: the reported sigma of the walking bias (its final segment, what ``metrics.json``
+    gives) and of the final heading cover the errors over 16 seeded runs: the sum of squared
+    normalised errors lies in the chi-square(16) 99.8 % band (one independent error per run).
+    Measured: bias 11.2, heading 12.6 (band 3.9-39.3); the walk left out of the model: bias
+    148. A walk counted twice is too mild for this band (7.3-8.6): the next test catches it."""
+    bias, heading, _ = monte_carlo
+    lo, hi = _chi2_band(len(MC_SEEDS))
+    for name, pairs in (("bias", bias), ("heading", heading)):
+        z2 = sum((e / s) ** 2 for e, s in pairs)
+        assert lo < z2 < hi, (name, z2, (lo, hi))
+
+
+def test_walk_between_sigma_matches_the_simulated_walk(monte_carlo):
+    """The between factors' sigma ``bias_walk * sqrt(tau)`` against the steps of the true
+    segment means: a Brownian bias averaged over two adjacent intervals of lengths A and B
+    steps by variance ``q (A + B) / 3``, the model says ``q (A + B) / 2`` (the centre spacing,
+    right for the walk over many intervals), so the normalised steps' mean square is 2/3, not
+    1 (docs/graph.md: this costs the bias marginal 2-6 % of variance). Measured 0.69; a sigma
+    with the walk counted twice gives 1/3 (measured 0.35), one of the per-sample walk (0.02 s)
+    ~33."""
+    _, _, steps = monte_carlo
+    ms = float(np.mean(steps**2))
+    assert 0.55 < ms < 0.8, ms
