@@ -27,11 +27,13 @@ import numpy as np
 from odofuse import se2
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.health import (
+    factor_groups,
     factor_residuals,
     graph_findings,
     residual_summary,
     robust_weights,
     solver_findings,
+    variance_components,
 )
 from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X
@@ -353,7 +355,9 @@ def run_smoother(log, config) -> EstimateResult:
         Keyframe poses with world-frame marginal covariances; ``used``/``rejected`` per
         stream; ``extra``: ``calibration`` (state -> value), ``landmarks`` (SLAM: id -> [x, y]),
         ``outliers`` (per stream, beyond the model's gate at the optimum), ``residuals``,
-        ``keyframes``, ``iterations``, ``final_error``, ``solve_s``; ``findings`` for a solver
+        ``keyframes``, ``iterations``, ``final_error``, ``solve_s``, ``variance_components``
+        (:func:`~odofuse.estimators.graph.health.variance_components` at the optimum: the
+        cross-check's scale of these covariances); ``findings`` for a solver
         that did not converge, covariances that could not be computed, and the checks of
         :mod:`odofuse.estimators.graph.health`.
     """
@@ -421,4 +425,9 @@ def run_smoother(log, config) -> EstimateResult:
     extra.update(
         {"iterations": int(out.iterations), "final_error": float(out.error), "solve_s": solve_s}
     )
+    if opts.covariances and covs is not None:  # the scale of those covariances
+        keys = [X(i) for i in range(len(problem.kt))]
+        extra["variance_components"] = variance_components(
+            graph, result, factor_groups(fac, graph), keys
+        )
     return finish(problem, fac, result, covs, "smoother", extra, findings)
