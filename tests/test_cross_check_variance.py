@@ -110,3 +110,14 @@ def test_the_cross_check_scales_its_yardstick_and_records_the_factor():
     assert block["smoother_variance_factor"] == 0.25
     assert block["predicted_ratio"] == pytest.approx(math.sqrt(1 + 3.0**2))
     assert [f.check for f in found] == ["cross_check"]
+
+
+def test_a_large_graph_gets_the_global_factor_only(monkeypatch):
+    g, values, groups, keys = _chain(k_odo=2.0, k_fix=2.0, n=60)
+    monkeypatch.setattr(health, "MAX_VCE_DIMS", 100)  # 180 state dimensions: above
+    vc = health.variance_components(g, values, groups, keys)
+    assert vc["method"] == "global" and "groups" not in vc
+    assert vc["variance_factor"] == pytest.approx(2.0 * g.error(values) / vc["redundancy"])
+    assert vc["position_variance_scale"] == vc["variance_factor"]
+    # both streams' noise 2x their models': sigma0^2 ~ 4 (relative sd sqrt(2 / (m - n)))
+    assert abs(vc["variance_factor"] / 4.0 - 1.0) < 4 * math.sqrt(2 / vc["redundancy"])
