@@ -14,7 +14,7 @@ smoother's error is orthogonal to ``d`` (``e_f = d + e_s``), so
 * ``RMSE_f^2 ~= rms(d)^2 + RMSE_s^2`` and ``RMSE_s^2 ~= s^2``, the mean trace of the smoother's
   position covariance scaled by the smoother's own variance components (its residuals'
   verdict on the scale of its noise model, ``variance_components`` of
-  :mod:`odofuse.estimators.graph.health`; ``smoother_variance_factor``): the *predicted
+  :mod:`odofuse.estimators.graph.variance`; ``smoother_variance_factor``): the *predicted
   ratio* ``sqrt(1 + rms(d)^2 / s^2)`` estimates ``RMSE_f / RMSE_s`` without ground truth;
   above :data:`HOLD_RMSE_RATIO` the estimate is
   likely more than that many times the smoother's error (finding ``cross_check``; estimators
@@ -169,7 +169,7 @@ def compare(
         The estimate fuses absolute sensors: the predicted-ratio finding applies.
     variance_scale : float, optional
         The smoother's own scale of its position covariance (``position_variance_scale`` of
-        :func:`odofuse.estimators.graph.health.variance_components`: the error covariance its
+        :func:`odofuse.estimators.graph.variance.variance_components`: the error covariance its
         residuals' variance components imply over the one its noise model implies); ``s^2``
         is the mean trace times it. None: 1 (not available).
 

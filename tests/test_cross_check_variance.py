@@ -1,4 +1,4 @@
-"""The batch smoother's variance components (odofuse.estimators.graph.health.
+"""The batch smoother's variance components (odofuse.estimators.graph.variance.
 variance_components): the yardstick scale of the cross-check, on graphs with a known answer."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 gtsam = pytest.importorskip("gtsam")
 
 from odofuse import cross_check as xc  # noqa: E402
-from odofuse.estimators.graph import health  # noqa: E402
+from odofuse.estimators.graph import variance  # noqa: E402
 from odofuse.trajectory import Trajectory  # noqa: E402
 
 X = gtsam.symbol_shorthand.X
@@ -26,7 +26,7 @@ def _chain(k_odo: float, k_fix: float, n: int = 150, seed: int = 3):
     truth = [gtsam.Pose2(0.5 * i, 0.1 * math.sin(0.2 * i), 0.05 * i) for i in range(n)]
     g, v, groups = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
     g.add(gtsam.PriorFactorPose2(X(0), truth[0], gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
-    groups.append(health.PRIOR_GROUP)
+    groups.append(variance.PRIOR_GROUP)
     odo_nm = gtsam.noiseModel.Diagonal.Sigmas(ODO_SIGMA)
     fix_nm = gtsam.noiseModel.Diagonal.Sigmas(FIX_SIGMA)
     for i in range(n):
@@ -44,7 +44,7 @@ def _chain(k_odo: float, k_fix: float, n: int = 150, seed: int = 3):
 
 def test_each_groups_factor_recovers_the_scale_its_noise_was_simulated_with():
     g, values, groups, keys = _chain(k_odo=2.0, k_fix=0.5)
-    vc = health.variance_components(g, values, groups, keys)
+    vc = variance.variance_components(g, values, groups, keys)
     odo, fix = vc["groups"]["odometry"], vc["groups"]["fix"]
     # sum of redundancies = m - n, exactly (the hat matrix's trace is n)
     total = sum(grp["redundancy"] for grp in vc["groups"].values())
@@ -52,15 +52,15 @@ def test_each_groups_factor_recovers_the_scale_its_noise_was_simulated_with():
     assert vc["redundancy"] == (3 * 150 + 3 * 149 + 3) - 3 * 150
     # sigma_g^2 ~ k_g^2 within 4 relative standard deviations sqrt(2 / r_g)
     for grp, k2 in ((odo, 4.0), (fix, 0.25)):
-        assert grp["estimated"] and grp["redundancy"] > health.MIN_REDUNDANCY
+        assert grp["estimated"] and grp["redundancy"] > variance.MIN_REDUNDANCY
         assert abs(grp["variance_factor"] / k2 - 1.0) < 4 * math.sqrt(2 / grp["redundancy"])
-    assert not vc["groups"][health.PRIOR_GROUP]["estimated"]
-    assert vc["groups"][health.PRIOR_GROUP]["variance_factor"] == 1.0
+    assert not vc["groups"][variance.PRIOR_GROUP]["estimated"]
+    assert vc["groups"][variance.PRIOR_GROUP]["variance_factor"] == 1.0
 
 
 def test_a_right_noise_model_gives_factors_near_one_and_the_global_factor_is_chi2_over_m_minus_n():
     g, values, groups, keys = _chain(k_odo=1.0, k_fix=1.0, seed=5)
-    vc = health.variance_components(g, values, groups, keys)
+    vc = variance.variance_components(g, values, groups, keys)
     assert vc["variance_factor"] == pytest.approx(2.0 * g.error(values) / vc["redundancy"])
     for name in ("odometry", "fix"):
         grp = vc["groups"][name]
@@ -70,8 +70,8 @@ def test_a_right_noise_model_gives_factors_near_one_and_the_global_factor_is_chi
 def test_the_position_scale_is_the_sandwich_covariance_over_the_models():
     """Against dense algebra: tr(E^T N^-1 (sum_g s_g N_g) N^-1 E) / tr(E^T N^-1 E)."""
     g, values, groups, keys = _chain(k_odo=2.0, k_fix=0.5, n=40)
-    vc = health.variance_components(g, values, groups, keys, chunk=7)  # several chunks
-    a_sp, b, owner, cols = health._whitened_system(g, values)
+    vc = variance.variance_components(g, values, groups, keys, chunk=7)  # several chunks
+    a_sp, b, owner, cols = variance._whitened_system(g, values)
     a = a_sp.toarray()
     label = np.array(groups, dtype=object)[owner]
     ninv = np.linalg.inv(a.T @ a)
@@ -114,8 +114,8 @@ def test_the_cross_check_scales_its_yardstick_and_records_the_factor():
 
 def test_a_large_graph_gets_the_global_factor_only(monkeypatch):
     g, values, groups, keys = _chain(k_odo=2.0, k_fix=2.0, n=60)
-    monkeypatch.setattr(health, "MAX_VCE_DIMS", 100)  # 180 state dimensions: above
-    vc = health.variance_components(g, values, groups, keys)
+    monkeypatch.setattr(variance, "MAX_VCE_DIMS", 100)  # 180 state dimensions: above
+    vc = variance.variance_components(g, values, groups, keys)
     assert vc["method"] == "global" and "groups" not in vc
     assert vc["variance_factor"] == pytest.approx(2.0 * g.error(values) / vc["redundancy"])
     assert vc["position_variance_scale"] == vc["variance_factor"]

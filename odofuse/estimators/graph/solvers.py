@@ -27,18 +27,17 @@ import numpy as np
 from odofuse import se2
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.health import (
-    factor_groups,
     factor_residuals,
     graph_findings,
     residual_summary,
     robust_weights,
     solver_findings,
-    variance_components,
 )
 from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X
 from odofuse.estimators.graph.marginals import marginal_covariances
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
+from odofuse.estimators.graph.variance import factor_groups, variance_components
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -356,7 +355,7 @@ def run_smoother(log, config) -> EstimateResult:
         stream; ``extra``: ``calibration`` (state -> value), ``landmarks`` (SLAM: id -> [x, y]),
         ``outliers`` (per stream, beyond the model's gate at the optimum), ``residuals``,
         ``keyframes``, ``iterations``, ``final_error``, ``solve_s``, ``variance_components``
-        (:func:`~odofuse.estimators.graph.health.variance_components` at the optimum: the
+        (:func:`~odofuse.estimators.graph.variance.variance_components` at the optimum: the
         cross-check's scale of these covariances); ``findings`` for a solver
         that did not converge, covariances that could not be computed, and the checks of
         :mod:`odofuse.estimators.graph.health`.
