@@ -3,6 +3,7 @@ variance_components): the yardstick scale of the cross-check, on graphs with a k
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -121,3 +122,23 @@ def test_a_large_graph_gets_the_global_factor_only(monkeypatch):
     assert vc["position_variance_scale"] == vc["variance_factor"]
     # both streams' noise 2x their models': sigma0^2 ~ 4 (relative sd sqrt(2 / (m - n)))
     assert abs(vc["variance_factor"] / 4.0 - 1.0) < 4 * math.sqrt(2 / vc["redundancy"])
+
+
+def test_a_smoother_whose_variance_components_fail_still_runs_and_is_not_rescaled(monkeypatch):
+    from odofuse.estimators import run_estimator
+    from odofuse.estimators.graph import solvers
+    from odofuse.teaching import trust_scenarios as ts
+
+    def singular(*_a, **_k):
+        raise RuntimeError("Factor is exactly singular")
+
+    log, cfg = ts.simulated("gps_outage", 1, 7)
+    monkeypatch.setattr(solvers, "variance_components", singular)
+    res = run_estimator("smoother", log, dataclasses.replace(cfg, estimator="smoother"))
+    assert res.extra["variance_components"] == {
+        "skipped": "RuntimeError: Factor is exactly singular"
+    }
+    est = Trajectory(res.trajectory.t, res.trajectory.poses + 0.01, res.trajectory.covariances)
+    block, _ = xc.compare(est, res.trajectory, True, None)
+    assert block["smoother_variance_factor"] is None
+    assert block["smoother_sigma_m"] == block["smoother_sigma_model_m"]

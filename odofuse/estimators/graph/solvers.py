@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse import se2
+from odofuse.errors import one_line
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.health import (
     factor_residuals,
@@ -356,7 +357,8 @@ def run_smoother(log, config) -> EstimateResult:
         ``outliers`` (per stream, beyond the model's gate at the optimum), ``residuals``,
         ``keyframes``, ``iterations``, ``final_error``, ``solve_s``, ``variance_components``
         (:func:`~odofuse.estimators.graph.variance.variance_components` at the optimum: the
-        cross-check's scale of these covariances); ``findings`` for a solver
+        cross-check's scale of these covariances; ``skipped: <reason>`` when its normal
+        matrix cannot be factored); ``findings`` for a solver
         that did not converge, covariances that could not be computed, and the checks of
         :mod:`odofuse.estimators.graph.health`.
     """
@@ -426,7 +428,10 @@ def run_smoother(log, config) -> EstimateResult:
     )
     if opts.covariances and covs is not None:  # the scale of those covariances
         keys = [X(i) for i in range(len(problem.kt))]
-        extra["variance_components"] = variance_components(
-            graph, result, factor_groups(fac, graph), keys
-        )
+        try:  # a normal matrix the sparse LU cannot factor: no scale, the run goes on
+            extra["variance_components"] = variance_components(
+                graph, result, factor_groups(fac, graph), keys
+            )
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+            extra["variance_components"] = {"skipped": one_line(exc)}
     return finish(problem, fac, result, covs, "smoother", extra, findings)
