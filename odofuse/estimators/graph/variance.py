@@ -25,7 +25,10 @@ PRIOR_GROUP = "prior"
 def factor_groups(fac, graph) -> list[str]:
     """The variance group of each factor of ``graph``: its stream (a sensor, a gyro, the
     odometry) or ``"prior"`` (priors, bias-walk steps, landmark pins: pseudo-observations
-    whose scale the config sets, not a sensor's)."""
+    whose scale the config sets, not a sensor's). ``graph.at(j)`` returns the Python object
+    the factor was added as while that object lives (pybind11 keeps one wrapper per C++
+    object), so identity matches them; a factor not matched falls in ``prior`` (not
+    re-scaled)."""
     label = {id(f): meas.stream for meas, f in fac.created}
     label.update({id(f): stream for stream, _n, f in fac.gyro_created})
     label.update({id(f): fac.p.odometry_stream for _i, f in fac.odometry_created})
