@@ -10,7 +10,8 @@ smoother's second opinion, :mod:`odofuse.cross_check`, under its ``auto`` rule).
 (it said so) or ``SILENT`` (a silent failure: neither). ``alarm`` marks a run that holds but
 that the check flags (a false alarm: the check's cost). The last lines count the silent
 failures of both (target: zero checked) and the false alarms. Each checked run's cross-check
-figures (departure rms, smoother sigma, predicted ratio, departure NEES, or why skipped) and
+figures (departure rms, smoother sigma, predicted ratio, departure NEES, the smoother's
+variance factor and its sigma before it, or why skipped) and
 each degraded run's first warning are printed under the table.
 
 One estimate per (scenario, estimator), scored twice; one smoother run per scenario, shared.
@@ -53,7 +54,9 @@ def _figures(block: dict) -> str:
         return "skipped: " + block["skipped"]
     return (
         f"d {_f(block['departure_rms_m'])} m, s {_f(block['smoother_sigma_m'])} m, "
-        f"ratio {_f(block['predicted_ratio'])}, departure NEES {_f(block['departure_nees'])}"
+        f"ratio {_f(block['predicted_ratio'])}, departure NEES {_f(block['departure_nees'])}, "
+        f"smoother variance factor {_f(block.get('smoother_variance_factor'))} "
+        f"(s before it {_f(block.get('smoother_sigma_model_m'))} m)"
     )
 
 

@@ -12,8 +12,11 @@ the estimate and of the smoother and ``d = p_f - p_s`` their position difference
 smoother's error is orthogonal to ``d`` (``e_f = d + e_s``), so
 
 * ``RMSE_f^2 ~= rms(d)^2 + RMSE_s^2`` and ``RMSE_s^2 ~= s^2``, the mean trace of the smoother's
-  position covariance: the *predicted ratio* ``sqrt(1 + rms(d)^2 / s^2)`` estimates
-  ``RMSE_f / RMSE_s`` without ground truth; above :data:`HOLD_RMSE_RATIO` the estimate is
+  position covariance scaled by the smoother's own variance components (its residuals'
+  verdict on the scale of its noise model, ``variance_components`` of
+  :mod:`odofuse.estimators.graph.variance`; ``smoother_variance_factor``): the *predicted
+  ratio* ``sqrt(1 + rms(d)^2 / s^2)`` estimates ``RMSE_f / RMSE_s`` without ground truth;
+  above :data:`HOLD_RMSE_RATIO` the estimate is
   likely more than that many times the smoother's error (finding ``cross_check``; estimators
   that fuse an absolute sensor only, not :data:`UNAIDED` ones);
 * ``cov(d) = P_f - P_s <= P_f`` for a consistent estimate, so the *departure NEES*
@@ -150,7 +153,9 @@ def skip_reason(config, log) -> str | None:
     return None
 
 
-def compare(estimate: Trajectory, smoother: Trajectory, fused: bool) -> tuple[dict, list[Finding]]:
+def compare(
+    estimate: Trajectory, smoother: Trajectory, fused: bool, variance_scale: float | None = None
+) -> tuple[dict, list[Finding]]:
     """The ``cross_check`` figures of ``estimate`` against ``smoother`` and their findings.
 
     Parameters
@@ -162,11 +167,18 @@ def compare(estimate: Trajectory, smoother: Trajectory, fused: bool) -> tuple[di
         (:func:`odofuse.evaluation.ate`'s association: inside its span, not across its gaps).
     fused : bool
         The estimate fuses absolute sensors: the predicted-ratio finding applies.
+    variance_scale : float, optional
+        The smoother's own scale of its position covariance (``position_variance_scale`` of
+        :func:`odofuse.estimators.graph.variance.variance_components`: the error covariance its
+        residuals' variance components imply over the one its noise model implies); ``s^2``
+        is the mean trace times it. None: 1 (not available).
 
     Returns
     -------
     block : dict
         ``poses_compared``, ``departure_rms_m`` (rms(d), m), ``smoother_sigma_m`` (``s``, m),
+        ``smoother_sigma_model_m`` (``s`` before the variance scale, m),
+        ``smoother_variance_factor`` (the scale, None when not available),
         ``predicted_ratio`` (``sqrt(1 + rms(d)^2 / s^2)``), ``departure_nees`` (mean
         ``d^T P_f^-1 d`` over the positive-definite ``P_f``, expected <= 2), the bounds; or
         ``skipped`` when nothing overlaps.
@@ -185,6 +197,9 @@ def compare(estimate: Trajectory, smoother: Trajectory, fused: bool) -> tuple[di
         tr = smoother.covariances[:, 0, 0] + smoother.covariances[:, 1, 1]
         tr = tr[np.isfinite(tr) & (tr > 0)]
         s2 = float(tr.mean()) if tr.size else math.nan
+    s2_model = s2
+    if variance_scale is not None and math.isfinite(variance_scale) and variance_scale > 0:
+        s2 = s2 * variance_scale
     ratio = math.sqrt(1.0 + rms**2 / s2) if s2 > 0 else None
     dn = nees(estimate, smoother, (0, 1)) if estimate.covariances is not None else math.nan
     span = (float(estimate.t[idx[0]]), float(estimate.t[idx[-1]]))
@@ -192,6 +207,8 @@ def compare(estimate: Trajectory, smoother: Trajectory, fused: bool) -> tuple[di
         "poses_compared": int(len(idx)),
         "departure_rms_m": rms,
         "smoother_sigma_m": math.sqrt(s2) if s2 > 0 else None,
+        "smoother_sigma_model_m": math.sqrt(s2_model) if s2_model > 0 else None,
+        "smoother_variance_factor": variance_scale,
         "predicted_ratio": ratio,
         "departure_nees": None if math.isnan(dn) else dn,
         "ratio_bound": HOLD_RMSE_RATIO if fused else None,
@@ -266,7 +283,9 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     if ref.status != "ok":
         return result, {"skipped": f"the batch smoother's own status is {ref.status}", **about}
     fused = result.estimator not in UNAIDED
-    block, found = compare(result.trajectory, ref.result.trajectory, fused)
+    vc = (ref.result.extra or {}).get("variance_components") or {}
+    scale = vc.get("position_variance_scale")
+    block, found = compare(result.trajectory, ref.result.trajectory, fused, scale)
     if found:
         result = dataclasses.replace(result, findings=(*result.findings, *found))
     return result, {**block, **about}

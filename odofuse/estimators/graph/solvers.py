@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse import se2
+from odofuse.errors import one_line
 from odofuse.estimators.graph.chordal import chordal_poses
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.health import (
@@ -40,6 +41,7 @@ from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X
 from odofuse.estimators.graph.marginals import marginal_covariances
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
+from odofuse.estimators.graph.variance import factor_groups, variance_components
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -408,7 +410,10 @@ def run_smoother(log, config) -> EstimateResult:
         Keyframe poses with world-frame marginal covariances; ``used``/``rejected`` per
         stream; ``extra``: ``calibration`` (state -> value), ``landmarks`` (SLAM: id -> [x, y]),
         ``outliers`` (per stream, beyond the model's gate at the optimum), ``residuals``,
-        ``keyframes``, ``iterations``, ``final_error``, ``solve_s``; ``findings`` for a solver
+        ``keyframes``, ``iterations``, ``final_error``, ``solve_s``, ``variance_components``
+        (:func:`~odofuse.estimators.graph.variance.variance_components` at the optimum: the
+        cross-check's scale of these covariances; ``skipped: <reason>`` when its normal
+        matrix cannot be factored); ``findings`` for a solver
         that did not converge, covariances that could not be computed, and the checks of
         :mod:`odofuse.estimators.graph.health`.
     """
@@ -478,4 +483,12 @@ def run_smoother(log, config) -> EstimateResult:
     extra.update(
         {"iterations": int(out.iterations), "final_error": float(out.error), "solve_s": solve_s}
     )
+    if opts.covariances and covs is not None:  # the scale of those covariances
+        keys = [X(i) for i in range(len(problem.kt))]
+        try:  # a normal matrix the sparse LU cannot factor: no scale, the run goes on
+            extra["variance_components"] = variance_components(
+                graph, result, factor_groups(fac, graph), keys
+            )
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+            extra["variance_components"] = {"skipped": one_line(exc)}
     return finish(problem, fac, result, covs, "smoother", extra, findings)

@@ -1,0 +1,144 @@
+"""The batch smoother's variance components (odofuse.estimators.graph.variance.
+variance_components): the yardstick scale of the cross-check, on graphs with a known answer."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+from odofuse import cross_check as xc  # noqa: E402
+from odofuse.estimators.graph import variance  # noqa: E402
+from odofuse.trajectory import Trajectory  # noqa: E402
+
+X = gtsam.symbol_shorthand.X
+ODO_SIGMA = np.array([0.05, 0.05, 0.02])  # m, m, rad: the model's odometry sigmas
+FIX_SIGMA = np.array([0.3, 0.3, 0.5])  # the model's absolute pose-fix sigmas
+
+
+def _chain(k_odo: float, k_fix: float, n: int = 150, seed: int = 3):
+    """A Pose2 chain whose odometry noise is ``k_odo`` and whose absolute fixes' noise is
+    ``k_fix`` times what their noise models say, solved by LM; with each factor's group."""
+    rng = np.random.default_rng(seed)
+    truth = [gtsam.Pose2(0.5 * i, 0.1 * math.sin(0.2 * i), 0.05 * i) for i in range(n)]
+    g, v, groups = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
+    g.add(gtsam.PriorFactorPose2(X(0), truth[0], gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
+    groups.append(variance.PRIOR_GROUP)
+    odo_nm = gtsam.noiseModel.Diagonal.Sigmas(ODO_SIGMA)
+    fix_nm = gtsam.noiseModel.Diagonal.Sigmas(FIX_SIGMA)
+    for i in range(n):
+        fix = truth[i].retract(k_fix * FIX_SIGMA * rng.standard_normal(3))
+        g.add(gtsam.PriorFactorPose2(X(i), fix, fix_nm))
+        groups.append("fix")
+        if i:
+            rel = truth[i - 1].between(truth[i]).retract(k_odo * ODO_SIGMA * rng.standard_normal(3))
+            g.add(gtsam.BetweenFactorPose2(X(i - 1), X(i), rel, odo_nm))
+            groups.append("odometry")
+        v.insert(X(i), truth[i])
+    out = gtsam.LevenbergMarquardtOptimizer(g, v, gtsam.LevenbergMarquardtParams()).optimize()
+    return g, out, groups, [X(i) for i in range(n)]
+
+
+def test_each_groups_factor_recovers_the_scale_its_noise_was_simulated_with():
+    g, values, groups, keys = _chain(k_odo=2.0, k_fix=0.5)
+    vc = variance.variance_components(g, values, groups, keys)
+    odo, fix = vc["groups"]["odometry"], vc["groups"]["fix"]
+    # sum of redundancies = m - n, exactly (the hat matrix's trace is n)
+    total = sum(grp["redundancy"] for grp in vc["groups"].values())
+    assert total == pytest.approx(vc["redundancy"], abs=1e-6)
+    assert vc["redundancy"] == (3 * 150 + 3 * 149 + 3) - 3 * 150
+    # sigma_g^2 ~ k_g^2 within 4 relative standard deviations sqrt(2 / r_g)
+    for grp, k2 in ((odo, 4.0), (fix, 0.25)):
+        assert grp["estimated"] and grp["redundancy"] > variance.MIN_REDUNDANCY
+        assert abs(grp["variance_factor"] / k2 - 1.0) < 4 * math.sqrt(2 / grp["redundancy"])
+    assert not vc["groups"][variance.PRIOR_GROUP]["estimated"]
+    assert vc["groups"][variance.PRIOR_GROUP]["variance_factor"] == 1.0
+
+
+def test_a_right_noise_model_gives_factors_near_one_and_the_global_factor_is_chi2_over_m_minus_n():
+    g, values, groups, keys = _chain(k_odo=1.0, k_fix=1.0, seed=5)
+    vc = variance.variance_components(g, values, groups, keys)
+    assert vc["variance_factor"] == pytest.approx(2.0 * g.error(values) / vc["redundancy"])
+    for name in ("odometry", "fix"):
+        grp = vc["groups"][name]
+        assert abs(grp["variance_factor"] - 1.0) < 4 * math.sqrt(2 / grp["redundancy"])
+
+
+def test_the_position_scale_is_the_sandwich_covariance_over_the_models():
+    """Against dense algebra: tr(E^T N^-1 (sum_g s_g N_g) N^-1 E) / tr(E^T N^-1 E)."""
+    g, values, groups, keys = _chain(k_odo=2.0, k_fix=0.5, n=40)
+    vc = variance.variance_components(g, values, groups, keys, chunk=7)  # several chunks
+    a_sp, b, owner, cols = variance._whitened_system(g, values)
+    a = a_sp.toarray()
+    label = np.array(groups, dtype=object)[owner]
+    ninv = np.linalg.inv(a.T @ a)
+    m = sum(
+        vc["groups"][name]["variance_factor"] * a[label == name].T @ a[label == name]
+        for name in set(groups)
+    )
+    pos = [cols[int(k)][0] + d for k in keys for d in (0, 1)]
+    sandwich = ninv @ m @ ninv
+    expected = np.trace(sandwich[np.ix_(pos, pos)]) / np.trace(ninv[np.ix_(pos, pos)])
+    assert vc["position_variance_scale"] == pytest.approx(expected, rel=1e-9)
+    # the redundancies: 1 - diag of the hat matrix A (A^T W A)^-1 A^T W at the converged
+    # weights W = 1 / c_g (converged to 0.1 %: the reported r_g are of the last pass)
+    wrow = np.array([1.0 / vc["groups"][name]["variance_factor"] for name in label])
+    hat = wrow * np.einsum("ij,jk,ik->i", a, np.linalg.inv(a.T @ (wrow[:, None] * a)), a)
+    for name in set(groups):
+        r = np.sum(1.0 - hat[label == name])
+        assert vc["groups"][name]["redundancy"] == pytest.approx(r, rel=5e-3)
+    # the Marginals' covariance is N^-1 (the unscaled yardstick the cross-check had)
+    marg = gtsam.Marginals(g, values).marginalCovariance(keys[5])
+    assert marg == pytest.approx(ninv[np.ix_(range(15, 18), range(15, 18))], rel=1e-6)
+
+
+def test_the_cross_check_scales_its_yardstick_and_records_the_factor():
+    t = np.linspace(0.0, 20.0, 201)
+    cov = np.tile(np.diag([1e-4, 1e-4, 1e-4]), (t.size, 1, 1))
+    smoother = Trajectory(t, np.column_stack([t, 0 * t, 0 * t]), cov)
+    s = math.sqrt(2e-4)
+    est = Trajectory(t, np.column_stack([t, np.full(t.size, 1.5 * s), 0 * t]), cov * 1e4)
+    block, found = xc.compare(est, smoother, True)
+    assert block["predicted_ratio"] == pytest.approx(math.sqrt(1 + 1.5**2)) and found == []
+    assert block["smoother_variance_factor"] is None
+    block, found = xc.compare(est, smoother, True, variance_scale=0.25)  # sigma halved
+    assert block["smoother_sigma_m"] == pytest.approx(0.5 * s)
+    assert block["smoother_sigma_model_m"] == pytest.approx(s)
+    assert block["smoother_variance_factor"] == 0.25
+    assert block["predicted_ratio"] == pytest.approx(math.sqrt(1 + 3.0**2))
+    assert [f.check for f in found] == ["cross_check"]
+
+
+def test_a_large_graph_gets_the_global_factor_only(monkeypatch):
+    g, values, groups, keys = _chain(k_odo=2.0, k_fix=2.0, n=60)
+    monkeypatch.setattr(variance, "MAX_VCE_DIMS", 100)  # 180 state dimensions: above
+    vc = variance.variance_components(g, values, groups, keys)
+    assert vc["method"] == "global" and "groups" not in vc
+    assert vc["variance_factor"] == pytest.approx(2.0 * g.error(values) / vc["redundancy"])
+    assert vc["position_variance_scale"] == vc["variance_factor"]
+    # both streams' noise 2x their models': sigma0^2 ~ 4 (relative sd sqrt(2 / (m - n)))
+    assert abs(vc["variance_factor"] / 4.0 - 1.0) < 4 * math.sqrt(2 / vc["redundancy"])
+
+
+def test_a_smoother_whose_variance_components_fail_still_runs_and_is_not_rescaled(monkeypatch):
+    from odofuse.estimators import run_estimator
+    from odofuse.estimators.graph import solvers
+    from odofuse.teaching import trust_scenarios as ts
+
+    def singular(*_a, **_k):
+        raise RuntimeError("Factor is exactly singular")
+
+    log, cfg = ts.simulated("gps_outage", 1, 7)
+    monkeypatch.setattr(solvers, "variance_components", singular)
+    res = run_estimator("smoother", log, dataclasses.replace(cfg, estimator="smoother"))
+    assert res.extra["variance_components"] == {
+        "skipped": "RuntimeError: Factor is exactly singular"
+    }
+    est = Trajectory(res.trajectory.t, res.trajectory.poses + 0.01, res.trajectory.covariances)
+    block, _ = xc.compare(est, res.trajectory, True, None)
+    assert block["smoother_variance_factor"] is None
+    assert block["smoother_sigma_m"] == block["smoother_sigma_model_m"]
