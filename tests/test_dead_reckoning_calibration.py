@@ -185,22 +185,23 @@ def test_plaza2_with_the_plaza1_default_prior():
     assert out["builtin:plaza1"][1] < out["builtin:plaza1"][0]
 
 
-@pytest.mark.parametrize("estimator", ["dead_reckoning", "ekf"])
-def test_several_wheels_per_side_are_refused_not_misread(estimator):
-    """The calibrated input reads inputs 0 and 1 as left and right: with two wheels per side
-    those are left1 and left2 (the EKF ran on them, silently wrong), so it is a config error."""
+def test_several_wheels_per_side_keep_the_poses_and_widen_the_covariance():
+    """With two wheels a side the calibration term acts on every wheel of a side (it once
+    read inputs 0 and 1, left1 and left2, as left and right): the poses are the plain run's
+    and the covariance only grows."""
     t = np.arange(50) * 0.1
     wheels = np.cumsum(np.ones((50, 4)) * [1.0, 1.0, 1.1, 1.1], axis=0) * 0.1
     names = ("left1", "left2", "right1", "right2")
     log = SensorLog("sim", {"wheels": Stream("wheels", "sim", t, names, wheels)}, {})
     robot = {"drive": "differential", "wheel_radius": 0.1, "track_width": 0.5}
-    cfg = RunConfig(
+    plain = RunConfig(
         log="sim",
         robot={**robot, "wheels_per_side": 2},
-        estimator=estimator,
-        options={estimator: {"odometry_calibration": True}},
+        estimator="dead_reckoning",
         source="four.yaml",
     )
-    with pytest.raises(ConfigError, match="one wheel per side") as info:
-        run_estimator(estimator, log, cfg)
-    assert info.value.key == f"options.{estimator}.odometry_calibration"
+    cal = dataclasses.replace(plain, options={"dead_reckoning": {"odometry_calibration": True}})
+    r0, r1 = (run_estimator("dead_reckoning", log, c).trajectory for c in (plain, cal))
+    np.testing.assert_array_equal(r1.poses, r0.poses)
+    grow = np.linalg.eigvalsh(r1.covariances - r0.covariances)
+    assert grow.min() > -1e-12 and grow[-1].max() > 0

@@ -135,15 +135,6 @@ def filter_odometry_calibration(model, options, key: str, source: str):
     )
     if base is None:
         return None
-    if base.drive != "increments" and base.wheels_per_side != 1:
-        # apply / jacobian handle n wheels a side (tests/test_calibration_jacobians.py), but the
-        # filters' runs with them are not validated yet: refused, as before
-        raise ConfigError(
-            "odometry calibration needs one wheel per side (inputs left, right), not "
-            f"{', '.join(model.drive.input_names)}",
-            file=source,
-            key=f"{key}.odometry_calibration",
-        )
     # Dead reckoning declares no walk: it propagates the prior alone (dead_reckoning.py).
     walk = getattr(options, "odometry_calibration_walk", None)
     if walk is None:
