@@ -96,8 +96,7 @@ class FilterOdometryCalibration:
 
         n, C = self.wheels_per_side, np.asarray(self.track)
         E, Eb = p[..., 0:1], p[..., 1:2]
-        right = np.arange(2 * n) >= n
-        us = u * np.where(right, 2.0 * E / (1.0 + E), 2.0 / (1.0 + E))
+        us = _split_radii(u, E, n)
         shift = (1.0 - 1.0 / Eb) * (side_means(us, n) @ C.T)
         return us + np.repeat(shift, n, axis=-1)
 
@@ -110,12 +109,18 @@ class FilterOdometryCalibration:
 
         n, C = self.wheels_per_side, np.asarray(self.track)
         E, Eb = p
-        right = np.arange(2 * n) >= n
-        us = u * np.where(right, 2.0 * E / (1.0 + E), 2.0 / (1.0 + E))
-        dus = u * np.where(right, 2.0, -2.0) / (1.0 + E) ** 2  # d u_s / dE
+        us = _split_radii(u, E, n)
+        dus = u * np.where(np.arange(2 * n) >= n, 2.0, -2.0) / (1.0 + E) ** 2  # d u_s / dE
         dE = dus + np.repeat((1.0 - 1.0 / Eb) * (C @ side_means(dus, n)), n)
         dEb = np.repeat(C @ side_means(us, n) / Eb**2, n)
         return np.stack([dE, dEb], -1)
+
+
+def _split_radii(u, E, n: int) -> np.ndarray:
+    """Wheel angles ``u`` ``(..., 2n)`` with the radii split by ``E = E_d`` (mean kept): every
+    right wheel's angle times ``2 E / (1 + E)``, every left wheel's times ``2 / (1 + E)``."""
+    right = np.arange(2 * n) >= n
+    return u * np.where(right, 2.0 * E / (1.0 + E), 2.0 / (1.0 + E))
 
 
 def filter_odometry_calibration(model, options, key: str, source: str):
