@@ -54,7 +54,8 @@ def _figures(block: dict) -> str:
         return "skipped: " + block["skipped"]
     return (
         f"d {_f(block['departure_rms_m'])} m, s {_f(block['smoother_sigma_m'])} m, "
-        f"ratio {_f(block['predicted_ratio'])}, departure NEES {_f(block['departure_nees'])}, "
+        f"ratio {_f(block['predicted_ratio'])}, p_fail {_f(block.get('p_fail'))}, "
+        f"departure NEES {_f(block['departure_nees'])}, "
         f"smoother variance factor {_f(block.get('smoother_variance_factor'))} "
         f"(s before it {_f(block.get('smoother_sigma_model_m'))} m)"
     )

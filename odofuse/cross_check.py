@@ -15,10 +15,19 @@ smoother's error is orthogonal to ``d`` (``e_f = d + e_s``), so
   position covariance scaled by the smoother's own variance components (its residuals'
   verdict on the scale of its noise model, ``variance_components`` of
   :mod:`odofuse.estimators.graph.variance`; ``smoother_variance_factor``): the *predicted
-  ratio* ``sqrt(1 + rms(d)^2 / s^2)`` estimates ``RMSE_f / RMSE_s`` without ground truth;
-  above :data:`HOLD_RMSE_RATIO` the estimate is
-  likely more than that many times the smoother's error (finding ``cross_check``; estimators
-  that fuse an absolute sensor only, not :data:`UNAIDED` ones);
+  ratio* ``sqrt(1 + rms(d)^2 / s^2)`` estimates ``RMSE_f / RMSE_s`` without ground truth
+  (information in the block);
+* the predicted ratio plugs in ``s^2`` as if the smoother's realised error were its
+  expectation; on one log it scatters widely (the smoother's error is correlated along the
+  trajectory). The finding therefore asks the smoother's own posterior: given the data the
+  truth is ``x_s - e``, ``e ~ N(0, P_s)`` (the linearised smoother under its variance
+  components), so the judge's ratio is the random variable
+  ``R^2 = mean_t |d_t + e_t|^2 / mean_t |e_t|^2``; with the smoother's joint error samples
+  (:class:`odofuse.estimators.graph.variance.ErrorSamples`) the check reports
+  ``p_fail = P(R > HOLD_RMSE_RATIO | data)`` and fires above :data:`ALPHA` (finding
+  ``cross_check``; estimators that fuse an absolute sensor only, not :data:`UNAIDED` ones).
+  Without samples it falls back to the predicted ratio above :data:`HOLD_RMSE_RATIO` and
+  says so (``rule`` in the block);
 * ``cov(d) = P_f - P_s <= P_f`` for a consistent estimate, so the *departure NEES*
   ``mean d^T P_f^-1 d`` is at most 2 (position) and is a lower bound of the estimate's own
   position NEES; above :data:`HOLD_NEES` (the judge's bound: the run cannot hold) the estimate
@@ -39,12 +48,18 @@ import numpy as np
 
 from odofuse.errors import one_line
 from odofuse.health import Finding, assess, status_of
-from odofuse.trajectory import EstimateResult, Trajectory
+from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
 
 #: RMSE ratio to the batch smoother within which an estimator that fuses absolute sensors holds.
 HOLD_RMSE_RATIO = 2.0
 #: Position NEES below which an estimate holds (and the departure-NEES bound of the check).
 HOLD_NEES = 10.0
+#: Posterior probability of failing the judge above which ``cross_check`` fires: the
+#: conventional significance level (for a calibrated posterior it bounds the fraction of
+#: ``ok`` runs that fail the judge).
+ALPHA = 0.05
+#: Estimate times per block of the posterior's pass (temporaries ``K * block * 2`` floats).
+SAMPLE_BLOCK = 2048
 #: Estimators that fuse no absolute sensor: judged on their covariance alone (their drift from
 #: a smoother that has the absolute sensors is expected).
 UNAIDED = frozenset({"dead_reckoning"})
@@ -153,8 +168,59 @@ def skip_reason(config, log) -> str | None:
     return None
 
 
+def posterior_fail(estimate: Trajectory, smoother: Trajectory, samples: np.ndarray) -> float:
+    """Posterior probability that ``estimate`` fails the judge's RMSE ratio.
+
+    Parameters
+    ----------
+    estimate : Trajectory
+        The run's estimate.
+    smoother : Trajectory
+        The batch smoother (keyframe poses, the samples' times).
+    samples : ndarray, shape (K, N, 2)
+        Joint samples of the smoother's position errors ``e`` at its N keyframes (m, world
+        frame): the truth is the smoother's position minus ``e``.
+
+    Returns
+    -------
+    float
+        The fraction of the K samples whose ratio ``R^2 = mean_t |d_t + e_t|^2 /
+        mean_t |e_t|^2`` exceeds ``HOLD_RMSE_RATIO^2``: ``d`` the estimate minus the smoother
+        and ``e`` the sampled errors interpolated linearly between keyframes, at the
+        estimate's times the smoother covers (:func:`odofuse.evaluation.associate`).
+    """
+    from odofuse.evaluation import associate
+
+    idx, g = associate(estimate, smoother)
+    t = np.clip(estimate.t[idx], smoother.t[0], smoother.t[-1])
+    tt = smoother.t
+    k_samples = samples.shape[0]
+    num, den = np.zeros(k_samples), np.zeros(k_samples)
+    for b in pose_blocks(idx.size, SAMPLE_BLOCK):
+        d = estimate.poses[idx[b], :2] - g[b, :2]  # (B, 2)
+        if tt.size == 1:
+            e = np.repeat(samples[:, :1], d.shape[0], axis=1)
+        else:
+            tb = t[b]
+            k = np.clip(np.searchsorted(tt, tb, side="right") - 1, 0, tt.size - 2)
+            dt = tt[k + 1] - tt[k]
+            a = np.where(dt > 0, (tb - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)[None, :, None]
+            e = samples[:, k] + a * (samples[:, k + 1] - samples[:, k])  # (K, B, 2)
+        num += np.sum((d[None] + e) ** 2, axis=(1, 2))
+        den += np.sum(e**2, axis=(1, 2))
+    return float(np.mean(num > HOLD_RMSE_RATIO**2 * den))
+
+
+def _fmt(x) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{x:.3g}"
+
+
 def compare(
-    estimate: Trajectory, smoother: Trajectory, fused: bool, variance_scale: float | None = None
+    estimate: Trajectory,
+    smoother: Trajectory,
+    fused: bool,
+    variance_scale: float | None = None,
+    samples: np.ndarray | None = None,
 ) -> tuple[dict, list[Finding]]:
     """The ``cross_check`` figures of ``estimate`` against ``smoother`` and their findings.
 
@@ -172,6 +238,11 @@ def compare(
         :func:`odofuse.estimators.graph.variance.variance_components`: the error covariance its
         residuals' variance components imply over the one its noise model implies); ``s^2``
         is the mean trace times it. None: 1 (not available).
+    samples : ndarray, shape (K, N, 2), optional
+        Joint samples of the smoother's position errors at its poses (m, world frame;
+        :class:`odofuse.estimators.graph.variance.ErrorSamples`): the ``cross_check`` finding
+        fires when :func:`posterior_fail` exceeds :data:`ALPHA`. None: the fallback rule
+        (predicted ratio above :data:`HOLD_RMSE_RATIO`).
 
     Returns
     -------
@@ -179,11 +250,14 @@ def compare(
         ``poses_compared``, ``departure_rms_m`` (rms(d), m), ``smoother_sigma_m`` (``s``, m),
         ``smoother_sigma_model_m`` (``s`` before the variance scale, m),
         ``smoother_variance_factor`` (the scale, None when not available),
-        ``predicted_ratio`` (``sqrt(1 + rms(d)^2 / s^2)``), ``departure_nees`` (mean
+        ``predicted_ratio`` (``sqrt(1 + rms(d)^2 / s^2)``), ``p_fail`` (None without
+        samples), ``samples`` (K, 0 without), ``rule`` (``posterior p_fail > ALPHA`` or the
+        fallback and why), ``alpha``, ``departure_nees`` (mean
         ``d^T P_f^-1 d`` over the positive-definite ``P_f``, expected <= 2), the bounds; or
         ``skipped`` when nothing overlaps.
     findings : list of Finding
-        ``cross_check`` (fused, predicted ratio above :data:`HOLD_RMSE_RATIO`) and
+        ``cross_check`` (fused, ``p_fail`` above :data:`ALPHA`; without samples the predicted
+        ratio above :data:`HOLD_RMSE_RATIO`) and
         ``cross_check_nees`` (departure NEES above :data:`HOLD_NEES`).
     """
     from odofuse.evaluation import ate, covered, nees
@@ -203,6 +277,13 @@ def compare(
     ratio = math.sqrt(1.0 + rms**2 / s2) if s2 > 0 else None
     dn = nees(estimate, smoother, (0, 1)) if estimate.covariances is not None else math.nan
     span = (float(estimate.t[idx[0]]), float(estimate.t[idx[-1]]))
+    usable = samples is not None and samples.ndim == 3 and samples.shape[1] == len(smoother)
+    p_fail = posterior_fail(estimate, smoother, samples) if usable else None
+    if usable:
+        rule = f"posterior p_fail > {ALPHA:g}"
+    else:
+        why = "none" if samples is None else "not one per smoother pose"
+        rule = f"predicted ratio > {HOLD_RMSE_RATIO:g} (fallback: smoother error samples {why})"
     block = {
         "poses_compared": int(len(idx)),
         "departure_rms_m": rms,
@@ -210,18 +291,34 @@ def compare(
         "smoother_sigma_model_m": math.sqrt(s2_model) if s2_model > 0 else None,
         "smoother_variance_factor": variance_scale,
         "predicted_ratio": ratio,
+        "p_fail": p_fail,
+        "samples": int(samples.shape[0]) if usable else 0,
+        "alpha": ALPHA if fused else None,
+        "rule": rule if fused else None,
         "departure_nees": None if math.isnan(dn) else dn,
         "ratio_bound": HOLD_RMSE_RATIO if fused else None,
         "nees_bound": HOLD_NEES,
     }
     found = []
-    if fused and ratio is not None and ratio > HOLD_RMSE_RATIO:
+    if fused and p_fail is not None and p_fail > ALPHA:
+        found.append(
+            Finding(
+                "cross_check",
+                f"{rms:.3g} m rms from the batch smoother of the same log: posterior "
+                f"probability {p_fail:.2f} (> {ALPHA:g}) of more than {HOLD_RMSE_RATIO:g}x its "
+                f"error (predicted ratio {_fmt(ratio)}x, smoother sigma {_fmt(s2**0.5)} m)",
+                t_start=span[0],
+                t_end=span[1],
+                figure=p_fail,
+            )
+        )
+    elif fused and p_fail is None and ratio is not None and ratio > HOLD_RMSE_RATIO:
         found.append(
             Finding(
                 "cross_check",
                 f"{rms:.3g} m rms from the batch smoother of the same log, whose own sigma is "
                 f"{math.sqrt(s2):.3g} m: likely more than {HOLD_RMSE_RATIO:g}x its error "
-                f"(predicted {ratio:.2f}x)",
+                f"(predicted {ratio:.2f}x; no error samples: fallback rule)",
                 t_start=span[0],
                 t_end=span[1],
                 figure=ratio,
@@ -285,7 +382,9 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     fused = result.estimator not in UNAIDED
     vc = (ref.result.extra or {}).get("variance_components") or {}
     scale = vc.get("position_variance_scale")
-    block, found = compare(result.trajectory, ref.result.trajectory, fused, scale)
+    es = (ref.result.extra or {}).get("_error_samples")
+    samples = getattr(es, "xy", None)
+    block, found = compare(result.trajectory, ref.result.trajectory, fused, scale, samples)
     if found:
         result = dataclasses.replace(result, findings=(*result.findings, *found))
     return result, {**block, **about}

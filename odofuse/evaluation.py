@@ -450,8 +450,9 @@ def metrics(
         for key, dims in (("nees_mean", (0, 1, 2)), ("nees_position_mean", (0, 1))):
             n = nees(traj, gt, dims)
             out[key] = None if math.isnan(n) else n
-    if result.extra:
-        out["extra"] = result.extra
+    extra = {k: v for k, v in (result.extra or {}).items() if not str(k).startswith("_")}
+    if extra:  # keys starting with "_" are in memory only (the cross-check's error samples)
+        out["extra"] = extra
     findings = assess(result) + scoring
     out["status"] = status_of(findings)
     out["warnings"] = [f.line() for f in findings]

@@ -176,3 +176,74 @@ def test_a_smoother_that_raises_skips_the_check_and_the_run_goes_on():
     }
     m = checked_metrics(_config(), _log(), est, 0.1, broken)
     assert m["status"] == "ok" and m["warnings"] == [] and m["cross_check"] == block
+
+
+def _brute_p_fail(est, smoother, samples):
+    """p_fail by dense per-sample interpolation (np.interp) at every estimate time."""
+    t = est.t
+    num, den = [], []
+    for e in samples:
+        ex, ey = np.interp(t, smoother.t, e[:, 0]), np.interp(t, smoother.t, e[:, 1])
+        sx = np.interp(t, smoother.t, smoother.poses[:, 0])
+        sy = np.interp(t, smoother.t, smoother.poses[:, 1])
+        dx, dy = est.poses[:, 0] - sx, est.poses[:, 1] - sy
+        num.append(np.mean((dx + ex) ** 2 + (dy + ey) ** 2))
+        den.append(np.mean(ex**2 + ey**2))
+    return float(np.mean(np.array(num) > xc.HOLD_RMSE_RATIO**2 * np.array(den)))
+
+
+def test_p_fail_is_the_posterior_fraction_of_samples_whose_realised_ratio_exceeds_the_bound():
+    rng = np.random.default_rng(4)
+    sm = _smoother()  # 21 keyframes, estimate at 201 times between them
+    # errors correlated along the trajectory: a random offset plus a small per-keyframe part
+    samples = SIGMA * (rng.standard_normal((300, 1, 2)) + 0.3 * rng.standard_normal((300, 21, 2)))
+    est = _line(dy=1.2 * SIGMA, var=1.0)
+    p = xc.posterior_fail(est, sm, samples)
+    assert 0.0 < p < 1.0  # the realised ratio scatters across the bound
+    assert p == _brute_p_fail(est, sm, samples)
+    assert xc.posterior_fail(_line(dy=0.0), sm, samples) == 0.0  # d = 0: R = 1
+    assert xc.posterior_fail(_line(dy=100 * SIGMA), sm, samples) == 1.0
+    # a block size that splits the estimate's times gives the same figure
+    assert xc.posterior_fail(est, sm, samples) == pytest.approx(p)
+
+
+def test_the_finding_follows_p_fail_not_the_predicted_ratio(monkeypatch):
+    """Predicted ratio 1.28 (under 2), but the smoother's posterior errors are one common
+    offset (two degrees of freedom): |e|^2 is below 0.32 of its mean with probability
+    1 - exp(-0.32) = 0.27, there R > 2, so p_fail > ALPHA fires."""
+    rng = np.random.default_rng(9)
+    s = math.sqrt(2) * SIGMA
+    samples = np.repeat(SIGMA * rng.standard_normal((200, 1, 2)), 21, axis=1)
+    est = _line(dy=0.8 * s, var=1.0)
+    block, found = xc.compare(est, _smoother(), True, None, samples)
+    assert block["predicted_ratio"] == pytest.approx(math.sqrt(1 + 0.8**2))
+    assert block["p_fail"] == pytest.approx(1 - math.exp(-0.32), abs=4 * 0.032)
+    assert block["p_fail"] == _brute_p_fail(est, _smoother(), samples) > xc.ALPHA
+    assert block["samples"] == 200 and block["alpha"] == xc.ALPHA
+    assert block["rule"] == "posterior p_fail > 0.05"
+    assert _checks(found) == ["cross_check"] and found[0].figure == block["p_fail"]
+    assert f"posterior probability {block['p_fail']:.2f}" in found[0].line()
+    assert "predicted ratio 1.28x" in found[0].line()
+    # the same estimate against a smoother whose errors average out (independent per
+    # keyframe, 21 of them; interpolation between keyframes lowers the mean |e|^2 to 2/3):
+    # R^2 ~ 1 + 0.64 * 1.5, above 4 only 3 standard deviations out: no finding
+    ind = SIGMA * rng.standard_normal((200, 21, 2))
+    block, found = xc.compare(est, _smoother(), True, None, ind)
+    assert block["p_fail"] <= xc.ALPHA and found == []
+    # monkeypatched SAMPLE_BLOCK (several blocks) changes nothing
+    monkeypatch.setattr(xc, "SAMPLE_BLOCK", 7)
+    assert xc.compare(est, _smoother(), True, None, ind)[0]["p_fail"] == block["p_fail"]
+
+
+def test_without_samples_the_predicted_ratio_rule_applies_and_the_block_says_so():
+    s = math.sqrt(2) * SIGMA
+    block, found = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), fused=True)
+    assert block["p_fail"] is None and block["samples"] == 0
+    assert block["rule"].startswith("predicted ratio > 2 (fallback: smoother error samples none")
+    assert _checks(found) == ["cross_check"] and "fallback rule" in found[0].line()
+    bad = np.zeros((10, 5, 2))  # not one per smoother pose
+    block, _ = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), True, None, bad)
+    assert block["p_fail"] is None and "not one per smoother pose" in block["rule"]
+    # dead reckoning: no ratio rule at all
+    block, _ = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), False, None, bad)
+    assert block["rule"] is None and block["alpha"] is None

@@ -4,6 +4,7 @@ variance_components): the yardstick scale of the cross-check, on graphs with a k
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -142,3 +143,103 @@ def test_a_smoother_whose_variance_components_fail_still_runs_and_is_not_rescale
     block, _ = xc.compare(est, res.trajectory, True, None)
     assert block["smoother_variance_factor"] is None
     assert block["smoother_sigma_m"] == block["smoother_sigma_model_m"]
+
+
+def _dense_sandwich(g, values, groups, vc):
+    """Dense ``N0^-1 (sum_g c_g N_g) N0^-1`` of a linearised graph, and its column offsets."""
+    a_sp, _b, owner, cols = variance._whitened_system(g, values)
+    a = a_sp.toarray()
+    label = np.array(groups, dtype=object)[owner]
+    ninv = np.linalg.inv(a.T @ a)
+    if vc["method"] == "global":
+        return vc["position_variance_scale"] * ninv, cols
+    m = sum(
+        vc["groups"][name]["variance_factor"] * a[label == name].T @ a[label == name]
+        for name in set(groups)
+    )
+    return ninv @ m @ ninv, cols
+
+
+def _world_cov(sandwich, cols, values, keys, i, j):
+    """World-frame 2x2 position cross-covariance of keyframes i and j from the body-frame
+    tangent covariance (Pose2: position rotated by the heading)."""
+
+    def rot(key):
+        th = values.atPose2(key).theta()
+        return np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+
+    oi, oj = cols[int(keys[i])][0], cols[int(keys[j])][0]
+    return rot(keys[i]) @ sandwich[oi : oi + 2, oj : oj + 2] @ rot(keys[j]).T
+
+
+@pytest.mark.parametrize("path", ["per-stream", "global"])
+def test_the_error_samples_have_the_sandwich_covariance_jointly(monkeypatch, path):
+    """The parametric bootstrap e = N0^-1 A^T (sqrt(c_row) z): its sample covariance is the
+    sandwich (or sigma0^2 N0^-1 on the global path), rotated to world positions, at each
+    keyframe and across keyframes (the samples are joint)."""
+    g, values, groups, keys = _chain(k_odo=2.0, k_fix=0.5, n=40)
+    if path == "global":
+        monkeypatch.setattr(variance, "MAX_VCE_DIMS", 50)  # 120 state dimensions: above
+    k = 6000
+    vc, es = variance.variance_components(g, values, groups, keys, samples=k, seed=11)
+    assert vc["method"] == path and es.method == path and es.seed == 11
+    assert es.xy.shape == (k, len(keys), 2)
+    sandwich, cols = _dense_sandwich(g, values, groups, vc)
+    for i, j in ((0, 0), (12, 12), (39, 39), (12, 20), (5, 6)):
+        want = _world_cov(sandwich, cols, values, keys, i, j)
+        got = es.xy[:, i].T @ es.xy[:, j] / k  # zero mean by construction
+        # sampling error of a covariance entry: sd = sqrt((var_a var_b + c_ab^2) / k)
+        vi = np.diag(_world_cov(sandwich, cols, values, keys, i, i))
+        vj = np.diag(_world_cov(sandwich, cols, values, keys, j, j))
+        sd = np.sqrt((np.outer(vi, vj) + want**2) / k)
+        assert np.all(np.abs(got - want) < 5 * sd), (i, j, got, want)
+    assert np.abs(es.xy.mean(axis=0)).max() < 5 * math.sqrt(sandwich.diagonal().max() / k)
+
+
+def test_the_error_samples_are_the_same_for_the_same_inputs_and_seed():
+    g, values, groups, keys = _chain(k_odo=1.0, k_fix=1.0, n=30)
+    vc1, a = variance.variance_components(g, values, groups, keys, samples=50)
+    vc2, b = variance.variance_components(g, values, groups, keys, samples=50)
+    assert a.seed == variance.ERROR_SAMPLES_SEED and np.array_equal(a.xy, b.xy)
+    assert vc1 == vc2 == variance.variance_components(g, values, groups, keys)
+    _vc, c = variance.variance_components(g, values, groups, keys, samples=50, seed=1)
+    assert not np.array_equal(a.xy, c.xy)
+
+
+def test_the_smoother_keeps_its_error_samples_in_memory_and_out_of_metrics_json():
+    from odofuse.estimators import run_estimator
+    from odofuse.evaluation import metrics
+    from odofuse.teaching import trust_scenarios as ts
+
+    log, cfg = ts.simulated("gps_outage", 1, 7)
+    res = run_estimator("smoother", log, dataclasses.replace(cfg, estimator="smoother"))
+    es = res.extra["_error_samples"]
+    assert es.xy.shape == (variance.ERROR_SAMPLES, len(res.trajectory), 2)
+    # the samples' mean position variance is the smoother's marginals' times its scale (the
+    # same sandwich; 200 samples of a correlated trajectory: a loose 25 %)
+    covs = res.trajectory.covariances
+    model = float(np.mean(covs[:, 0, 0] + covs[:, 1, 1]))
+    scale = res.extra["variance_components"]["position_variance_scale"]
+    assert float(np.mean(np.sum(es.xy**2, axis=2))) == pytest.approx(model * scale, rel=0.25)
+    m = metrics(res, log, 0.0)
+    assert "_error_samples" not in m["extra"] and "variance_components" in m["extra"]
+    assert "_error_samples" in res.extra  # metrics did not consume it
+    json.dumps(m, default=str)  # nothing in it that is not written
+
+
+def test_the_error_samples_are_the_dense_bootstrap_of_the_same_draws():
+    """Exactly N0^-1 A^T (sqrt(c_row) z) with the seeded z, rotated by each pose's heading."""
+    g, values, groups, keys = _chain(k_odo=2.0, k_fix=0.5, n=40)
+    vc, es = variance.variance_components(g, values, groups, keys, samples=30, seed=5)
+    a_sp, _b, owner, cols = variance._whitened_system(g, values)
+    a = a_sp.toarray()
+    label = np.array(groups, dtype=object)[owner]
+    c_row = np.array([vc["groups"][name]["variance_factor"] for name in label])
+    z = np.random.default_rng(5).standard_normal((a.shape[0], 30)) * np.sqrt(c_row)[:, None]
+    e = np.linalg.solve(a.T @ a, a.T @ z)
+    for i, key in enumerate(keys):
+        o, th = cols[int(key)][0], values.atPose2(key).theta()
+        wx = math.cos(th) * e[o] - math.sin(th) * e[o + 1]
+        wy = math.sin(th) * e[o] + math.cos(th) * e[o + 1]
+        assert es.xy[:, i, 0] == pytest.approx(wx, abs=1e-12)
+        assert es.xy[:, i, 1] == pytest.approx(wy, abs=1e-12)

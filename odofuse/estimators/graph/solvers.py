@@ -41,7 +41,11 @@ from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X
 from odofuse.estimators.graph.marginals import marginal_covariances
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
-from odofuse.estimators.graph.variance import factor_groups, variance_components
+from odofuse.estimators.graph.variance import (
+    ERROR_SAMPLES,
+    factor_groups,
+    variance_components,
+)
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -413,7 +417,9 @@ def run_smoother(log, config) -> EstimateResult:
         ``keyframes``, ``iterations``, ``final_error``, ``solve_s``, ``variance_components``
         (:func:`~odofuse.estimators.graph.variance.variance_components` at the optimum: the
         cross-check's scale of these covariances; ``skipped: <reason>`` when its normal
-        matrix cannot be factored); ``findings`` for a solver
+        matrix cannot be factored), ``_error_samples`` (its
+        :class:`~odofuse.estimators.graph.variance.ErrorSamples`, in memory only: the
+        cross-check's posterior, never written); ``findings`` for a solver
         that did not converge, covariances that could not be computed, and the checks of
         :mod:`odofuse.estimators.graph.health`.
     """
@@ -486,8 +492,8 @@ def run_smoother(log, config) -> EstimateResult:
     if opts.covariances and covs is not None:  # the scale of those covariances
         keys = [X(i) for i in range(len(problem.kt))]
         try:  # a normal matrix the sparse LU cannot factor: no scale, the run goes on
-            extra["variance_components"] = variance_components(
-                graph, result, factor_groups(fac, graph), keys
+            extra["variance_components"], extra["_error_samples"] = variance_components(
+                graph, result, factor_groups(fac, graph), keys, samples=ERROR_SAMPLES
             )
         except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
             extra["variance_components"] = {"skipped": one_line(exc)}

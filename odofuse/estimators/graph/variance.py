@@ -1,14 +1,20 @@
 """The batch smoother's variance components: what its residuals say about its noise model.
 
 Owns :func:`variance_components` (Förstner's iterated variance component estimation per
-stream at the optimum, and the error covariance of the solution it implies), the grouping of
-a graph's factors by stream (:func:`factor_groups`) and the whitened sparse system of a
-linearised graph it works on. :func:`odofuse.estimators.graph.solvers.run_smoother` records
-the result in ``extra["variance_components"]``; :mod:`odofuse.cross_check` scales its
-yardstick with it (docs/trust.md section 6.2).
+stream at the optimum, and the error covariance of the solution it implies), the joint
+samples of the smoother's position errors under that covariance (:class:`ErrorSamples`, the
+exact parametric bootstrap of the linearised smoother), the grouping of a graph's factors by
+stream (:func:`factor_groups`) and the whitened sparse system of a linearised graph it works
+on. :func:`odofuse.estimators.graph.solvers.run_smoother` records the components in
+``extra["variance_components"]`` and the samples in ``extra["_error_samples"]`` (in memory
+only: ``extra`` keys starting with ``_`` are not written); :mod:`odofuse.cross_check` scales
+its yardstick with the first and asks the second whether the estimate holds (docs/trust.md
+sections 6.2, 6.3).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,6 +26,36 @@ MIN_REDUNDANCY = 20.0
 MAX_VCE_DIMS = 6000
 #: The variance group of priors and pseudo-observations (never re-scaled).
 PRIOR_GROUP = "prior"
+#: Joint samples of the smoother's position errors drawn for the cross-check (docs/trust.md
+#: section 6.3): a p_fail of 0.05 is resolved to a binomial standard deviation of 0.015.
+ERROR_SAMPLES = 200
+#: Seed of those samples: the same inputs give the same samples (``odofuse batch`` equals
+#: ``odofuse run`` to the last digit).
+ERROR_SAMPLES_SEED = 20261202
+
+
+@dataclass(frozen=True, eq=False)
+class ErrorSamples:
+    """Joint samples of the batch smoother's position errors at its keyframes.
+
+    Drawn from the smoother's linearised posterior under its variance components: the
+    sandwich covariance ``N_0^-1 (sum_g c_g N_g) N_0^-1`` of :func:`variance_components`
+    (``sigma0^2 N_0^-1`` on the global path). The truth is the smoother's pose minus the
+    error.
+
+    Attributes
+    ----------
+    xy : ndarray, shape (K, N, 2)
+        Position errors (m, world frame) of the N keyframes, K samples.
+    seed : int
+        Seed of the numpy ``default_rng`` that drew them.
+    method : str
+        ``per-stream`` or ``global`` (the variance components used).
+    """
+
+    xy: np.ndarray
+    seed: int
+    method: str
 
 
 def factor_groups(fac, graph) -> list[str]:
@@ -99,9 +135,33 @@ def _hat_traces(A, N, rows, scale, lu, chunk) -> dict:
     return out
 
 
+def _error_samples(A, lu0, row_scale, cols, values, position_keys, k, seed, method):
+    """``k`` joint samples ``e = N_0^-1 A^T (sqrt(c_row) z)``, ``z ~ N(0, I)`` over the
+    whitened residual rows (``c_row`` each row's variance component), of the position errors
+    at ``position_keys``, rotated from the Pose2 tangent (body frame) to world positions."""
+    rng = np.random.default_rng(seed)
+    z = rng.standard_normal((A.shape[0], k))
+    z *= np.sqrt(row_scale)[:, None]
+    e = lu0.solve(np.asarray((A.T @ z), dtype=float))
+    del z
+    off = np.array([cols[int(key)][0] for key in position_keys])
+    theta = np.array([values.atPose2(key).theta() for key in position_keys])
+    c, s = np.cos(theta), np.sin(theta)
+    dx, dy = e[off].T, e[off + 1].T  # (k, N) body-frame tangent errors
+    xy = np.stack((c * dx - s * dy, s * dx + c * dy), axis=-1)
+    return ErrorSamples(xy, int(seed), method)
+
+
 def variance_components(
-    graph, values, groups, position_keys, chunk: int = 256, iterations: int = 20
-) -> dict:
+    graph,
+    values,
+    groups,
+    position_keys,
+    chunk: int = 256,
+    iterations: int = 20,
+    samples: int = 0,
+    seed: int = ERROR_SAMPLES_SEED,
+):
     """Variance components of a least-squares solution and the error covariance they imply.
 
     Förstner's iterated variance component estimation on the system linearised at the
@@ -139,6 +199,12 @@ def variance_components(
         Right-hand sides per sparse solve (memory ``n * chunk`` floats).
     iterations : int
         Most passes of the estimation.
+    samples : int
+        Joint samples of the position errors at ``position_keys`` to draw as well (0: none,
+        the dict alone is returned); they cost one factorisation of ``N_0`` on the global
+        path and one solve with ``samples`` right-hand sides.
+    seed : int
+        Seed of those samples.
 
     Returns
     -------
@@ -150,6 +216,9 @@ def variance_components(
         stream only), and
         ``position_variance_scale``: mean trace of the sandwich's position blocks over the
         mean trace of ``N_0^-1``'s (1 when no group was estimated).
+    ErrorSamples
+        Only with ``samples > 0``: the samples (:class:`ErrorSamples`); the dict is then the
+        first item of a pair.
     """
     from scipy import sparse
 
@@ -158,12 +227,18 @@ def variance_components(
     redundancy = m - n
     sigma0 = float(b @ b / redundancy) if redundancy > 0 else None
     if n > MAX_VCE_DIMS:  # the global factor: no solve (the covariance scales as one)
-        return {
+        c0 = sigma0 if sigma0 is not None and sigma0 > 0 else 1.0
+        out = {
             "method": "global",
             "variance_factor": sigma0,
             "redundancy": int(redundancy),
-            "position_variance_scale": sigma0 if sigma0 is not None and sigma0 > 0 else 1.0,
+            "position_variance_scale": c0,
         }
+        if samples <= 0:
+            return out
+        lu0 = _factor((A.T @ A).tocsc())
+        rs = np.full(m, c0)
+        return out, _error_samples(A, lu0, rs, cols, values, position_keys, samples, seed, "global")
     label = np.array(groups, dtype=object)[owner]
     rows = {g: np.flatnonzero(label == g) for g in sorted(set(label))}
     scale = dict.fromkeys(rows, 1.0)
@@ -213,7 +288,7 @@ def variance_components(
         model += float(np.sum(y[sel, np.arange(sel.size)]))
         ay = A @ y
         sandwich += sum(scale[g] * float(np.sum(ay[rows[g]] ** 2)) for g in rows)
-    return {
+    out = {
         "method": "per-stream",
         "variance_factor": sigma0,
         "redundancy": int(redundancy),
@@ -221,3 +296,9 @@ def variance_components(
         "groups": out_groups,
         "position_variance_scale": sandwich / model if model > 0 else 1.0,
     }
+    if samples <= 0:
+        return out
+    rs = np.empty(m)
+    for g, idx in rows.items():
+        rs[idx] = scale[g]
+    return out, _error_samples(A, lu0, rs, cols, values, position_keys, samples, seed, "per-stream")
