@@ -331,7 +331,8 @@ def run_isam2(log, config) -> EstimateResult:
         params = _isam2_params(problem.options)
         isam, fac, lat = incremental_slam(problem, params, getattr(config, "source", "<config>"))
         isam, _, polished, bad = _polish(isam, params, fac, problem.options)
-        extra = {"latency": _latency_summary(lat), **polished}
+        extra = {"latency": _latency_summary(lat[0]), "latency_step": _latency_summary(lat[1])}
+        extra.update(polished)
         return _slam_result(problem, isam, fac, extra, bad)
     fac = _PrivateBeaconFactors(problem)
     groups = _freeze_groups(problem, fac, getattr(config, "source", "<config>"))

@@ -31,6 +31,10 @@ from odofuse.estimators.graph.problem import GraphProblem
 
 #: Ranges a landmark needs before it is multilaterated into the graph.
 MIN_RANGES = 5
+# The clock of the latency figures (wall time); benchmarks/bench_graph.py sets it to
+# ``time.thread_time`` as it does ``isam2._clock``.
+_clock = time.perf_counter
+
 #: Keyframes between two reads of the current pose estimate, which the next keyframes are
 #: dead-reckoned from (a read makes iSAM2 back-substitute; new landmarks always read it).
 ESTIMATE_EVERY = 10
@@ -54,8 +58,9 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     fac : Factors
         The factors added (``fac.created``, ``fac.used``; held-back ranges are in
         ``problem.rejected``).
-    latency : list of float
-        s, wall time of each ``ISAM2.update``.
+    latency : tuple of two lists of float
+        s, the time of each ``ISAM2.update`` and of each whole per-keyframe step (factors,
+        landmark initialisation, update, pose reads), by :data:`_clock`.
     """
     import gtsam
 
@@ -78,7 +83,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     if problem.odometry_calibration is not None:
         frozen.push_back(problem.odometry_key)
     placed: set[int] = set()
-    latency = []
+    latency, step = [], []
 
     def add(meas) -> None:
         f = fac.measurement(meas)
@@ -97,6 +102,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     isam = gtsam.ISAM2(params)
     current = gtsam.Pose2(*problem.pose0)
     for i in range(len(problem.kt)):
+        t_step = _clock()
         if i > 0:
             current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
         fac.keyframe(i, current, graph, values)
@@ -128,16 +134,17 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
                     add(r)
             else:
                 held.setdefault(lid, []).append(meas)
-        t0 = time.perf_counter()
+        t0 = _clock()
         isam.update(graph, values, noRelinKeys=frozen)
-        latency.append(time.perf_counter() - t0)
+        latency.append(_clock() - t0)
         if i > 0 and i % ESTIMATE_EVERY == 0:
             current = isam.calculateEstimatePose2(X(i))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        step.append(_clock() - t_step)
     for _ in range(problem.options.final_relinearizations):
         isam.update(force_relinearize=True)
     for lid, rows in held.items():
         for r in rows:
             problem.rejected[r.stream] = problem.rejected.get(r.stream, 0) + 1
         fac.landmark_keys.pop(lid, None)
-    return isam, fac, latency
+    return isam, fac, (latency, step)
