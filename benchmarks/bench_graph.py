@@ -25,13 +25,13 @@ Run: ``python benchmarks/bench_graph.py [plaza|isam2|isam2-ratios|hour|gyro|all]
   time), then the median of the N ratios (single runs on a shared machine move a quarter's
   median by up to 2x), and how many keyframes left iSAM2's tree online
   (``odofuse.estimators.graph.isam2_window``).
-* ``isam2-slam [--repeat N] [--seconds S]``: per-update latency (CPU time) of iSAM2 SLAM
-  (``graph.isam2_slam``, landmarks unknown) by quarter of the run, N runs (default 3), on
-  Plaza1 with ``configs/plaza1-slam.yaml`` as ``estimator: isam2`` and on a simulated
-  figure-eight log (:func:`simulate_slam`, ``--seconds``, default 1800) with range-bearing
-  sightings of landmarks re-seen on every lap: per run the median / p99 / max of
-  ``ISAM2.update`` and of the whole step, per quarter, the last/first ratios, and the median
-  of the N ratios; then position RMSE and NEES of the last run.
+* ``isam2-slam [--repeat N] [--seconds S] [--case plaza|sim|both]``: per-update latency
+  (CPU time) of iSAM2 SLAM (``graph.isam2_slam``, landmarks unknown) by quarter of the run,
+  N runs (default 3), on Plaza1 with ``configs/plaza1-slam.yaml`` as ``estimator: isam2``
+  and on a simulated figure-eight log (:func:`simulate_slam`, ``--seconds``, default 1800)
+  with range-bearing sightings of landmarks re-seen on every lap: per run the median / p99 /
+  max of ``ISAM2.update`` and of the whole step, per quarter, the last/first ratios, and the
+  median of the N ratios; then position RMSE and NEES of the last run.
 * ``hour``: a one-hour 100 Hz simulated log (360 000 odometry steps, 1 Hz GPS) smoothed in
   batch; wall time (target <= 60 s) and peak resident memory (target <= 2 GiB).
 * ``gyro``: iSAM2 and the fixed-lag smoother on a simulated 100 Hz odometry log (``--seconds``,
@@ -354,7 +354,7 @@ def simulate_slam(duration=1800.0, seed=0):
     return to_sensor_log(sim), dataclasses.replace(config, log="<memory>")
 
 
-def bench_isam2_slam(repeat: int = 3, seconds: float = 1800.0) -> None:
+def bench_isam2_slam(repeat: int = 3, seconds: float = 1800.0, case: str = "both") -> None:
     """iSAM2 SLAM latency by quarter, ``repeat`` runs per log (issue 17 item 3)."""
     import yaml
 
@@ -369,10 +369,9 @@ def bench_isam2_slam(repeat: int = 3, seconds: float = 1800.0) -> None:
     d["options"] = {"isam2": {**d["options"].pop("smoother"), "covariances": True}}
     d["options"]["isam2"].pop("keyframe_dt", None)  # isam2 has its own default
     plaza = (load_builtin("builtin:plaza1"), config_from_dict(d, "plaza1-slam.yaml"))
-    cases = (
-        ("Plaza1, plaza1-slam.yaml as isam2", *plaza),
-        (f"simulated figure eight, {seconds:.0f} s", *simulate_slam(seconds)),
-    )
+    cases = [("Plaza1, plaza1-slam.yaml as isam2", *plaza)] if case in ("plaza", "both") else []
+    if case in ("sim", "both"):
+        cases.append((f"simulated figure eight, {seconds:.0f} s", *simulate_slam(seconds)))
     print(f"iSAM2 SLAM latency (CPU time) per quarter, {repeat} runs each (target <= 1.5)")
     for label, log, cfg in cases:
         ratios: dict[str, list] = {}
@@ -581,7 +580,8 @@ if __name__ == "__main__":
     if what == "isam2-slam":
         n = int(sys.argv[sys.argv.index("--repeat") + 1]) if "--repeat" in sys.argv else 3
         secs = float(sys.argv[sys.argv.index("--seconds") + 1]) if "--seconds" in sys.argv else 1800
-        bench_isam2_slam(n, secs)
+        case = sys.argv[sys.argv.index("--case") + 1] if "--case" in sys.argv else "both"
+        bench_isam2_slam(n, secs, case)
     if what in ("hour", "all"):
         bench_hour()
     if what in ("gyro", "all"):
