@@ -25,6 +25,13 @@ Run: ``python benchmarks/bench_graph.py [plaza|isam2|isam2-ratios|hour|gyro|all]
   time), then the median of the N ratios (single runs on a shared machine move a quarter's
   median by up to 2x), and how many keyframes left iSAM2's tree online
   (``odofuse.estimators.graph.isam2_window``).
+* ``isam2-slam [--repeat N] [--seconds S] [--case plaza|sim|both]``: per-update latency
+  (CPU time) of iSAM2 SLAM (``graph.isam2_slam``, landmarks unknown) by quarter of the run,
+  N runs (default 3), on Plaza1 with ``configs/plaza1-slam.yaml`` as ``estimator: isam2``
+  and on a simulated figure-eight log (:func:`simulate_slam`, ``--seconds``, default 1800)
+  with range-bearing sightings of landmarks re-seen on every lap: per run the median / p99 /
+  max of ``ISAM2.update`` and of the whole step, per quarter, the last/first ratios, and the
+  median of the N ratios; then position RMSE and NEES of the last run.
 * ``hour``: a one-hour 100 Hz simulated log (360 000 odometry steps, 1 Hz GPS) smoothed in
   batch; wall time (target <= 60 s) and peak resident memory (target <= 2 GiB).
 * ``gyro``: iSAM2 and the fixed-lag smoother on a simulated 100 Hz odometry log (``--seconds``,
@@ -313,6 +320,87 @@ def bench_isam2_ratios(repeat: int = 3) -> None:
         )
 
 
+def simulate_slam(duration=1800.0, seed=0):
+    """``(log, config)``: a differential robot driving figure eights (radius 10 m, 1 m/s, one
+    lap per 126 s) for ``duration`` s among 16 landmarks, range-bearing sightings within 12 m
+    at 1 Hz (seeded ``odofuse.teaching`` simulator); config ``estimator: isam2`` with
+    ``slam: true``."""
+    import dataclasses
+
+    from odofuse.config import config_from_dict
+    from odofuse.teaching.scenario import scenario_from_dict
+    from odofuse.teaching.simlog import run_config, to_sensor_log
+    from odofuse.teaching.simulate import simulate
+
+    lap = 2 * 2 * np.pi * 10.0 / 1.0
+    scenario = {
+        "robot": {"drive": "differential", "wheel_radius": 0.1, "track_width": 0.5},
+        "path": {
+            "kind": "figure_eight",
+            "radius": 10.0,
+            "speed": 1.0,
+            "laps": max(1, int(round(duration / lap))),
+        },
+        "sensors": {
+            "landmarks": {"sigma_range": 0.1, "sigma_bearing": 0.02, "rate": 1.0, "max_range": 12.0}
+        },
+        "beacons": {"count": 16, "min": [-14.0, -26.0], "max": [14.0, 26.0]},
+        "seed": seed,
+    }
+    sim = simulate(scenario_from_dict(scenario, "<bench scenario>"), seed=seed)
+    cfg = run_config(sim, "isam2")
+    cfg["options"] = {"isam2": {"slam": True, "covariances": True}}
+    config = config_from_dict(cfg, source="<bench config>")
+    return to_sensor_log(sim), dataclasses.replace(config, log="<memory>")
+
+
+def bench_isam2_slam(repeat: int = 3, seconds: float = 1800.0, case: str = "both") -> None:
+    """iSAM2 SLAM latency by quarter, ``repeat`` runs per log (issue 17 item 3)."""
+    import yaml
+
+    from odofuse.config import config_from_dict
+    from odofuse.estimators.graph import isam2, isam2_slam, run_isam2
+    from odofuse.evaluation import ate, nees, trajectory_from_stream
+    from odofuse.io.builtin import load_builtin
+
+    isam2._clock = isam2_slam._clock = time.thread_time  # CPU time, as in bench_isam2
+    d = yaml.safe_load((REPO / "configs" / "plaza1-slam.yaml").read_text())
+    d["estimator"] = "isam2"
+    d["options"] = {"isam2": {**d["options"].pop("smoother"), "covariances": True}}
+    d["options"]["isam2"].pop("keyframe_dt", None)  # isam2 has its own default
+    plaza = (load_builtin("builtin:plaza1"), config_from_dict(d, "plaza1-slam.yaml"))
+    cases = [("Plaza1, plaza1-slam.yaml as isam2", *plaza)] if case in ("plaza", "both") else []
+    if case in ("sim", "both"):
+        cases.append((f"simulated figure eight, {seconds:.0f} s", *simulate_slam(seconds)))
+    print(f"iSAM2 SLAM latency (CPU time) per quarter, {repeat} runs each (target <= 1.5)")
+    for label, log, cfg in cases:
+        ratios: dict[str, list] = {}
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            res = run_isam2(log, cfg)
+            wall = time.perf_counter() - t0
+            print(
+                f"{label}: {wall:.1f} s, {len(res.trajectory)} keyframes, "
+                f"{res.extra.get('marginalised_keyframes', 0)} marginalised online"
+            )
+            _print_quarters(res)
+            for key in ("latency", "latency_step"):
+                lat = res.extra[key]
+                for stat in ("median", "p99"):
+                    q = lat[f"quarters_{stat}_ms"]
+                    ratios.setdefault(f"{key} {stat}", []).append(q[-1] / q[0])
+        print(
+            f"  {label}: median over runs of last/first ratio:",
+            "; ".join(f"{k} {np.median(v):.2f}x" for k, v in ratios.items()),
+        )
+        truth = trajectory_from_stream(log.groundtruth)
+        e2, e3 = nees(res.trajectory, truth, (0, 1)), nees(res.trajectory, truth)
+        print(
+            f"  accuracy: position RMSE {ate(res.trajectory, truth).rmse_m:.4f} m, "
+            f"position NEES {e2:.3f}, pose NEES {e3:.3f}"
+        )
+
+
 def _print_gtsam_chain(n: int) -> None:
     """The reference: GTSAM's own ``ISAM2.update`` on a plain chain of ``n`` built-in
     ``BetweenFactorPose2`` with a built-in unary factor per pose (QR, odofuse's parameters),
@@ -489,6 +577,11 @@ if __name__ == "__main__":
     if what == "isam2-ratios":
         n = int(sys.argv[sys.argv.index("--repeat") + 1]) if "--repeat" in sys.argv else 3
         bench_isam2_ratios(n)
+    if what == "isam2-slam":
+        n = int(sys.argv[sys.argv.index("--repeat") + 1]) if "--repeat" in sys.argv else 3
+        secs = float(sys.argv[sys.argv.index("--seconds") + 1]) if "--seconds" in sys.argv else 1800
+        case = sys.argv[sys.argv.index("--case") + 1] if "--case" in sys.argv else "both"
+        bench_isam2_slam(n, secs, case)
     if what in ("hour", "all"):
         bench_hour()
     if what in ("gyro", "all"):

@@ -857,3 +857,42 @@ def test_isam2_window_marginalises_old_keyframes_and_keeps_the_optimum(monkeypat
         windowed.trajectory.covariances, whole.trajectory.covariances, rtol=1e-3, atol=1e-9
     )
     assert windowed.extra["final_error"] == pytest.approx(whole.extra["final_error"], rel=1e-9)
+
+
+@pytest.mark.parametrize("stream", ["landmarks", "ranges"])
+def test_isam2_slam_window_keeps_the_optimum(monkeypatch, stream):
+    """Issue 17 item 3: the SLAM path (range-bearing landmarks placed at once, ranges held
+    back for multilateration) marginalises old pose keyframes like the localisation path
+    (landmarks stay in iSAM2); its final LM solves the whole kept graph, so poses, landmarks
+    and covariances are those of a run that keeps every keyframe. Tolerances: the two LM runs
+    start from different online estimates and stop at relative_tolerance, so they agree to
+    far better than the sensor noise (0.1 m / 0.2 m) but not to machine precision."""
+    from odofuse.estimators.graph import isam2_window
+
+    log = _simulate(seed=17, T=120.0)
+    if stream == "landmarks":
+        log = _with_sensors(log)
+    log = dataclasses.replace(log, streams={k: log.streams[k] for k in ("odometry", stream)})
+    sensors = (
+        {"landmarks": {"sigma_range": 0.1, "sigma_bearing": 0.01}}
+        if stream == "landmarks"
+        else {"ranges": {"sigma": 0.2}}
+    )
+    cfg = _config("isam2", sensors, {"slam": True})
+    monkeypatch.setattr(isam2_window, "KEEP", 10**9)
+    whole = graph.run_isam2(log, cfg)
+    monkeypatch.setattr(isam2_window, "KEEP", 40)
+    monkeypatch.setattr(isam2_window, "EVERY", 15)
+    windowed = graph.run_isam2(log, cfg)
+    assert whole.extra["marginalised_keyframes"] == 0
+    # marginalise() raises (and the run fails) unless exactly the leaving keys were removed
+    assert windowed.extra["marginalised_keyframes"] >= len(windowed.trajectory) // 2 > 0
+    assert not windowed.findings and not whole.findings
+    assert windowed.extra["landmarks"].keys() == whole.extra["landmarks"].keys() == BEACONS.keys()
+    for lid, p in whole.extra["landmarks"].items():
+        np.testing.assert_allclose(windowed.extra["landmarks"][lid], p, atol=1e-5)
+    np.testing.assert_allclose(windowed.trajectory.poses, whole.trajectory.poses, atol=1e-5)
+    np.testing.assert_allclose(
+        windowed.trajectory.covariances, whole.trajectory.covariances, rtol=1e-3, atol=1e-9
+    )
+    assert windowed.extra["final_error"] == pytest.approx(whole.extra["final_error"], rel=1e-6)

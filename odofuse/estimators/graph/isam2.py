@@ -329,9 +329,14 @@ def run_isam2(log, config) -> EstimateResult:
     problem = build_problem(log, config, "isam2")
     if problem.options.slam:  # unknown landmarks: odofuse.estimators.graph.isam2_slam
         params = _isam2_params(problem.options)
-        isam, fac, lat = incremental_slam(problem, params, getattr(config, "source", "<config>"))
-        isam, _, polished, bad = _polish(isam, params, fac, problem.options)
-        extra = {"latency": _latency_summary(lat), **polished}
+        source = getattr(config, "source", "<config>")
+        isam, fac, window, lat = incremental_slam(problem, params, source)
+        isam, _, polished, bad = _polish(
+            isam, params, fac, problem.options, window.graph, window.estimate(isam)
+        )
+        extra = {"latency": _latency_summary(lat[0]), "latency_step": _latency_summary(lat[1])}
+        extra["marginalised_keyframes"] = window.marginalised  # left iSAM2's tree online
+        extra.update(polished)
         return _slam_result(problem, isam, fac, extra, bad)
     fac = _PrivateBeaconFactors(problem)
     groups = _freeze_groups(problem, fac, getattr(config, "source", "<config>"))

@@ -12,6 +12,12 @@ poses rather than from dead reckoning:
   undetermined, which iSAM2 cannot factor); then the landmark and all its held ranges enter
   together. Ranges still held at the end of the log are counted as rejected.
 
+Pose keyframes older than the last :data:`~odofuse.estimators.graph.isam2_window.KEEP` leave
+iSAM2's tree in batches (:class:`~odofuse.estimators.graph.isam2_window.KeyframeWindow`, as on
+the localisation path: bounded update cost); landmarks stay, and so does every keyframe a
+held-back range refers to. The window's :attr:`graph` and :meth:`estimate` hold the whole run
+for the final batch pass.
+
 Bearing-only landmarks are not initialised incrementally (their rows are counted as
 rejected). The calibration freeze of :func:`~odofuse.estimators.graph.isam2.run_isam2` is not
 available here.
@@ -19,18 +25,24 @@ available here.
 
 from __future__ import annotations
 
+import bisect
 import time
 
 import numpy as np
 
 from odofuse.errors import ConfigError
 from odofuse.estimators.graph.factors import Factors
+from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, model_kind
 from odofuse.estimators.graph.landmarks import from_sighting, multilaterate
 from odofuse.estimators.graph.problem import GraphProblem
 
 #: Ranges a landmark needs before it is multilaterated into the graph.
 MIN_RANGES = 5
+# The clock of the latency figures (wall time); benchmarks/bench_graph.py sets it to
+# ``time.thread_time`` as it does ``isam2._clock``.
+_clock = time.perf_counter
+
 #: Keyframes between two reads of the current pose estimate, which the next keyframes are
 #: dead-reckoned from (a read makes iSAM2 back-substitute; new landmarks always read it).
 ESTIMATE_EVERY = 10
@@ -50,12 +62,16 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     Returns
     -------
     isam : gtsam.ISAM2
-        After ``options.final_relinearizations`` forced relinearising updates.
+        After ``options.final_relinearizations`` forced relinearising updates (without the
+        marginalised keyframes).
     fac : Factors
         The factors added (``fac.created``, ``fac.used``; held-back ranges are in
         ``problem.rejected``).
-    latency : list of float
-        s, wall time of each ``ISAM2.update``.
+    window : KeyframeWindow
+        Every factor of the run and the estimates of the keys marginalised online.
+    latency : tuple of two lists of float
+        s, the time of each ``ISAM2.update`` and of each whole per-keyframe step (factors,
+        landmark initialisation, update, pose reads), by :data:`_clock`.
     """
     import gtsam
 
@@ -78,7 +94,18 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     if problem.odometry_calibration is not None:
         frozen.push_back(problem.odometry_key)
     placed: set[int] = set()
-    latency = []
+    ranges = {  # landmarks whose held rows can still enter (multilateration)
+        m.landmark
+        for ms in landmark_rows.values()
+        for m in ms
+        if model_kind(problem.models[m.stream]) == "BeaconRange"
+    }
+    # loop closures are added with their later keyframe: keep their earlier one in the tree
+    loops = sorted((lp.later, min(lp.i, lp.j)) for lp in problem.loops)
+    loop_later = [later for later, _ in loops]
+    loop_hold = list(np.minimum.accumulate([e for _, e in loops][::-1])[::-1]) + [None]
+    window = KeyframeWindow()
+    latency, step = [], []
 
     def add(meas) -> None:
         f = fac.measurement(meas)
@@ -88,15 +115,14 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
 
     def pose_now(k: int, i: int, current) -> np.ndarray:
         if k == i and i > 0:  # the current estimate of the previous pose, plus the odometry
-            current = isam.calculateEstimatePose2(X(i - 1)).compose(
-                gtsam.Pose2(*problem.deltas[i - 1])
-            )
-        p = current if k == i else isam.calculateEstimatePose2(X(k))
+            current = window.pose(isam, X(i - 1)).compose(gtsam.Pose2(*problem.deltas[i - 1]))
+        p = current if k == i else window.pose(isam, X(k))
         return np.array([p.x(), p.y(), p.theta()])
 
     isam = gtsam.ISAM2(params)
     current = gtsam.Pose2(*problem.pose0)
     for i in range(len(problem.kt)):
+        t_step = _clock()
         if i > 0:
             current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
         fac.keyframe(i, current, graph, values)
@@ -128,16 +154,26 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
                     add(r)
             else:
                 held.setdefault(lid, []).append(meas)
-        t0 = time.perf_counter()
-        isam.update(graph, values, noRelinKeys=frozen)
-        latency.append(time.perf_counter() - t0)
+        window.add(graph, values)
+        # held ranges (rows in keyframe order) will add factors on their keyframes
+        hold = [held[lid][0].keyframe for lid in held if lid in ranges]
+        hold.append(loop_hold[bisect.bisect_right(loop_later, i)])
+        window.hold = min((k for k in hold if k is not None), default=None)
+        t0 = _clock()
+        if window.due(i):  # the oldest keyframes leave iSAM2's tree (isam2_window)
+            isam.update(graph, values, window.update_params(isam, i, graph, values, frozen))
+            window.marginalise(isam, i)
+        else:
+            isam.update(graph, values, noRelinKeys=frozen)
+        latency.append(_clock() - t0)
         if i > 0 and i % ESTIMATE_EVERY == 0:
             current = isam.calculateEstimatePose2(X(i))
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        step.append(_clock() - t_step)
     for _ in range(problem.options.final_relinearizations):
         isam.update(force_relinearize=True)
     for lid, rows in held.items():
         for r in rows:
             problem.rejected[r.stream] = problem.rejected.get(r.stream, 0) + 1
         fac.landmark_keys.pop(lid, None)
-    return isam, fac, latency
+    return isam, fac, window, (latency, step)

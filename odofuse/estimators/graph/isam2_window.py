@@ -15,6 +15,11 @@ What is given up: a marginalised keyframe is no longer relinearised by iSAM2 (it
 become one linear factor on what it was connected to, at the linearisation point it had).
 Only the online estimates feel it; the offline result is the batch LM optimum of the *whole*
 graph (:attr:`KeyframeWindow.graph`), started from :meth:`KeyframeWindow.estimate`.
+
+The SLAM path (:func:`~odofuse.estimators.graph.isam2_slam.incremental_slam`) uses the same
+window: landmarks stay in iSAM2 (a landmark whose observing poses left keeps their marginal
+factor), and :attr:`KeyframeWindow.hold` keeps in the tree every keyframe from the oldest
+one that a range still held back for multilateration refers to.
 """
 
 from __future__ import annotations
@@ -46,6 +51,9 @@ class KeyframeWindow:
         The oldest keyframe still in iSAM2.
     marginalised : int
         Keyframes marginalised so far.
+    hold : int or None
+        Set by the caller: no keyframe from ``hold`` on leaves (a factor that will still be
+        added refers to it).
     """
 
     def __init__(self):
@@ -57,10 +65,16 @@ class KeyframeWindow:
         self._added: list[list[int]] = []  # per keyframe, the x / b keys it added
         self.first = 0
         self.marginalised = 0
+        self.hold: int | None = None
+
+    def _cut(self, i: int) -> int:
+        """The first keyframe that stays after the update of keyframe ``i``."""
+        cut = i + 1 - KEEP
+        return cut if self.hold is None else min(cut, self.hold)
 
     def due(self, i: int) -> bool:
         """Whether the update of keyframe ``i`` marginalises the oldest ``EVERY`` keyframes."""
-        return i + 1 - self.first >= KEEP + EVERY
+        return self._cut(i) - self.first >= EVERY
 
     def add(self, graph, values) -> None:
         """Record the next keyframe's factors and new values (given to iSAM2 in this step)."""
@@ -77,7 +91,7 @@ class KeyframeWindow:
         newest pose stays in the root clique) and everything else between.
         """
         gtsam = self.gtsam
-        leaving = {k for j in range(self.first, i + 1 - KEEP) for k in self._added[j]}
+        leaving = {k for j in range(self.first, self._cut(i)) for k in self._added[j]}
         last = set(graph.keyVector()) | set(values.keys())
         groups, reelim = gtsam.KeyGroupMap(), gtsam.KeyList()
         for k in isam.getLinearizationPoint().keys():
@@ -102,7 +116,7 @@ class KeyframeWindow:
             the caller reports it like any failed update).
         """
         gtsam = self.gtsam
-        cut = i + 1 - KEEP
+        cut = self._cut(i)
         leaving = [k for j in range(self.first, cut) for k in self._added[j]]
         est = isam.calculateEstimate()
         keys = gtsam.KeyList()
@@ -120,6 +134,13 @@ class KeyframeWindow:
             )
         self.marginalised += cut - self.first
         self.first = cut
+
+    def pose(self, isam, key: int):
+        """The estimate of pose ``key`` (``gtsam.Pose2``): iSAM2's, or the one it had when it
+        was marginalised."""
+        if self._taken.exists(key):
+            return self._taken.atPose2(key)
+        return isam.calculateEstimatePose2(key)
 
     def estimate(self, isam):
         """``gtsam.Values`` of every variable of the run: iSAM2's current estimate and the

@@ -268,11 +268,11 @@ def incremental_initial_values(problem: GraphProblem, values):
     rejected = dict(problem.rejected)
     params = gtsam.ISAM2Params()
     params.setFactorization("QR")  # odometry floors can be too ill-conditioned for Cholesky
-    isam, _, _ = incremental_slam(problem, params)
+    isam, _, window, _ = incremental_slam(problem, params)
     problem.rejected.clear()
     problem.rejected.update(rejected)  # the batch graph still holds every row
     out = gtsam.Values(values)
-    out.update(isam.calculateEstimate())  # every key of the pass is in the batch graph
+    out.update(window.estimate(isam))  # every key of the pass is in the batch graph
     return out, {"init_s": time.perf_counter() - t0}
 
 
