@@ -94,12 +94,14 @@ class Reference:
 
 
 def reference_of(config, log) -> Reference:
-    """Run the batch smoother on ``log`` with ``config`` (estimator replaced)."""
+    """Run the batch smoother on ``log`` with ``config`` (estimator replaced), with its
+    error samples (:data:`odofuse.estimators.graph.variance.ERROR_SAMPLES`)."""
     from odofuse.estimators import run_estimator
+    from odofuse.estimators.graph.variance import ERROR_SAMPLES
 
     cfg = dataclasses.replace(config, estimator="smoother")
     t0 = time.perf_counter()
-    result = run_estimator("smoother", log, cfg)
+    result = run_estimator("smoother", log, cfg, error_samples=ERROR_SAMPLES)
     return Reference(result, status_of(assess(result)), time.perf_counter() - t0, cfg.source)
 
 

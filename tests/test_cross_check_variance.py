@@ -207,12 +207,15 @@ def test_the_error_samples_are_the_same_for_the_same_inputs_and_seed():
 
 
 def test_the_smoother_keeps_its_error_samples_in_memory_and_out_of_metrics_json():
+    from odofuse.cross_check import reference_of
     from odofuse.estimators import run_estimator
     from odofuse.evaluation import metrics
     from odofuse.teaching import trust_scenarios as ts
 
     log, cfg = ts.simulated("gps_outage", 1, 7)
-    res = run_estimator("smoother", log, dataclasses.replace(cfg, estimator="smoother"))
+    cfg = dataclasses.replace(cfg, estimator="smoother")
+    assert "_error_samples" not in run_estimator("smoother", log, cfg).extra  # not asked
+    res = reference_of(cfg, log).result  # the cross-check's reference asks for them
     es = res.extra["_error_samples"]
     assert es.xy.shape == (variance.ERROR_SAMPLES, len(res.trajectory), 2)
     # the samples' mean position variance is the smoother's marginals' times its scale (the

@@ -31,15 +31,18 @@ def get_estimator(name: str):
     return load_function(spec, "estimator")
 
 
-def run_estimator(name: str, log, config):
+def run_estimator(name: str, log, config, **options):
     """Run estimator ``name`` on ``log`` with ``config``; returns an ``EstimateResult``.
+
+    ``options`` are keyword arguments of that estimator's ``run`` beyond the config (the
+    cross-check asks the batch smoother for its error samples: ``error_samples=K``).
 
     The log's plausibility findings (``log.findings``) join the result's. A log with loop
     closures (``loop_closures`` stream) that the estimator did not use gets
     a non-degrading finding saying so (only the graph estimators use them, with
     ``sensors: {loop_closures: {}}``).
     """
-    result = get_estimator(name)(log, config)
+    result = get_estimator(name)(log, config, **options)
     noted = tuple(getattr(log, "findings", ()) or ())  # the log's plausibility findings
     if noted:
         import dataclasses

@@ -41,11 +41,7 @@ from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.keys import X
 from odofuse.estimators.graph.marginals import marginal_covariances
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
-from odofuse.estimators.graph.variance import (
-    ERROR_SAMPLES,
-    factor_groups,
-    variance_components,
-)
+from odofuse.estimators.graph.variance import factor_groups, variance_components
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -391,7 +387,7 @@ def _staged(problem: GraphProblem) -> bool:
     return problem.odometry_calibration is not None and loss != "none"
 
 
-def run_smoother(log, config) -> EstimateResult:
+def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
     """Batch Levenberg-Marquardt over the whole log (``estimator: smoother``).
 
     With odometry calibration *and* a robust odometry loss the calibration variables are
@@ -408,6 +404,13 @@ def run_smoother(log, config) -> EstimateResult:
     stage 1's contamination by the outlier steps. ``extra["stages"]`` gives each stage's
     iterations and error and how many odometry factors stage 2 down-weighted below 0.5.
 
+    Parameters
+    ----------
+    log, config
+        The log and the run config.
+    error_samples : int
+        Joint samples of the position errors to draw (0: none).
+
     Returns
     -------
     EstimateResult
@@ -417,9 +420,10 @@ def run_smoother(log, config) -> EstimateResult:
         ``keyframes``, ``iterations``, ``final_error``, ``solve_s``, ``variance_components``
         (:func:`~odofuse.estimators.graph.variance.variance_components` at the optimum: the
         cross-check's scale of these covariances; ``skipped: <reason>`` when its normal
-        matrix cannot be factored), ``_error_samples`` (its
-        :class:`~odofuse.estimators.graph.variance.ErrorSamples`, in memory only: the
-        cross-check's posterior, never written); ``findings`` for a solver
+        matrix cannot be factored), ``_error_samples`` (with ``error_samples`` K > 0, its K
+        joint :class:`~odofuse.estimators.graph.variance.ErrorSamples`, in memory only: the
+        cross-check's posterior, never written; only the cross-check's reference asks for
+        them, so a smoother run of its own does not pay for them); ``findings`` for a solver
         that did not converge, covariances that could not be computed, and the checks of
         :mod:`odofuse.estimators.graph.health`.
     """
@@ -492,9 +496,12 @@ def run_smoother(log, config) -> EstimateResult:
     if opts.covariances and covs is not None:  # the scale of those covariances
         keys = [X(i) for i in range(len(problem.kt))]
         try:  # a normal matrix the sparse LU cannot factor: no scale, the run goes on
-            extra["variance_components"], extra["_error_samples"] = variance_components(
-                graph, result, factor_groups(fac, graph), keys, samples=ERROR_SAMPLES
+            vc = variance_components(
+                graph, result, factor_groups(fac, graph), keys, samples=error_samples
             )
+            if error_samples > 0:
+                vc, extra["_error_samples"] = vc
+            extra["variance_components"] = vc
         except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
             extra["variance_components"] = {"skipped": one_line(exc)}
     return finish(problem, fac, result, covs, "smoother", extra, findings)
