@@ -166,9 +166,9 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
 #: (scenario, estimator) pairs that still fail silently at one lap when the filter runs alone
 #: (cross-check off, as in a live pipeline; measured, not hidden: each is a strict xfail, so a
 #: fix shows up as an unexpected pass; docs/trust.md has the figures). Through the path of
-#: ``odofuse run`` the batch smoother's second opinion flags four of the six
-#: (test_scenarios_as_odofuse_run_does_have_no_silent_failure, KNOWN_SILENT_CHECKED below,
-#: docs/trust.md section 6).
+#: ``odofuse run`` the batch smoother's second opinion flags all six (its posterior rule,
+#: test_scenarios_as_odofuse_run_does_have_no_silent_failure, KNOWN_SILENT_CHECKED below,
+#: docs/trust.md section 6.3).
 #: All are the start-up with an unknown gyro bias on GPS alone (1 m sigma), seed 7: the bias
 #: is learnt from the wheels while the heading runs ~0.1 rad off inside the filter's own
 #: covariance (consistent innovations), where the smoother, which sees the whole log, is not.
