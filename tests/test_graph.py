@@ -861,9 +861,9 @@ def test_isam2_window_marginalises_old_keyframes_and_keeps_the_optimum(monkeypat
 
 @pytest.mark.parametrize("stream", ["landmarks", "ranges"])
 def test_isam2_slam_window_keeps_the_optimum(monkeypatch, stream):
-    """Issue 17 item 3: the SLAM path (range-bearing landmarks placed at once, ranges held
-    back for multilateration) marginalises old pose keyframes like the localisation path
-    (landmarks stay in iSAM2); its final LM solves the whole kept graph, so poses, landmarks
+    """Issue 17 item 3: the SLAM path with range-bearing landmarks marginalises old pose
+    keyframes like the localisation path (landmarks stay in iSAM2); with range-only landmarks
+    it keeps them all; its final LM solves the whole kept graph, so poses, landmarks
     and covariances are those of a run that keeps every keyframe. Tolerances: the two LM runs
     start from different online estimates and stop at relative_tolerance, so they agree to
     far better than the sensor noise (0.1 m / 0.2 m) but not to machine precision."""
@@ -885,8 +885,11 @@ def test_isam2_slam_window_keeps_the_optimum(monkeypatch, stream):
     monkeypatch.setattr(isam2_window, "EVERY", 15)
     windowed = graph.run_isam2(log, cfg)
     assert whole.extra["marginalised_keyframes"] == 0
-    # marginalise() raises (and the run fails) unless exactly the leaving keys were removed
-    assert windowed.extra["marginalised_keyframes"] >= len(windowed.trajectory) // 2 > 0
+    if stream == "landmarks":
+        # marginalise() raises (and the run fails) unless exactly the leaving keys were removed
+        assert windowed.extra["marginalised_keyframes"] >= len(windowed.trajectory) // 2 > 0
+    else:  # range-only landmarks keep every keyframe (isam2_slam docstring: Plaza1 diverged)
+        assert windowed.extra["marginalised_keyframes"] == 0
     assert not windowed.findings and not whole.findings
     assert windowed.extra["landmarks"].keys() == whole.extra["landmarks"].keys() == BEACONS.keys()
     for lid, p in whole.extra["landmarks"].items():

@@ -15,8 +15,11 @@ poses rather than from dead reckoning:
 Pose keyframes older than the last :data:`~odofuse.estimators.graph.isam2_window.KEEP` leave
 iSAM2's tree in batches (:class:`~odofuse.estimators.graph.isam2_window.KeyframeWindow`, as on
 the localisation path: bounded update cost); landmarks stay, and so does every keyframe a
-held-back range refers to. The window's :attr:`graph` and :meth:`estimate` hold the whole run
-for the final batch pass.
+held-back range refers to. Not with range-only landmarks: there the marginal factors fix the
+linearisation of landmarks multilaterated from early, poor poses, and on Plaza1's first 400 s
+the final LM then stopped at its cap at graph error 20,610 instead of 595.8 (unwindowed); so
+a problem with any range-only landmark keeps every keyframe in iSAM2 (as before issue 17).
+The window's :attr:`graph` and :meth:`estimate` hold the whole run for the final batch pass.
 
 Bearing-only landmarks are not initialised incrementally (their rows are counted as
 rejected). The calibration freeze of :func:`~odofuse.estimators.graph.isam2.run_isam2` is not
@@ -159,6 +162,8 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
         hold = [held[lid][0].keyframe for lid in held if lid in ranges]
         hold.append(loop_hold[bisect.bisect_right(loop_later, i)])
         window.hold = min((k for k in hold if k is not None), default=None)
+        if ranges:  # range-only landmarks: no window (module docstring)
+            window.hold = 0
         t0 = _clock()
         if window.due(i):  # the oldest keyframes leave iSAM2's tree (isam2_window)
             isam.update(graph, values, window.update_params(isam, i, graph, values, frozen))
