@@ -301,31 +301,23 @@ def compare(
         "ratio_bound": HOLD_RMSE_RATIO if fused else None,
         "nees_bound": HOLD_NEES,
     }
-    found = []
+    found, text = [], None
     if fused and p_fail is not None and p_fail > ALPHA:
-        found.append(
-            Finding(
-                "cross_check",
-                f"{rms:.3g} m rms from the batch smoother of the same log: posterior "
-                f"probability {p_fail:.2f} (> {ALPHA:g}) of more than {HOLD_RMSE_RATIO:g}x its "
-                f"error (predicted ratio {_fmt(ratio)}x, smoother sigma {_fmt(s2**0.5)} m)",
-                t_start=span[0],
-                t_end=span[1],
-                figure=p_fail,
-            )
+        text, figure = (
+            f"{rms:.3g} m rms from the batch smoother of the same log: posterior "
+            f"probability {p_fail:.2f} (> {ALPHA:g}) of more than {HOLD_RMSE_RATIO:g}x its "
+            f"error (predicted ratio {_fmt(ratio)}x, smoother sigma {_fmt(s2**0.5)} m)",
+            p_fail,
         )
     elif fused and p_fail is None and ratio is not None and ratio > HOLD_RMSE_RATIO:
-        found.append(
-            Finding(
-                "cross_check",
-                f"{rms:.3g} m rms from the batch smoother of the same log, whose own sigma is "
-                f"{math.sqrt(s2):.3g} m: likely more than {HOLD_RMSE_RATIO:g}x its error "
-                f"(predicted {ratio:.2f}x; no error samples: fallback rule)",
-                t_start=span[0],
-                t_end=span[1],
-                figure=ratio,
-            )
+        text, figure = (
+            f"{rms:.3g} m rms from the batch smoother of the same log, whose own sigma is "
+            f"{math.sqrt(s2):.3g} m: likely more than {HOLD_RMSE_RATIO:g}x its error "
+            f"(predicted {ratio:.2f}x; no error samples: fallback rule)",
+            ratio,
         )
+    if text is not None:
+        found.append(Finding("cross_check", text, t_start=span[0], t_end=span[1], figure=figure))
     if not math.isnan(dn) and dn > HOLD_NEES:
         found.append(
             Finding(

@@ -384,11 +384,7 @@ def run_isam2(log, config) -> EstimateResult:
         window.add(graph, values)
         t0 = _clock()
         try:
-            if window.due(i):  # the oldest keyframes leave iSAM2's tree (isam2_window)
-                isam.update(graph, values, window.update_params(isam, i, graph, values, frozen))
-                window.marginalise(isam, i)
-            else:
-                isam.update(graph, values, noRelinKeys=frozen)
+            window.update(isam, i, graph, values, frozen)  # old keyframes may leave
             latency.append(_clock() - t0)
             if i > 0:  # the root clique's marginal can be indeterminate too (a diverged run)
                 current = _newest_estimate(isam, X(i), current)

@@ -165,11 +165,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
         if ranges:  # range-only landmarks: no window (module docstring)
             window.hold = 0
         t0 = _clock()
-        if window.due(i):  # the oldest keyframes leave iSAM2's tree (isam2_window)
-            isam.update(graph, values, window.update_params(isam, i, graph, values, frozen))
-            window.marginalise(isam, i)
-        else:
-            isam.update(graph, values, noRelinKeys=frozen)
+        window.update(isam, i, graph, values, frozen)  # old keyframes may leave
         latency.append(_clock() - t0)
         if i > 0 and i % ESTIMATE_EVERY == 0:
             current = isam.calculateEstimatePose2(X(i))

@@ -83,6 +83,17 @@ class KeyframeWindow:
         leaving = (ord("x"), ord("b"))
         self._added.append([k for k in values.keys() if gtsam.Symbol(k).chr() in leaving])
 
+    def update(self, isam, i: int, graph, values, no_relin) -> None:
+        """Keyframe ``i``'s ``isam.update`` with the new ``graph`` and ``values``: when it is
+        :meth:`due`, with :meth:`update_params` and then :meth:`marginalise` (the oldest
+        keyframes leave iSAM2's tree); otherwise a plain update (``no_relin``: keys kept at
+        their linearisation point)."""
+        if self.due(i):
+            isam.update(graph, values, self.update_params(isam, i, graph, values, no_relin))
+            self.marginalise(isam, i)
+        else:
+            isam.update(graph, values, noRelinKeys=no_relin)
+
     def update_params(self, isam, i: int, graph, values, no_relin):
         """``ISAM2UpdateParams`` of keyframe ``i``'s update when it is :meth:`due`.
 
