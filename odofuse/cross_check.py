@@ -253,8 +253,8 @@ def compare(
         ``smoother_sigma_model_m`` (``s`` before the variance scale, m),
         ``smoother_variance_factor`` (the scale, None when not available),
         ``predicted_ratio`` (``sqrt(1 + rms(d)^2 / s^2)``), ``p_fail`` (None without
-        samples), ``samples`` (K, 0 without), ``rule`` (``posterior p_fail > ALPHA`` or the
-        fallback and why), ``alpha``, ``departure_nees`` (mean
+        samples or when not ``fused``), ``samples`` (K, 0 without), ``rule``
+        (``posterior p_fail > ALPHA`` or the fallback and why), ``alpha``, ``departure_nees`` (mean
         ``d^T P_f^-1 d`` over the positive-definite ``P_f``, expected <= 2), the bounds; or
         ``skipped`` when nothing overlaps.
     findings : list of Finding
@@ -280,7 +280,8 @@ def compare(
     dn = nees(estimate, smoother, (0, 1)) if estimate.covariances is not None else math.nan
     span = (float(estimate.t[idx[0]]), float(estimate.t[idx[-1]]))
     usable = samples is not None and samples.ndim == 3 and samples.shape[1] == len(smoother)
-    p_fail = posterior_fail(estimate, smoother, samples) if usable else None
+    # unaided estimates are judged on their covariance alone: no p_fail (its drift is expected)
+    p_fail = posterior_fail(estimate, smoother, samples) if usable and fused else None
     if usable:
         rule = f"posterior p_fail > {ALPHA:g}"
     else:
@@ -294,7 +295,7 @@ def compare(
         "smoother_variance_factor": variance_scale,
         "predicted_ratio": ratio,
         "p_fail": p_fail,
-        "samples": int(samples.shape[0]) if usable else 0,
+        "samples": int(samples.shape[0]) if usable and fused else 0,
         "alpha": ALPHA if fused else None,
         "rule": rule if fused else None,
         "departure_nees": None if math.isnan(dn) else dn,
