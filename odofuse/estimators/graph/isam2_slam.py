@@ -14,11 +14,12 @@ poses rather than from dead reckoning:
 
 Pose keyframes older than the last :data:`~odofuse.estimators.graph.isam2_window.KEEP` leave
 iSAM2's tree in batches (:class:`~odofuse.estimators.graph.isam2_window.KeyframeWindow`, as on
-the localisation path: bounded update cost); landmarks stay, and so does every keyframe a
-held-back range refers to. Not with range-only landmarks: there the marginal factors fix the
-linearisation of landmarks multilaterated from early, poor poses, and on Plaza1's first 400 s
-the final LM then stopped at its cap at graph error 20,610 instead of 595.8 (unwindowed); so
-a problem with any range-only landmark keeps every keyframe in iSAM2 (as before issue 17).
+the localisation path: bounded update cost); landmarks stay, and so does every keyframe from
+the oldest one a later loop closure refers to. Not with range-only landmarks: there the
+marginal factors fix the linearisation of landmarks multilaterated from early, poor poses, and
+on Plaza1's first 400 s the final LM then stopped at its cap at graph error 20,610 instead of
+595.8 (unwindowed); so a problem with any range-only landmark keeps every keyframe in iSAM2 (as
+before issue 17).
 The window's :attr:`graph` and :meth:`estimate` hold the whole run for the final batch pass.
 
 Bearing-only landmarks are not initialised incrementally (their rows are counted as
@@ -97,12 +98,12 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     if problem.odometry_calibration is not None:
         frozen.push_back(problem.odometry_key)
     placed: set[int] = set()
-    ranges = {  # landmarks whose held rows can still enter (multilateration)
-        m.landmark
+    # range-only landmarks: no window (module docstring)
+    range_only = any(
+        model_kind(problem.models[m.stream]) == "BeaconRange"
         for ms in landmark_rows.values()
         for m in ms
-        if model_kind(problem.models[m.stream]) == "BeaconRange"
-    }
+    )
     # loop closures are added with their later keyframe: keep their earlier one in the tree
     loops = sorted((lp.later, min(lp.i, lp.j)) for lp in problem.loops)
     loop_later = [later for later, _ in loops]
@@ -158,12 +159,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
             else:
                 held.setdefault(lid, []).append(meas)
         window.add(graph, values)
-        # held ranges (rows in keyframe order) will add factors on their keyframes
-        hold = [held[lid][0].keyframe for lid in held if lid in ranges]
-        hold.append(loop_hold[bisect.bisect_right(loop_later, i)])
-        window.hold = min((k for k in hold if k is not None), default=None)
-        if ranges:  # range-only landmarks: no window (module docstring)
-            window.hold = 0
+        window.hold = 0 if range_only else loop_hold[bisect.bisect_right(loop_later, i)]
         t0 = _clock()
         window.update(isam, i, graph, values, frozen)  # old keyframes may leave
         latency.append(_clock() - t0)

@@ -19,7 +19,8 @@ graph (:attr:`KeyframeWindow.graph`), started from :meth:`KeyframeWindow.estimat
 The SLAM path (:func:`~odofuse.estimators.graph.isam2_slam.incremental_slam`) uses the same
 window: landmarks stay in iSAM2 (a landmark whose observing poses left keeps their marginal
 factor), and :attr:`KeyframeWindow.hold` keeps in the tree every keyframe from the oldest
-one that a range still held back for multilateration refers to.
+one that a factor still to come (a later loop closure) refers to; with range-only landmarks
+the caller holds every keyframe (no window).
 """
 
 from __future__ import annotations
