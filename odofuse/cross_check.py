@@ -191,7 +191,7 @@ def posterior_fail(estimate: Trajectory, smoother: Trajectory, samples: np.ndarr
         and ``e`` the sampled errors interpolated linearly between keyframes, at the
         estimate's times the smoother covers (:func:`odofuse.evaluation.associate`).
     """
-    from odofuse.evaluation import associate
+    from odofuse.evaluation import associate, bracket
 
     idx, g = associate(estimate, smoother)
     t = np.clip(estimate.t[idx], smoother.t[0], smoother.t[-1])
@@ -203,10 +203,8 @@ def posterior_fail(estimate: Trajectory, smoother: Trajectory, samples: np.ndarr
         if tt.size == 1:
             e = np.repeat(samples[:, :1], d.shape[0], axis=1)
         else:
-            tb = t[b]
-            k = np.clip(np.searchsorted(tt, tb, side="right") - 1, 0, tt.size - 2)
-            dt = tt[k + 1] - tt[k]
-            a = np.where(dt > 0, (tb - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)[None, :, None]
+            k, a = bracket(tt, t[b])
+            a = a[None, :, None]
             e = samples[:, k] + a * (samples[:, k + 1] - samples[:, k])  # (K, B, 2)
         num += np.sum((d[None] + e) ** 2, axis=(1, 2))
         den += np.sum(e**2, axis=(1, 2))

@@ -82,6 +82,16 @@ def apply_alignment(traj: Trajectory, r: np.ndarray, t: np.ndarray) -> Trajector
     return Trajectory(traj.t, poses, covs)
 
 
+def bracket(tt: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear-interpolation neighbours of times ``t`` (inside the span of the sorted ``tt``,
+    at least two samples): ``k`` (M,), the sample at or before each time (clipped to
+    ``[0, len(tt) - 2]``), and ``a`` (M,), the weight of sample ``k + 1`` (0 across a
+    zero-length interval)."""
+    k = np.clip(np.searchsorted(tt, t, side="right") - 1, 0, tt.size - 2)
+    dt = tt[k + 1] - tt[k]
+    return k, np.where(dt > 0, (t - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)
+
+
 def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
     """Poses of ``traj`` at times ``t`` (inside its time span), shape (M, 3).
 
@@ -94,10 +104,7 @@ def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
         return np.repeat(traj.poses[:1], t.size, axis=0)
     out = np.empty((t.size, 3))
     for b in pose_blocks(t.size):
-        tb = t[b]
-        k = np.clip(np.searchsorted(tt, tb, side="right") - 1, 0, tt.size - 2)
-        dt = tt[k + 1] - tt[k]
-        a = np.where(dt > 0, (tb - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)
+        k, a = bracket(tt, t[b])
         p0, p1 = traj.poses[k], traj.poses[k + 1]
         out[b, :2] = p0[:, :2] + a[:, None] * (p1[:, :2] - p0[:, :2])
         out[b, 2] = wrap(p0[:, 2] + a * wrap(p1[:, 2] - p0[:, 2]))
