@@ -834,22 +834,29 @@ def test_calibration_freeze_states_are_validated(sigma, key):
     assert exc.value.key == key and exc.value.file == "test.yaml"
 
 
-@pytest.mark.parametrize("calibrate", [False, True])
-def test_isam2_window_marginalises_old_keyframes_and_keeps_the_optimum(monkeypatch, calibrate):
-    """Issue 17: iSAM2's tree holds at most KEEP + EVERY keyframes (the older ones are
-    marginalised out in batches, isam2_window); the final pass still solves the whole graph,
-    so the result and its covariances are those of a run that keeps every keyframe."""
+def _whole_and_windowed(monkeypatch, log, cfg):
+    """iSAM2 on ``log`` keeping every keyframe in its tree, then with a small window (KEEP 40,
+    EVERY 15: the window's removals happen on a two-minute log)."""
     from odofuse.estimators.graph import isam2_window
 
-    log = _simulate(seed=14, T=120.0, scale=1.03 if calibrate else 1.0)
-    sensors = {"ranges": {"sigma": 0.2, "calibrate": calibrate}}
-    cfg = _config("isam2", sensors)
     monkeypatch.setattr(isam2_window, "KEEP", 10**9)
     whole = graph.run_isam2(log, cfg)
     monkeypatch.setattr(isam2_window, "KEEP", 40)
     monkeypatch.setattr(isam2_window, "EVERY", 15)
     windowed = graph.run_isam2(log, cfg)
     assert whole.extra["marginalised_keyframes"] == 0
+    return whole, windowed
+
+
+@pytest.mark.parametrize("calibrate", [False, True])
+def test_isam2_window_marginalises_old_keyframes_and_keeps_the_optimum(monkeypatch, calibrate):
+    """Issue 17: iSAM2's tree holds at most KEEP + EVERY keyframes (the older ones are
+    marginalised out in batches, isam2_window); the final pass still solves the whole graph,
+    so the result and its covariances are those of a run that keeps every keyframe."""
+    log = _simulate(seed=14, T=120.0, scale=1.03 if calibrate else 1.0)
+    sensors = {"ranges": {"sigma": 0.2, "calibrate": calibrate}}
+    cfg = _config("isam2", sensors)
+    whole, windowed = _whole_and_windowed(monkeypatch, log, cfg)
     assert windowed.extra["marginalised_keyframes"] >= len(log.groundtruth.t) // 10 > 0
     assert not windowed.findings
     np.testing.assert_allclose(windowed.trajectory.poses, whole.trajectory.poses, atol=1e-6)
@@ -867,8 +874,6 @@ def test_isam2_slam_window_keeps_the_optimum(monkeypatch, stream):
     and covariances are those of a run that keeps every keyframe. Tolerances: the two LM runs
     start from different online estimates and stop at relative_tolerance, so they agree to
     far better than the sensor noise (0.1 m / 0.2 m) but not to machine precision."""
-    from odofuse.estimators.graph import isam2_window
-
     log = _simulate(seed=17, T=120.0)
     if stream == "landmarks":
         log = _with_sensors(log)
@@ -879,12 +884,7 @@ def test_isam2_slam_window_keeps_the_optimum(monkeypatch, stream):
         else {"ranges": {"sigma": 0.2}}
     )
     cfg = _config("isam2", sensors, {"slam": True})
-    monkeypatch.setattr(isam2_window, "KEEP", 10**9)
-    whole = graph.run_isam2(log, cfg)
-    monkeypatch.setattr(isam2_window, "KEEP", 40)
-    monkeypatch.setattr(isam2_window, "EVERY", 15)
-    windowed = graph.run_isam2(log, cfg)
-    assert whole.extra["marginalised_keyframes"] == 0
+    whole, windowed = _whole_and_windowed(monkeypatch, log, cfg)
     if stream == "landmarks":
         # marginalise() raises (and the run fails) unless exactly the leaving keys were removed
         assert windowed.extra["marginalised_keyframes"] >= len(windowed.trajectory) // 2 > 0
