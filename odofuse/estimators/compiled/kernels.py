@@ -28,6 +28,13 @@ from numba import njit
 
 TWO_PI = 2.0 * math.pi
 _SERIES_BELOW = 1e-2
+#: :func:`dr_linear`: half-turns ``|w / 2|`` (rad) below which a step's trigonometry is
+#: polynomial (:func:`_sinc_cos`) and the heading's cosine and sine follow from the previous
+#: step's by the angle-addition formulas; larger ones call ``math.cos`` / ``math.sin``.
+_POLY_BELOW = 0.25
+#: :func:`dr_linear`: steps between re-anchoring that recurrence on ``math.cos`` /
+#: ``math.sin`` of the wrapped heading, so its rounding drift stays within a few hundred ulp.
+_ANCHOR = 256
 
 #: Stream kinds of :func:`ekf_offline`.
 RANGE, GPS, COMPASS, GYRO = 0, 1, 2, 3
@@ -114,22 +121,50 @@ def _pose_step(pose, d0, d1, d2, P, Fu, var, with_cov):
 
 
 @njit(cache=True, inline="always")
-def _dsinc_half(w):
-    """d/dw of sinc(w/2) (``motion._dsinc_half``)."""
-    h = 0.5 * w
+def _dsinc_half(h, sh, ch):
+    """d/dw of sinc(w/2) (``motion._dsinc_half``) at ``h = w/2``, given ``sin h`` and
+    ``cos h``."""
     if abs(h) < 0.05:
         h2 = h * h
         return 0.5 * (h * (-1.0 / 3.0 + h2 * (1.0 / 30.0 + h2 * (-1.0 / 840.0 + h2 / 45360.0))))
-    return 0.5 * (h * math.cos(h) - math.sin(h)) / (h * h)
+    return 0.5 * (h * ch - sh) / (h * h)
+
+
+@njit(cache=True, inline="always")
+def _sinc_cos(h):
+    """``sin(h) / h`` and ``cos(h)`` by their Taylor polynomials, for ``|h| <``
+    :data:`_POLY_BELOW` (to the ``h^10`` and ``h^12`` terms: the first omitted term is below
+    1e-18 of the value there, under half an ulp)."""
+    h2 = h * h
+    sinc = 1.0 + h2 * (
+        -1.0 / 6.0
+        + h2 * (1.0 / 120.0 + h2 * (-1.0 / 5040.0 + h2 * (1.0 / 362880.0 - h2 / 39916800.0)))
+    )
+    cos_h = 1.0 + h2 * (
+        -0.5
+        + h2
+        * (
+            1.0 / 24.0
+            + h2
+            * (-1.0 / 720.0 + h2 * (1.0 / 40320.0 + h2 * (-1.0 / 3628800.0 + h2 / 479001600.0)))
+        )
+    )
+    return sinc, cos_h
 
 
 @njit(cache=True)
 def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
     """Dead reckoning of a drive with ``twist = M u`` and ``var = K |u| + floor``.
 
-    The chord form of ``motion.dead_reckon`` (``z = g (v_x + i v_y) e^{i phi}``, three
-    transcendental functions per step) with its Jacobian rows for ``F_u``; the pose and the
-    six covariance entries live in scalars (no per-step arrays).
+    The chord form of ``motion.dead_reckon`` (``z = g (v_x + i v_y) e^{i phi}``) with its
+    Jacobian rows for ``F_u``; the pose and the six covariance entries live in scalars (no
+    per-step arrays). No transcendental call on an ordinary step: ``sin``/``cos`` of the half
+    turn come from Taylor polynomials (:func:`_sinc_cos`, below :data:`_POLY_BELOW`) and
+    ``e^{i phi}`` and the next ``e^{i theta}`` from the current ``e^{i theta}`` by rotation
+    (angle addition); every :data:`_ANCHOR` steps, and on any larger turn, the step takes
+    ``math.cos``/``math.sin`` of the wrapped heading as the reference does and re-anchors the
+    rotation there. Three libm calls per step were the kernel's cost (issue 17); the
+    difference to the reference stays at rounding level (``tests/test_compiled.py``).
 
     Parameters
     ----------
@@ -142,6 +177,8 @@ def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
     """
     n = U.shape[1]
     x, y, th = pose0[0], pose0[1], pose0[2]
+    ct = st = 0.0
+    left = 0  # the first step anchors
     p00, p11, p22 = P0[0, 0], P0[1, 1], P0[2, 2]
     p01 = 0.5 * (P0[0, 1] + P0[1, 0])
     p02 = 0.5 * (P0[0, 2] + P0[2, 0])
@@ -159,21 +196,43 @@ def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
             vx += M[1, j] * u
             vy += M[2, j] * u
         half = 0.5 * w
-        if integ == 0:
-            phi = th
-        elif integ == 3:
-            phi = th + w
+        if left > 0 and abs(half) < _POLY_BELOW:
+            left -= 1
+            sinc, ch = _sinc_cos(half)
+            sh = half * sinc
+            if integ == 0:  # phi = theta, then turn by w = 2 half
+                c, s = ct, st
+                c2, s2 = ch * ch - sh * sh, 2.0 * sh * ch
+                ct, st = c * c2 - s * s2, s * c2 + c * s2
+            elif integ == 3:  # phi = theta + w, the next heading
+                c2, s2 = ch * ch - sh * sh, 2.0 * sh * ch
+                ct, st = ct * c2 - st * s2, st * c2 + ct * s2
+                c, s = ct, st
+            else:  # phi = theta + half, then the other half
+                c, s = ct * ch - st * sh, st * ch + ct * sh
+                ct, st = c * ch - s * sh, s * ch + c * sh
+            th += w
+            if not (-math.pi <= th < math.pi):
+                th = _wrap(th)
         else:
-            phi = th + half
-        c, s = math.cos(phi), math.sin(phi)
-        g = 1.0
-        if integ == 2 and half != 0.0:
-            g = math.sin(half) / half
+            left = _ANCHOR
+            if integ == 0:
+                phi = th
+            elif integ == 3:
+                phi = th + w
+            else:
+                phi = th + half
+            c, s = math.cos(phi), math.sin(phi)
+            sh, ch = math.sin(half), math.cos(half)
+            sinc = 1.0 if half == 0.0 else sh / half
+            th = _wrap(th + w)
+            ct, st = math.cos(th), math.sin(th)
+        g = sinc if integ == 2 else 1.0
         zr, zi = c * vx - s * vy, s * vx + c * vy
         dxw, dyw = g * zr, g * zi
         if with_cov:
             if integ == 2:
-                a, b = _dsinc_half(w), 0.5 * g
+                a, b = _dsinc_half(half, sh, ch), 0.5 * g
                 jw0, jw1 = zr * a - zi * b, zr * b + zi * a
             elif integ == 1:
                 jw0, jw1 = -0.5 * zi, 0.5 * zr
@@ -210,7 +269,6 @@ def dr_linear(pose0, P0, U, M, K, floor, integ, with_cov, poses, covs):
             covs[k + 1, 2, 0], covs[k + 1, 2, 1], covs[k + 1, 2, 2] = p02, p12, p22
         x += dxw
         y += dyw
-        th = _wrap(th + w)
         poses[k + 1, 0], poses[k + 1, 1], poses[k + 1, 2] = x, y, th
 
 
