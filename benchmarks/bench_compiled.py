@@ -19,6 +19,12 @@ judges, each against a reference run in this process on the same inputs (best of
   (``compiled.ekf.run``: assembling, the kernel, the result and its findings) and its kernel
   alone, against a hand-written numba EKF of the same model, and the pure-Python path
   (Localizer + filterpy, on ``P`` steps). Target: within 3x of the numba EKF.
+* particle filter (``--pf-particles``, default 1000): ``--pf-steps`` steps of
+  ``ParticleBackend.predict`` + ``update`` (increments odometry, one gated range with
+  scale/offset states, as on Plaza1) with ``compiled: on`` against ``off`` from the same seed
+  (the same draws), and the whole offline run (``odofuse.estimators.particle.run``) on a
+  simulated figure eight with a gyro (relative updates), GPS and ranges, on against off. The
+  ratios are the numpy path's time over the compiled one's; the final clouds are compared.
 
 The first run on a machine compiles the kernels (cached on disk afterwards); warm-up calls
 keep compilation out of the timings.
@@ -241,6 +247,8 @@ def main(argv=None) -> dict:
     p.add_argument("--steps", type=int, default=10_000_000, help="dead-reckoning steps")
     p.add_argument("--ekf-steps", type=int, default=1_000_000, help="offline EKF steps")
     p.add_argument("--python-steps", type=int, default=5_000, help="Python EKF steps")
+    p.add_argument("--pf-particles", type=int, default=1000, help="particles")
+    p.add_argument("--pf-steps", type=int, default=2_000, help="particle predict+update steps")
     p.add_argument("--repeats", type=int, default=3)
     a = p.parse_args(argv)
     print(f"bench_compiled: {load()} at start")
@@ -327,6 +335,7 @@ def main(argv=None) -> dict:
 
     (t_py,) = best([lambda: run_with(plog, pcfg, "ekf", make_backend)], 1)
     (t_off_small,) = best([lambda: compiled_ekf.run(plog, pcfg)], a.repeats)
+    pf = particle_timings(a.pf_particles, a.pf_steps, a.repeats)
 
     # ------------------------------------------------------------------ table
     print(f"bench_compiled: {load()} at the end; best of {a.repeats}, interleaved")
@@ -409,7 +418,108 @@ def main(argv=None) -> dict:
         ekf_kernel_vs_numba=kernel_t / t_hand,
         python_vs_compiled=t_py / t_off_small,
     )
+    n_pf, S = a.pf_particles, a.pf_steps
+    print(f"particle filter, {n_pf} particles (numpy path / compiled, same seed and draws)")
+    t_on, t_np = pf["step"]
+    line(f"compiled predict + range update, {S} steps", t_on, S)
+    line("  numpy path on the same draws", t_np, S, f"{t_np / t_on:.2f}x slower")
+    print(f"  same final cloud: max |X_on - X_off| = {pf['step_diff']:.1e}")
+    t_on, t_np = pf["run"]
+    steps = pf["run_steps"]
+    line(f"compiled offline run, figure eight ({steps} steps)", t_on, steps)
+    line("  numpy path (compiled: off)", t_np, steps, f"{t_np / t_on:.2f}x slower")
+    print(f"  same trajectory: max |pose_on - pose_off| = {pf['run_diff']:.1e}")
+    out.update(
+        pf_step_numpy_vs_compiled=pf["step"][1] / pf["step"][0],
+        pf_run_numpy_vs_compiled=pf["run"][1] / pf["run"][0],
+    )
     return out
+
+
+PF_SCENARIO = {
+    "seed": 3,
+    "dt": 0.02,
+    "robot": {"drive": "differential", "wheel_radius": 0.04, "track_width": 0.235},
+    "path": {"kind": "figure_eight", "radius": 3.0, "speed": 0.5, "laps": 1},
+    "systematic": {"E_d": 1.004, "E_b": 1.01},
+    "nonsystematic": {"k": 1.0e-5},
+    "sensors": {
+        "gyro": {"sigma": 0.005, "bias": 0.01, "rate": 25.0},
+        "gps": {"sigma": 0.3, "rate": 1.0},
+        "ranges": {"sigma": 0.1, "rate": 5.0, "max_range": 15.0},
+    },
+    "beacons": [[1, 0.0, 6.0], [2, 0.0, -6.0], [3, 8.0, 0.0], [4, -8.0, 0.0]],
+}
+
+
+def particle_timings(particles, steps, repeats) -> dict:
+    """Particle filter, compiled against numpy from the same seed: ``step`` (predict + update
+    loop) and ``run`` (the whole offline run on a simulated log) as ``(t_on, t_off)``."""
+    import dataclasses
+
+    from odofuse.config import config_from_dict
+    from odofuse.estimators.assembly import build
+    from odofuse.estimators.particle import make_backend
+    from odofuse.estimators.particle import run as run_pf
+    from odofuse.teaching.scenario import scenario_from_dict
+    from odofuse.teaching.simlog import run_config, to_sensor_log
+    from odofuse.teaching.simulate import simulate
+
+    log, _, U, ids, ranges = ekf_log(steps)
+    rows = [{"id": float(i), "range": float(r)} for i, r in zip(ids, ranges, strict=True)]
+
+    def pf_config(mode):
+        _, cfg, *_ = ekf_log(2)
+        opts = {"particles": particles, "seed": 0, "compiled": mode}
+        return dataclasses.replace(
+            cfg, estimator="particle", options={"particle": _particle_options(opts)}
+        )
+
+    def loop(mode, keep):
+        loc, _, _ = build(pf_config(mode), log, "particle", make_backend)
+        b, model = loc.backend, loc.models["ranges"]
+        for k in range(steps):
+            b.predict(U[k], 0.02)
+            b.update(model, rows[k])
+        keep[mode] = b.X
+
+    clouds = {}
+    loop("on", clouds)  # warm up: load (or compile) the kernels
+    step = best([lambda: loop("on", clouds), lambda: loop("off", clouds)], repeats)
+    sim = simulate(scenario_from_dict(PF_SCENARIO, "<bench>"), seed=3)
+    slog = to_sensor_log(sim)
+    raw = run_config(sim, "particle")
+    raw["options"] = {"particle": {"particles": particles, "odometry_calibration": True}}
+    results = {}
+
+    def whole(mode):
+        raw["options"]["particle"]["compiled"] = mode
+        results[mode] = run_pf(slog, config_from_dict(raw, "<bench>"))
+
+    whole("on")
+    run = best([lambda: whole("on"), lambda: whole("off")], repeats)
+    on, off = results["on"].trajectory.poses, results["off"].trajectory.poses
+    return {
+        "step": step,
+        "step_diff": _pose_diff(clouds["on"], clouds["off"]),
+        "run": run,
+        "run_steps": len(on) - 1,
+        "run_diff": _pose_diff(on, off),
+    }
+
+
+def _pose_diff(a, b) -> float:
+    """Largest entry of ``a - b`` (rows of states), the heading difference wrapped."""
+    d = a - b
+    d[:, 2] = (d[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    return float(np.abs(d).max())
+
+
+def _particle_options(opts):
+    from odofuse.declarations import ParticleOptions
+    from odofuse.options import coerce
+
+    return coerce(ParticleOptions, opts, "options.particle")
 
 
 def _ok(flag: bool) -> str:

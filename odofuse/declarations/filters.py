@@ -195,3 +195,11 @@ class ParticleOptions(FilterOptions):
         doc="multiplier of Silverman's kernel bandwidth for the pose jitter",
         **_NONNEG,
     )
+    compiled: str = option(
+        "auto",
+        unit="-",
+        doc="numba core of the propagation, weighting and moments: auto (if numba imports; "
+        "offline from 5e6 particles x log rows), on, off (numpy)",
+        parse=_compiled_mode,
+        type_name="auto, on or off",
+    )

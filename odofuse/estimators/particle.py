@@ -46,16 +46,23 @@ which drove 20 particles from 1e-4 to 1e-14 over 10^6 gyro steps. Hence:
   semi-definite by construction; a cloud that has collapsed anyway is reported by the
   Localizer's ``collapse`` check (:func:`odofuse.estimators.pose_checks.collapse_findings`).
 * **Recovery**: :meth:`ParticleBackend.inflate` spreads the pose about its mean.
+
+Compiled core (``options.particle.compiled``, :mod:`odofuse.estimators.compiled.particle`):
+the propagation, the weighting and the cloud's moments run in numba kernels on the random
+numbers this backend's generator draws, in the same order and shapes, so both paths give the
+same run; what the kernels do not cover runs the numpy code below (``docs/filters.md``).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 
 from odofuse.declarations import ParticleOptions
 from odofuse.estimators.assembly import run_with
+from odofuse.estimators.compiled import particle as compiled_particle
 from odofuse.measurements import gate_threshold
 from odofuse.motion import body_increment
 from odofuse.options import coerce
@@ -106,8 +113,11 @@ def weighted_cov(D: np.ndarray, w: np.ndarray) -> np.ndarray:
     ndarray (n, n)
     """
     A = D * np.sqrt(w)[:, None]
-    G = A.T @ A
-    denom = 1.0 - float(w @ w)
+    return _scaled_psd(A.T @ A, 1.0 - float(w @ w))
+
+
+def _scaled_psd(G: np.ndarray, denom: float) -> np.ndarray:
+    """``G / denom`` of a Gram matrix ``G``, eigenvalues clipped at 0 (:func:`weighted_cov`)."""
     if not denom > 1e-12:
         return np.zeros_like(G)
     vals, vecs = np.linalg.eigh(0.5 * (G + G.T))
@@ -134,15 +144,20 @@ class ParticleBackend:
         Random-walk variance per second of each state.
     options : ParticleOptions or dict, optional
         ``particles``, ``seed``, ``resample_threshold``, ``roughening`` (the Liu-West kernel
-        width ``h``), ``regularise``, ``bandwidth_scale``; a mapping is validated
+        width ``h``), ``regularise``, ``bandwidth_scale``, ``compiled``; a mapping is validated
         into :class:`~odofuse.declarations.ParticleOptions`.
+    events : int, optional
+        Rows of the log an offline run feeds (``compiled: auto`` compiles long runs only,
+        :data:`odofuse.estimators.compiled.particle.AUTO_MIN_WORK`); None for a live one.
     """
 
     #: Odometry-calibration states (:mod:`odofuse.estimators.odocal`), set by ``assemble``.
     odo_cal = None
 
-    def __init__(self, model, models, x0, P0, walk, options=None) -> None:
+    def __init__(self, model, models, x0, P0, walk, options=None, events=None) -> None:
         options = coerce(ParticleOptions, options, "options.particle")
+        self._kern = compiled_particle.kernels_for(options, events)
+        self._terms = None  # the compiled predict's motion terms, at the first step (odo_cal)
         self.model = model
         self.N = options.particles
         self.rng = np.random.default_rng(options.seed)
@@ -169,6 +184,8 @@ class ParticleBackend:
                 if s in idx:
                     self.angles.append(idx[s])
                     self.X[:, idx[s]] = self.X[:, 2]
+        self._angle_idx = np.asarray(self.angles, dtype=np.int64)
+        self._is_angle = np.isin(np.arange(self.n), self.angles)
         clone_cols = set(self.angles[1:])
         # Heading clone column -> [e (N,), var_e]: the heading noise each particle was given
         # since the clone was taken, and its variance (the relative update's prior).
@@ -197,6 +214,14 @@ class ParticleBackend:
         ``noise_scale`` multiplies the input variances (robust odometry during wheel slip).
         """
         u = np.asarray(u, dtype=float)
+        if self._kern is not None:
+            if self._terms is None:
+                self._terms = compiled_particle.motion_terms(self.model, self.odo_cal) or ()
+            if self._terms:
+                compiled_particle.predict(
+                    self, self._kern, self._terms, u, dt, dtheta, var_dtheta, noise_scale
+                )
+                return
         drive = self.model.drive
         var = self.model.errors.variances(drive, u, dt) * noise_scale
         U = u + self.rng.standard_normal((self.N, u.size)) * np.sqrt(var)
@@ -245,9 +270,15 @@ class ParticleBackend:
         if rows:
             E[:, rows] = wrap(E[:, rows])
         w = self.w
-        y = w @ E  # mean innovation (angles: residuals are already small and unwrapped)
-        D = E - y
-        S = (D * w[:, None]).T @ D + R
+        # mean innovation (angles: residuals are already small and unwrapped) and spread
+        if self._kern is not None:
+            y, S = np.empty(model.dim), np.empty((model.dim, model.dim))
+            self._kern.pf_moments(np.ascontiguousarray(E), w, y, S)
+            S = S + R
+        else:
+            y = w @ E
+            D = E - y
+            S = (D * w[:, None]).T @ D + R
         Si = np.linalg.inv(S)
         nis = float(y @ Si @ y)
         self.last_innovation = (y, S, R)
@@ -258,14 +289,19 @@ class ParticleBackend:
             return False, nis
         rel = self._relative_column(model)
         if rel is not None:
-            logl = self._relative_update(model, row, E, R, rel)
+            C, Ci = self._relative_update(model, row, E, R, rel)
         else:
-            logl = -0.5 * np.einsum("ni,ij,nj->n", E, np.linalg.inv(R), E)
-        logw = np.log(np.maximum(w, 1e-300)) + logl
-        logw -= logw.max()
-        wn = np.exp(logw)
-        self.w = wn / wn.sum()
-        if 1.0 / np.sum(self.w**2) < self.resample_threshold * self.N:
+            C, Ci = E, np.linalg.inv(R)
+        if self._kern is not None:
+            self.w = np.empty(self.N)
+            ess = self._kern.pf_reweight(np.ascontiguousarray(C), Ci, w, self.w)
+        else:
+            logw = np.log(np.maximum(w, 1e-300)) - 0.5 * np.einsum("ni,ij,nj->n", C, Ci, C)
+            logw -= logw.max()
+            wn = np.exp(logw)
+            self.w = wn / wn.sum()
+            ess = 1.0 / np.sum(self.w**2)
+        if ess < self.resample_threshold * self.N:
             self._resample()
         return True, nis
 
@@ -278,7 +314,7 @@ class ParticleBackend:
                 return index[name]
         return None
 
-    def _relative_update(self, model, row, E, R, col) -> np.ndarray:
+    def _relative_update(self, model, row, E, R, col) -> tuple[np.ndarray, np.ndarray]:
         """Optimal-proposal update by a measurement of the heading change since clone ``col``.
 
         Each particle's heading noise since the clone, ``e_i ~ N(0, s2)``, was drawn by
@@ -289,7 +325,7 @@ class ParticleBackend:
         ``z`` by the perturbed-observation Kalman move ``theta_i += K (z + v_i - h(x_i))``,
         ``K = s2 H^T S^-1``, ``v_i ~ N(0, R)`` (mean ``K c_i``, variance ``(1 - K H) s2``: exact
         for a linear ``h``). The position's (second-order) correlation with ``e_i`` is not
-        moved. Returns the log-likelihoods (N,).
+        moved. Returns ``(C, S^-1)``: the log-likelihoods are ``-C_i^T S^-1 C_i / 2``.
         """
         e, s2 = self._heading_noise[col]
         H = np.asarray(model.H(self.mean(), row), dtype=float)[:, 2]  # (dim,)
@@ -303,7 +339,7 @@ class ParticleBackend:
             self.X[:, 2] = wrap(self.X[:, 2] + step)
             e += step
             self.moves += 1
-        return -0.5 * np.einsum("ni,ij,nj->n", C, Si, C)
+        return C, Si
 
     def _resample(self) -> None:
         cols = self._kernel_cols
@@ -380,6 +416,10 @@ class ParticleBackend:
 
     def mean(self) -> np.ndarray:
         """Weighted mean (circular for heading and heading clones)."""
+        if self._kern is not None:
+            m = np.empty(self.n)
+            self._kern.pf_mean(self.X, self.w, self._angle_idx, m)
+            return m
         m = self.w @ self.X
         for i in self.angles:
             m[i] = math.atan2(self.w @ np.sin(self.X[:, i]), self.w @ np.cos(self.X[:, i]))
@@ -390,6 +430,10 @@ class ParticleBackend:
 
         See :func:`weighted_cov`: symmetric positive semi-definite by construction.
         """
+        if self._kern is not None:
+            G = np.empty((self.n, self.n))
+            sq = self._kern.pf_gram(self.X, self.w, self.mean(), self._is_angle, G)
+            return _scaled_psd(G, 1.0 - sq)
         D = self.X - self.mean()
         D[:, self.angles] = wrap(D[:, self.angles])
         return weighted_cov(D, self.w)
@@ -402,11 +446,13 @@ class ParticleBackend:
         }
 
 
-def make_backend(model, models, x0, P0, walk, options) -> ParticleBackend:
-    """Backend factory for :func:`odofuse.estimators.assembly.build`."""
-    return ParticleBackend(model, models, x0, P0, walk, options)
+def make_backend(model, models, x0, P0, walk, options, events=None) -> ParticleBackend:
+    """Backend factory for :func:`odofuse.estimators.assembly.build` (``events``: see
+    :class:`ParticleBackend`)."""
+    return ParticleBackend(model, models, x0, P0, walk, options, events)
 
 
 def run(log, config):
     """Particle filter over a whole log: a thin wrapper feeding the log to a Localizer."""
-    return run_with(log, config, "particle", make_backend)
+    events = sum(len(s) for s in log.streams.values())
+    return run_with(log, config, "particle", functools.partial(make_backend, events=events))

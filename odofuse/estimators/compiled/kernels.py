@@ -713,3 +713,161 @@ def odom_steps(odom, U, integ, M):
             vy += M[2, i] * U[k, i]
         d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
         _pose_step(odom, d0, d1, d2, zero_P, dummy, var0, False)
+
+
+# ----------------------------------------------------------------------- particle filter
+@njit(cache=True)
+def pf_predict(X, u, var, Z, integ, M, cal, C, cidx, dt, Zth, sd_th, dtheta, e, Zw, sd_w):
+    """``ParticleBackend.predict`` of a drive with ``twist = M u``, in place on ``X`` (N, n).
+
+    ``u`` (m,) is the step's input and ``var`` (m,) its variances (noise scale included);
+    ``Z`` (N, m) the standard normals of the inputs, drawn by the backend's generator.
+    ``cal``: 0 none, 1 increments (``cidx`` the ds scale, dtheta scale, heading bias columns),
+    2 two wheels (``cidx`` ``E_d``, ``E_b``; ``C`` (2, 2) the track matrix); each particle's
+    own calibration is read before it moves. ``Zth`` (N,) with ``sd_th >= 0``: a gyro heading
+    change ``dtheta + Zth sd_th`` replaces the twist's (``Zth`` empty: none). ``e`` (N,), when
+    not empty, receives each particle's heading noise of the step (the gyro's, or the twist's
+    rotation minus that of the noiseless calibrated input). ``Zw`` (N, n - 3) with ``sd_w``:
+    the random walk of the states after the pose (``Zw`` with no columns: none).
+    """
+    N = X.shape[0]
+    m = u.shape[0]
+    Jt = np.empty((3, 3))
+    sd = np.empty(m)
+    ui = np.empty(m)
+    u0 = np.empty(m)
+    for j in range(m):
+        sd[j] = math.sqrt(var[j])
+    gyro = Zth.shape[0] > 0
+    want_e = e.shape[0] > 0
+    nw = Zw.shape[1]
+    for i in range(N):
+        for j in range(m):
+            ui[j] = u[j] + Z[i, j] * sd[j]
+            u0[j] = u[j]
+        if cal == 1:
+            a, b, c = X[i, cidx[0]], X[i, cidx[1]], X[i, cidx[2]]
+            ui[0], ui[1] = a * ui[0], b * ui[1] + c * dt
+            u0[0], u0[1] = a * u0[0], b * u0[1] + c * dt
+        elif cal == 2:
+            E, Eb = X[i, cidx[0]], X[i, cidx[1]]
+            fl, fr, k = 2.0 / (1.0 + E), 2.0 * E / (1.0 + E), 1.0 - 1.0 / Eb
+            for v in (ui, u0):
+                L, R = v[0] * fl, v[1] * fr
+                v[0] = L + k * (C[0, 0] * L + C[0, 1] * R)
+                v[1] = R + k * (C[1, 0] * L + C[1, 1] * R)
+        w = vx = vy = 0.0
+        for j in range(m):
+            w += M[0, j] * ui[j]
+            vx += M[1, j] * ui[j]
+            vy += M[2, j] * ui[j]
+        d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
+        if gyro:
+            noise = Zth[i] * sd_th
+            d2 = dtheta + noise
+            if want_e:
+                e[i] = noise
+        elif want_e:
+            w0 = 0.0
+            for j in range(m):
+                w0 += M[0, j] * u0[j]
+            e[i] = w - w0
+        th = X[i, 2]
+        c, s = math.cos(th), math.sin(th)
+        X[i, 0] += c * d0 - s * d1
+        X[i, 1] += s * d0 + c * d1
+        X[i, 2] = _wrap(th + d2)
+        for k in range(nw):
+            X[i, 3 + k] += Zw[i, k] * sd_w[k]
+
+
+@njit(cache=True)
+def pf_moments(E, w, y, S):
+    """The cloud's innovation moments: ``y = w @ E`` (d,) and ``S = sum_i w_i D_i D_i^T``
+    (d, d), ``D = E - y``, into ``y`` and ``S`` (``ParticleBackend.update`` adds ``R``)."""
+    N, d = E.shape
+    for a in range(d):
+        acc = 0.0
+        for i in range(N):
+            acc += w[i] * E[i, a]
+        y[a] = acc
+    for a in range(d):
+        for b in range(a, d):
+            acc = 0.0
+            for i in range(N):
+                acc += w[i] * (E[i, a] - y[a]) * (E[i, b] - y[b])
+            S[a, b] = acc
+            S[b, a] = acc
+
+
+@njit(cache=True)
+def pf_reweight(C, Si, w, out):
+    """Weights ``out`` (N,) ``∝ max(w, 1e-300) exp(-C_i^T Si C_i / 2)``, normalised (by the
+    log-weights less their maximum); returns the effective sample size ``1 / sum out^2``."""
+    N, d = C.shape
+    top = -np.inf
+    for i in range(N):
+        q = 0.0
+        for a in range(d):
+            acc = 0.0
+            for b in range(d):
+                acc += Si[a, b] * C[i, b]
+            q += C[i, a] * acc
+        lw = math.log(max(w[i], 1e-300)) - 0.5 * q
+        out[i] = lw
+        if lw > top:
+            top = lw
+    total = 0.0
+    for i in range(N):
+        v = math.exp(out[i] - top)
+        out[i] = v
+        total += v
+    sq = 0.0
+    for i in range(N):
+        v = out[i] / total
+        out[i] = v
+        sq += v * v
+    return 1.0 / sq
+
+
+@njit(cache=True)
+def pf_mean(X, w, angles, m):
+    """Weighted mean ``m`` (n,) of the cloud ``X`` (N, n), circular on the ``angles`` columns
+    (``ParticleBackend.mean``)."""
+    N, n = X.shape
+    for k in range(n):
+        acc = 0.0
+        for i in range(N):
+            acc += w[i] * X[i, k]
+        m[k] = acc
+    for k in angles:
+        sa = ca = 0.0
+        for i in range(N):
+            sa += w[i] * math.sin(X[i, k])
+            ca += w[i] * math.cos(X[i, k])
+        m[k] = math.atan2(sa, ca)
+
+
+@njit(cache=True)
+def pf_gram(X, w, m, is_angle, G):
+    """``G = sum_i w_i D_i D_i^T`` (n, n), ``D = X - m`` with the angle columns wrapped (the
+    Gram matrix of :func:`odofuse.estimators.particle.weighted_cov`); returns ``sum w^2``."""
+    N, n = X.shape
+    D = np.empty((n, N))  # by state, so that each entry of G is a contiguous dot product
+    for i in range(N):
+        for a in range(n):
+            v = X[i, a] - m[a]
+            D[a, i] = _wrap(v) if is_angle[a] else v
+    sq = 0.0
+    for i in range(N):
+        sq += w[i] * w[i]
+    for a in range(n):
+        Da = D[a]
+        for b in range(a, n):
+            Db = D[b]
+            acc = 0.0
+            for i in range(N):
+                acc += w[i] * Da[i] * Db[i]
+            G[a, b] = acc
+            G[b, a] = acc
+    return sq
