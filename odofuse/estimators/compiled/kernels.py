@@ -8,13 +8,17 @@ against it to 1e-9 (``tests/test_compiled.py``):
 * :func:`ekf_offline`: the :class:`~odofuse.estimators.localizer.Localizer` event loop with
   :class:`~odofuse.estimators.ekf.EkfBackend` (odometry prediction, optionally with the
   odometry-calibration states, step splitting at measurement times, filterpy's Joseph-form
-  update and the chi-square gate) for range-to-beacon, GPS, compass and gyro-rate sensors.
+  update and the chi-square gate) for range-to-beacon, GPS, compass and gyro-rate sensors;
+* :func:`pf_predict`, :func:`pf_moments`, :func:`pf_reweight`, :func:`pf_mean`,
+  :func:`pf_gram`: the :class:`~odofuse.estimators.particle.ParticleBackend`'s propagation,
+  innovation moments and reweighting, and cloud mean and covariance, on the random numbers the
+  backend's numpy generator draws (``tests/test_compiled_particle.py``).
 
 Integrator codes: 0 ``euler``, 1 ``rk2``, 2 ``exact``, 3 ``euler_end``. Compiled with
 ``cache=True``: the first run on a machine compiles and stores the machine code next to this
 file (``__pycache__``); later runs load it.
 
-It is a little over 600 lines on purpose: it is the only module that imports numba, so a run
+It is nearly 900 lines on purpose: it is the only module that imports numba, so a run
 that does not compile never pays numba's import, and the kernels that call each other are
 compiled together.
 """
