@@ -14,11 +14,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 pytest.importorskip("numba")
 
+from compiled_checks import SCENARIO  # noqa: E402
+from compiled_checks import assert_same_run as _same  # noqa: E402
 from graph_sim import excerpt, simulated_run  # noqa: E402
 
 from odofuse.config import load_config  # noqa: E402
@@ -31,50 +32,12 @@ from odofuse.motion import motion_model_from_config  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 INTEGRATORS = ("euler", "rk2", "exact", "euler_end")
-SCENARIO = {
-    "seed": 5,
-    "dt": 0.02,
-    "robot": {"drive": "differential", "wheel_radius": 0.04, "track_width": 0.235},
-    "path": {"kind": "figure_eight", "radius": 3.0, "speed": 0.5, "laps": 1},
-    "systematic": {"E_d": 1.004, "E_b": 1.01},
-    "nonsystematic": {"k": 1.0e-5},
-    "sensors": {
-        "gyro": {"sigma": 0.005, "bias": 0.01, "rate": 25.0},
-        "gps": {"sigma": 0.3, "rate": 1.0},
-        "compass": {"sigma": 0.05, "rate": 2.0},
-        "ranges": {"sigma": 0.1, "rate": 5.0, "max_range": 15.0},
-    },
-    "beacons": [[1, 0.0, 6.0], [2, 0.0, -6.0], [3, 8.0, 0.0], [4, -8.0, 0.0]],
-}
 
 
 def _mode(cfg, mode):
     opts = dict(cfg.options)
     opts["particle"] = dataclasses.replace(cfg.estimator_options("particle"), compiled=mode)
     return dataclasses.replace(cfg, options=opts)
-
-
-def _same(res, ref):
-    """Poses and covariances to 1e-9; counts, extras (resamples, relative moves) and findings
-    equal, calibration and finding figures to 1e-9."""
-    a, b = res.trajectory, ref.trajectory
-    np.testing.assert_array_equal(a.t, b.t)
-    np.testing.assert_allclose(a.poses, b.poses, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(a.covariances, b.covariances, rtol=0, atol=1e-9)
-    assert res.used == ref.used and res.rejected == ref.rejected
-    ex, ey = dict(res.extra), dict(ref.extra)
-    for s in ey.get("calibration", {}):
-        for k in ("value", "sigma"):
-            assert abs(ex["calibration"][s][k] - ey["calibration"][s][k]) < 1e-9
-    np.testing.assert_allclose(ex.pop("map_to_odom"), ey.pop("map_to_odom"), atol=1e-9)
-    ex.pop("calibration", None), ey.pop("calibration", None)
-    assert ex == ey
-    assert len(res.findings) == len(ref.findings)
-    for f, g in zip(res.findings, ref.findings, strict=True):
-        assert (f.check, f.message, f.sensor, f.t_start, f.t_end, f.degrades) == (
-            g.check, g.message, g.sensor, g.t_start, g.t_end, g.degrades
-        )  # fmt: skip
-        assert f.figure == pytest.approx(g.figure, rel=1e-9, abs=1e-12)
 
 
 def _both(log, cfg):
