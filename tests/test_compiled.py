@@ -117,6 +117,30 @@ def test_dead_reckoning_recurrence_equals_the_reference_on_long_runs_and_sharp_t
     assert np.all(np.abs(got_c - ref_c) <= 1e-9 * scale)
 
 
+def test_dead_reckoning_auto_on_a_short_log_ignores_that_numba_is_loaded():
+    """``auto`` decides by the log alone: below ``AUTO_MIN_STEPS`` the numpy path runs even in
+    a process that has imported numba (this one has), bit for bit as ``compiled: off``."""
+    import numba  # noqa: F401
+
+    from odofuse.estimators.compiled.dead_reckoning import AUTO_MIN_STEPS
+
+    cfg = RunConfig(
+        log="x",
+        robot={"drive": "differential", "wheel_radius": 0.05, "track_width": 0.3},
+        motion={"integrator": "exact", "k_r": 2e-4, "k_l": 3e-4},
+    )
+    model = motion_model_from_config(cfg)
+    U = _inputs(model, 5000, 2)
+    assert len(U) < AUTO_MIN_STEPS
+    pose0, P0 = np.zeros(3), np.diag([1e-4, 1e-4, 1e-5])
+    for a, b in zip(
+        dead_reckon(model, pose0, P0, U, mode="auto"),
+        dead_reckon(model, pose0, P0, U, mode="off"),
+        strict=True,
+    ):
+        assert np.array_equal(a, b)
+
+
 def test_half_turn_polynomials_equal_libm():
     """``_sinc_cos``: Taylor polynomials of ``sin(h)/h`` and ``cos(h)`` within 2 ulp of libm
     over their whole range ``|h| < _POLY_BELOW``."""

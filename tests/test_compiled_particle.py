@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("numba")
@@ -142,3 +143,16 @@ def test_auto_does_not_import_numba_for_a_short_run():
         [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
     )
     assert out.stdout.strip() == "False"
+
+
+def test_auto_on_a_short_run_ignores_that_numba_is_loaded():
+    """``auto`` decides by the run alone: a short run takes the numpy path even in a process
+    that has imported numba (this one has), so ``odofuse run`` and an ``odofuse batch`` worker
+    that ran a long log before give the same digits."""
+    import numba  # noqa: F401
+
+    log, cfg = _sim(("gyro", "ranges"), seconds=5.0, particles=50)
+    assert 50 * sum(len(s) for s in log.streams.values()) < compiled_particle.AUTO_MIN_WORK
+    auto, off = run_pf(log, _mode(cfg, "auto")), run_pf(log, _mode(cfg, "off"))
+    assert np.array_equal(auto.trajectory.poses, off.trajectory.poses)
+    assert np.array_equal(auto.trajectory.covariances, off.trajectory.covariances)

@@ -8,8 +8,6 @@ the drive and error model themselves, in blocks, and :func:`~.kernels.dr_generic
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from odofuse import motion
@@ -18,9 +16,11 @@ from odofuse.estimators import compiled
 
 #: Steps per block of the generic path (bounds the temporaries to a few MB).
 BLOCK = 65536
-#: ``auto`` compiles dead reckoning from this many steps on (or when numba is loaded anyway):
-#: the vectorised numpy path does 10^6 steps with covariance in about 0.4 s, about what
-#: importing numba and loading the cached kernels costs.
+#: ``auto`` compiles dead reckoning from this many steps on: the vectorised numpy path does
+#: 10^6 steps with covariance in about 0.4 s, about what importing numba and loading the
+#: cached kernels costs. The choice rests on the log alone, never on whether numba is already
+#: imported, so a log gives the same digits in ``odofuse run`` and in any ``odofuse batch``
+#: worker (the two paths round differently in the last bits).
 AUTO_MIN_STEPS = 1_000_000
 
 
@@ -46,8 +46,7 @@ def dead_reckon(model, pose0, P0, U, with_cov: bool = True, mode: str = "auto"):
     reference."""
     n = len(model.drive.input_names)
     U = np.ascontiguousarray(np.asarray(U, dtype=float).reshape(-1, n))
-    worth_it = U.shape[0] >= AUTO_MIN_STEPS or "numba" in sys.modules
-    k = compiled.enabled(mode, "options.dead_reckoning.compiled", worth_it)
+    k = compiled.enabled(mode, "options.dead_reckoning.compiled", U.shape[0] >= AUTO_MIN_STEPS)
     if k is None:
         return motion.dead_reckon(model, pose0, P0, U, with_cov)
     pose = np.array(pose0, dtype=float).reshape(3)

@@ -20,7 +20,6 @@ update's heading move stay numpy (rare, or one vector operation).
 from __future__ import annotations
 
 import math
-import sys
 
 import numpy as np
 
@@ -28,10 +27,12 @@ from odofuse.declarations import INTEGRATORS
 from odofuse.estimators import compiled
 from odofuse.estimators.compiled.dead_reckoning import linear_terms
 
-#: ``compiled: auto`` compiles a run of at least this many particle-events (particles times the
-#: log's rows), or any run when numba is loaded anyway: about what importing numba and loading
-#: the cached kernels costs against the numpy path's per-step interpreter overhead
-#: (``docs/speed.md``, "Compiled particle filter").
+#: ``compiled: auto`` compiles an offline run of at least this many particle-events (particles
+#: times the log's rows): about what importing numba and loading the cached kernels costs
+#: against the numpy path's per-step interpreter overhead (``docs/speed.md``, "Compiled
+#: particle filter"). The choice rests on the run alone, never on whether an earlier run in the
+#: process imported numba, so a log gives the same digits in ``odofuse run`` and in any
+#: ``odofuse batch`` worker.
 AUTO_MIN_WORK = 5_000_000
 
 _NONE1 = np.empty(0)
@@ -40,11 +41,10 @@ _CAL = {"increments": 1, "differential": 2, "skid_steer": 2}
 
 
 def kernels_for(options, events: int | None):
-    """The kernels module for a particle run of ``events`` log rows (None: unknown, a live
-    Localizer), or None for the numpy path (``options.particle.compiled``)."""
-    worth_it = "numba" in sys.modules or (
-        events is not None and options.particles * events >= AUTO_MIN_WORK
-    )
+    """The kernels module for a particle run of ``events`` log rows, or None for the numpy path
+    (``options.particle.compiled``). ``events`` None is a live Localizer: it runs as long as
+    its stream does, so ``auto`` compiles it whenever numba imports."""
+    worth_it = events is None or options.particles * events >= AUTO_MIN_WORK
     return compiled.enabled(options.compiled, "options.particle.compiled", worth_it)
 
 
