@@ -42,9 +42,11 @@ _CAL = {"increments": 1, "differential": 2, "skid_steer": 2}
 
 def kernels_for(options, events: int | None):
     """The kernels module for a particle run of ``events`` log rows, or None for the numpy path
-    (``options.particle.compiled``). ``events`` None is a live Localizer: it runs as long as
-    its stream does, so ``auto`` compiles it whenever numba imports."""
-    worth_it = events is None or options.particles * events >= AUTO_MIN_WORK
+    (``options.particle.compiled``). ``events`` None is a live Localizer, whose length is
+    unknown: ``auto`` takes the numpy path there, as an offline run of a short log does, so
+    streaming a log equals its offline run bit for bit below :data:`AUTO_MIN_WORK`; ``on``
+    (or ``off``) makes both take one path on any log."""
+    worth_it = events is not None and options.particles * events >= AUTO_MIN_WORK
     return compiled.enabled(options.compiled, "options.particle.compiled", worth_it)
 
 
