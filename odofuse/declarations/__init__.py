@@ -60,6 +60,7 @@ from odofuse.declarations.run import (
     MotionOptions,
     OutputOptions,
     RepairOptions,
+    StatusOptions,
 )
 from odofuse.declarations.sensors import (
     GRAPH_STREAM_OPTIONS,
@@ -118,6 +119,7 @@ __all__ = [
     "RangeOptions",
     "RepairOptions",
     "SensorOptions",
+    "StatusOptions",
     "UkfOptions",
     "UncheckedOptions",
     "catalogue",

@@ -1,5 +1,6 @@
 """Declarations of the run's blocks: ``motion``, ``initial``, ``robot.encoder``, ``log`` and
-``options.output`` and ``options.cross_check`` (:data:`BLOCK_OPTIONS`, :data:`RUN_OPTIONS`)."""
+``options.output``, ``options.cross_check`` and ``options.status`` (:data:`BLOCK_OPTIONS`,
+:data:`RUN_OPTIONS`)."""
 
 from __future__ import annotations
 
@@ -184,8 +185,32 @@ class CrossCheckOptions:
     )
 
 
+@dataclass(frozen=True)
+class StatusOptions:
+    """``options.status``: what ``status: ok`` promises (docs/trust.md, "The promise").
+
+    ``alpha_run`` is the run's false-alarm rate: on a log that matches its config, the
+    probability that the run says ``degraded``. It is split between the checks that can fire
+    on such a log (Bonferroni: each check's share is stated in ``metrics.json``
+    ``alpha``, and the shares sum to at most ``alpha_run``; :func:`odofuse.health.alpha_budget`).
+    """
+
+    alpha_run: float = option(
+        0.05,
+        unit="-",
+        doc="false-alarm probability of status: degraded per run on a log that matches the "
+        "config, split over the checks (docs/trust.md)",
+        minimum=1e-9,
+        maximum=0.5,
+    )
+
+
 #: ``options.<name>`` blocks that configure the run rather than an estimator.
-RUN_OPTIONS: dict[str, type] = {"output": OutputOptions, "cross_check": CrossCheckOptions}
+RUN_OPTIONS: dict[str, type] = {
+    "output": OutputOptions,
+    "cross_check": CrossCheckOptions,
+    "status": StatusOptions,
+}
 
 #: Config block -> options class.
 BLOCK_OPTIONS: dict[str, type] = {
