@@ -86,7 +86,7 @@ def _fmt(v) -> str:
 
 def print_table(rows: list[dict], file=None) -> None:
     """Print the comparison table (estimator, position RMSE, final error, runtime, status),
-    then each run's warnings, one line each."""
+    then each run's warnings and advice, one line each."""
     file = file or sys.stdout
     head = ("estimator", "position RMSE [m]", "final error [m]", "runtime [s]", "status")
     table = [head] + [
@@ -107,6 +107,9 @@ def print_table(rows: list[dict], file=None) -> None:
     for r in rows:
         for line in r.get("warnings", ()):
             print(f"warning: {r['estimator']}: {line}", file=file)
+    for r in rows:  # accuracy against another estimator: advice, never the status
+        for line in r.get("advice", ()):
+            print(f"advice: {r['estimator']}: {line}", file=file)
 
 
 @command("run", _run_args)

@@ -54,10 +54,20 @@ from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
 HOLD_RMSE_RATIO = 2.0
 #: Position NEES below which an estimate holds (and the departure-NEES bound of the check).
 HOLD_NEES = 10.0
-#: Posterior probability of failing the judge above which ``cross_check`` fires: the
-#: conventional significance level (for a calibrated posterior it bounds the fraction of
-#: ``ok`` runs that fail the judge).
+#: Posterior probability of failing the judge above which the ``advice`` line is given: the
+#: conventional significance level. Advice only: it never changes ``status``.
 ALPHA = 0.05
+#: Ratio of the smoother's position sigma to the estimate's own above which the reference is
+#: not sane: the smoother has every reading the estimate had and more, so its covariance
+#: should not exceed the estimate's; beyond twice its sigma (the judge's ratio) the two runs
+#: disagree about the problem itself (issue 31: a smoother sigma of 3.8e7 m passed silently).
+REFERENCE_SIGMA_RATIO = 2.0
+#: Estimators whose in-run checks see a drift their covariance does not cover: the filters'
+#: NIS windows test each absolute sensor's innovations against the *predicted* covariance
+#: (docs/trust.md, "The promise"). Dead reckoning has no absolute sensor; the graph back ends'
+#: residual checks test residuals against the sensor noise alone, blind to an overconfident
+#: pose covariance. For every other estimator a second opinion that could not judge degrades.
+DRIFT_EVIDENCE = frozenset({"ekf", "ukf", "particle"})
 #: Estimate times per block of the posterior's pass (temporaries ``K * block * 2`` floats).
 SAMPLE_BLOCK = 2048
 #: Estimators that fuse no absolute sensor: judged on their covariance alone (their drift from
@@ -215,14 +225,70 @@ def _fmt(x) -> str:
     return "n/a" if x is None or not math.isfinite(x) else f"{x:.3g}"
 
 
+def nees_bound(alpha: float) -> float:
+    """Bound ``c`` on a mean position NEES with false-alarm probability at most ``alpha``,
+    whatever the correlation of its terms along the trajectory.
+
+    Each term ``q_t = d_t^T M_t^-1 d_t`` with ``cov(d_t) <= M_t`` is stochastically below a
+    chi-square of 2 degrees of freedom (an exponential of mean 2), and the terms of one
+    trajectory are strongly correlated, so the mean of N terms is *not* ``chi2(2N) / N``.
+    By Jensen and that dominance ``E[(mean q - k)+] <= E[(X - k)+] = 2 exp(-k / 2)`` for
+    ``X ~ chi2(2)``, hence ``P(mean q > c) <= 2 exp(-k / 2) / (c - k)`` for every ``k < c``;
+    at ``k = c - 2`` this is ``exp(1 - c / 2)``, so ``c = 2 (1 + ln(1 / alpha))`` (8.2 at
+    0.045; the tail of a single chi-square(2), the fully correlated case, is ``2 ln(1 /
+    alpha)``).
+    """
+    if not alpha > 0:
+        return math.inf
+    return 2.0 * (1.0 + math.log(1.0 / alpha))
+
+
+def _cov_at(smoother: Trajectory, t: np.ndarray) -> np.ndarray:
+    """The smoother's world-frame position covariances (M, 2, 2) at times ``t`` (inside its
+    span), linear between keyframes (a convex combination: positive semi-definite)."""
+    from odofuse.evaluation import bracket
+
+    C = smoother.covariances[:, :2, :2]
+    if smoother.t.size == 1:
+        return np.repeat(C[:1], t.size, axis=0)
+    k, a = bracket(smoother.t, t)
+    return C[k] + a[:, None, None] * (C[k + 1] - C[k])
+
+
+def departure_nees(estimate: Trajectory, smoother: Trajectory) -> float:
+    """Mean ``d^T (P_f + P_s)^-1 d`` over the estimate's poses the smoother covers (position).
+
+    ``d`` is the estimate's position minus the smoother's (interpolated as ground truth is,
+    :func:`odofuse.evaluation.associate`), ``P_f`` the estimate's position covariance and
+    ``P_s`` the smoother's (interpolated; 0 when it has none). For a consistent estimate and
+    smoother ``cov(d) = P_f - P_s <= P_f + P_s`` (the smoother's error is orthogonal to
+    ``d``), so each term is at most chi-square(2). NaN without the estimate's covariances or
+    when no combined covariance is positive definite.
+    """
+    from odofuse.evaluation import associate, nees
+
+    if estimate.covariances is None:
+        return math.nan
+    idx, _g = associate(estimate, smoother)
+    P = np.array(estimate.covariances[idx], dtype=float)
+    if smoother.covariances is not None:
+        t = np.clip(estimate.t[idx], smoother.t[0], smoother.t[-1])
+        Ps = _cov_at(smoother, t)
+        P[:, :2, :2] += np.where(np.isfinite(Ps), Ps, 0.0)
+    combined = Trajectory(estimate.t[idx], estimate.poses[idx], P)
+    return nees(combined, smoother, (0, 1))
+
+
 def compare(
     estimate: Trajectory,
     smoother: Trajectory,
     fused: bool,
     variance_scale: float | None = None,
     samples: np.ndarray | None = None,
-) -> tuple[dict, list[Finding]]:
-    """The ``cross_check`` figures of ``estimate`` against ``smoother`` and their findings.
+    alpha: float = ALPHA,
+) -> tuple[dict, list[Finding], list[str]]:
+    """The ``cross_check`` figures of ``estimate`` against ``smoother``, its consistency
+    finding and its accuracy advice.
 
     Parameters
     ----------
@@ -232,39 +298,43 @@ def compare(
         The batch smoother of the same log, interpolated to the estimate's times
         (:func:`odofuse.evaluation.ate`'s association: inside its span, not across its gaps).
     fused : bool
-        The estimate fuses absolute sensors: the predicted-ratio finding applies.
+        The estimate fuses absolute sensors: the accuracy advice applies (dead reckoning's
+        drift from a smoother that has them is expected).
     variance_scale : float, optional
         The smoother's own scale of its position covariance (``position_variance_scale`` of
-        :func:`odofuse.estimators.graph.variance.variance_components`: the error covariance its
-        residuals' variance components imply over the one its noise model implies); ``s^2``
-        is the mean trace times it. None: 1 (not available).
+        :func:`odofuse.estimators.graph.variance.variance_components`); ``s^2`` is the mean
+        trace times it (advice only). None: 1.
     samples : ndarray, shape (K, N, 2), optional
         Joint samples of the smoother's position errors at its poses (m, world frame;
-        :class:`odofuse.estimators.graph.variance.ErrorSamples`): the ``cross_check`` finding
-        fires when :func:`posterior_fail` exceeds :data:`ALPHA`. None: the fallback rule
-        (predicted ratio above :data:`HOLD_RMSE_RATIO`).
+        :class:`odofuse.estimators.graph.variance.ErrorSamples`): the advice's
+        :func:`posterior_fail`. None: the predicted ratio alone.
+    alpha : float
+        The consistency test's share of the run's false-alarm rate (:func:`alpha_budget`):
+        ``cross_check_nees`` fires when the departure NEES exceeds :func:`nees_bound` of it.
 
     Returns
     -------
     block : dict
         ``poses_compared``, ``departure_rms_m`` (rms(d), m), ``smoother_sigma_m`` (``s``, m),
         ``smoother_sigma_model_m`` (``s`` before the variance scale, m),
-        ``smoother_variance_factor`` (the scale, None when not available),
-        ``predicted_ratio`` (``sqrt(1 + rms(d)^2 / s^2)``), ``p_fail`` (None without
-        samples or when not ``fused``), ``samples`` (K, 0 without), ``rule``
-        (``posterior p_fail > ALPHA`` or the fallback and why), ``alpha``, ``departure_nees`` (mean
-        ``d^T P_f^-1 d`` over the positive-definite ``P_f``, expected <= 2), the bounds; or
+        ``smoother_variance_factor``, ``predicted_ratio`` (``sqrt(1 + rms(d)^2 / s^2)``),
+        ``p_fail`` (None without samples or when not ``fused``), ``samples``,
+        ``departure_nees`` (:func:`departure_nees`), ``nees_alpha`` and ``nees_bound`` (the
+        consistency test), ``ratio_bound`` and ``advice_alpha`` (the advice's); or
         ``skipped`` when nothing overlaps.
     findings : list of Finding
-        ``cross_check`` (fused, ``p_fail`` above :data:`ALPHA`; without samples the predicted
-        ratio above :data:`HOLD_RMSE_RATIO`) and
-        ``cross_check_nees`` (departure NEES above :data:`HOLD_NEES`).
+        ``cross_check_nees``: the departure NEES above its bound (the estimate's covariance
+        does not cover its departure from the smoother; degrades).
+    advice : list of str
+        One line when a fused estimate is likely more than :data:`HOLD_RMSE_RATIO` times less
+        accurate than the smoother (``p_fail`` above :data:`ALPHA`, or without samples the
+        predicted ratio above :data:`HOLD_RMSE_RATIO`). Never a finding.
     """
-    from odofuse.evaluation import ate, covered, nees
+    from odofuse.evaluation import ate, covered
 
     idx = np.flatnonzero(covered(estimate.t, smoother.t)) if len(estimate) and len(smoother) else []
     if len(idx) == 0:
-        return {"skipped": "the smoother's poses do not overlap the estimate's"}, []
+        return {"skipped": "the smoother's poses do not overlap the estimate's"}, [], []
     rms = ate(estimate, smoother).rmse_m
     s2 = math.nan
     if smoother.covariances is not None:
@@ -275,16 +345,12 @@ def compare(
     if variance_scale is not None and math.isfinite(variance_scale) and variance_scale > 0:
         s2 = s2 * variance_scale
     ratio = math.sqrt(1.0 + rms**2 / s2) if s2 > 0 else None
-    dn = nees(estimate, smoother, (0, 1)) if estimate.covariances is not None else math.nan
+    dn = departure_nees(estimate, smoother)
+    bound = nees_bound(alpha)
     span = (float(estimate.t[idx[0]]), float(estimate.t[idx[-1]]))
     usable = samples is not None and samples.ndim == 3 and samples.shape[1] == len(smoother)
-    # unaided estimates are judged on their covariance alone: no p_fail (its drift is expected)
+    # unaided estimates get no accuracy advice (their drift from the smoother is expected)
     p_fail = posterior_fail(estimate, smoother, samples) if usable and fused else None
-    if usable:
-        rule = f"posterior p_fail > {ALPHA:g}"
-    else:
-        why = "none" if samples is None else "not one per smoother pose"
-        rule = f"predicted ratio > {HOLD_RMSE_RATIO:g} (fallback: smoother error samples {why})"
     block = {
         "poses_compared": int(len(idx)),
         "departure_rms_m": rms,
@@ -294,46 +360,187 @@ def compare(
         "predicted_ratio": ratio,
         "p_fail": p_fail,
         "samples": int(samples.shape[0]) if usable and fused else 0,
-        "alpha": ALPHA if fused else None,
-        "rule": rule if fused else None,
         "departure_nees": None if math.isnan(dn) else dn,
+        "nees_alpha": alpha,
+        "nees_bound": bound,
         "ratio_bound": HOLD_RMSE_RATIO if fused else None,
-        "nees_bound": HOLD_NEES,
+        "advice_alpha": ALPHA if fused else None,
     }
-    found, text = [], None
-    if fused and p_fail is not None and p_fail > ALPHA:
-        text, figure = (
-            f"{rms:.3g} m rms from the batch smoother of the same log: posterior "
-            f"probability {p_fail:.2f} (> {ALPHA:g}) of more than {HOLD_RMSE_RATIO:g}x its "
-            f"error (predicted ratio {_fmt(ratio)}x, smoother sigma {_fmt(s2**0.5)} m)",
-            p_fail,
+    advice = []
+    likely = p_fail > ALPHA if p_fail is not None else ratio is not None and ratio > HOLD_RMSE_RATIO
+    if fused and likely and ratio is not None:
+        why = (
+            f"posterior probability {p_fail:.2f} of more than {HOLD_RMSE_RATIO:g}x"
+            if p_fail is not None
+            else "from its covariance; no error samples"
         )
-    elif fused and p_fail is None and ratio is not None and ratio > HOLD_RMSE_RATIO:
-        text, figure = (
-            f"{rms:.3g} m rms from the batch smoother of the same log, whose own sigma is "
-            f"{math.sqrt(s2):.3g} m: likely more than {HOLD_RMSE_RATIO:g}x its error "
-            f"(predicted {ratio:.2f}x; no error samples: fallback rule)",
-            ratio,
+        advice.append(
+            f"a batch smoother of this log is about {ratio:.2g}x more accurate ({why}; "
+            f"{rms:.3g} m rms apart, smoother sigma {_fmt(s2**0.5)} m): `estimator: smoother`"
         )
-    if text is not None:
-        found.append(Finding("cross_check", text, t_start=span[0], t_end=span[1], figure=figure))
-    if not math.isnan(dn) and dn > HOLD_NEES:
+    found = []
+    if not math.isnan(dn) and dn > bound:
         found.append(
             Finding(
                 "cross_check_nees",
-                f"mean d^T P^-1 d = {dn:.3g} against the batch smoother of the same log "
-                f"(consistent: at most 2; bound {HOLD_NEES:g}): overconfident against the "
-                "smoother",
+                f"mean d^T (P + P_smoother)^-1 d = {dn:.3g} against the batch smoother of the "
+                f"same log (consistent: at most 2; bound {bound:.3g} at false alarm "
+                f"{alpha:.3g}): the covariance does not cover the estimate's departure from "
+                "the smoother (overconfident)",
                 t_start=span[0],
                 t_end=span[1],
                 figure=dn,
             )
         )
-    return block, found
+    return block, found, advice
+
+
+def alpha_budget(config, log) -> dict:
+    """The run's false-alarm rate and its split over the checks that can fire on a log that
+    matches its config (docs/trust.md, "The promise"; Bonferroni: the union's probability is
+    at most the sum).
+
+    The in-run statistical checks keep their declared probabilities: the filters' NIS window
+    test per fused stream (``nis_alpha``), dead reckoning's gyro-vs-wheels test
+    (``heading_alpha``), the batch smoother's residual windows per odometry and gyro stream
+    (``WINDOW_ALPHA``). What is left of ``alpha_run`` goes to the second opinion when it
+    applies, half to its consistency test (``cross_check_nees``) and half to the sanity of
+    its reference (the smoother's variance factor above its chi-square band); an estimator
+    whose skipped check degrades (not in :data:`DRIFT_EVIDENCE`) also carries the smoother's
+    residual windows (``reference_status``: a degraded smoother skips the check). The other
+    checks (a covariance not positive definite, a solver that did not converge, a stream
+    mostly rejected or silent, a calibration 5 prior sigmas out, ...) cannot fire on a
+    matching log, or with a probability below 1e-5 (docs/trust.md); they are not counted.
+
+    Returns
+    -------
+    dict
+        ``alpha_run``; ``checks``: check (``nis:<stream>``, ``gyro_wheels``,
+        ``residual_windows:<stream>``, ``cross_check_nees``, ``reference_variance``) ->
+        false-alarm probability per run; ``total`` (their sum, at most ``alpha_run``
+        unless ``overspent``); ``overspent`` (the in-run checks alone exceed it).
+    """
+    from odofuse.estimators.graph.health import WINDOW_ALPHA
+
+    a = float(config.estimator_options("status").alpha_run)
+    est = config.estimator
+    streams = getattr(log, "streams", {}) or {}
+    fused = [str(n) for n in (config.sensors or {}) if n in streams and len(streams[n])]
+    checks: dict[str, float] = {}
+    if est in DRIFT_EVIDENCE:
+        nis = float(config.estimator_options(est).nis_alpha)
+        checks.update({f"nis:{n}": nis for n in sorted(fused)})
+    elif est == "dead_reckoning" and "gyro" in streams and len(streams["gyro"]):
+        checks["gyro_wheels"] = float(config.estimator_options(est).heading_alpha)
+    odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
+    gyros = [n for n in fused if n == "gyro" or n.startswith("gyro")]
+    windows = {f"residual_windows:{n}": WINDOW_ALPHA for n in [odo, *gyros] if n}
+    if est == "smoother":
+        checks.update(windows)
+    applies = skip_reason(config, log) is None
+    if applies and est not in DRIFT_EVIDENCE:
+        # the smoother's own degraded status on a matching log skips the check, and that
+        # skip degrades this run (:func:`skipped_finding`): its windows' false alarms count
+        checks["reference_status"] = sum(windows.values())
+    in_run = sum(checks.values())
+    if applies:
+        share = max(a - in_run, 0.0) / 2.0
+        checks["cross_check_nees"] = share
+        checks["reference_variance"] = share
+    return {
+        "alpha_run": a,
+        "checks": checks,
+        "total": sum(checks.values()),
+        "overspent": in_run > a,
+    }
+
+
+def reference_problems(ref: Reference, estimate: Trajectory, alpha: float) -> list[str]:
+    """Why the smoother cannot serve as a yardstick for ``estimate``: [] when it can.
+
+    Checked before it is used (issue 31): its variance components failed (a singular
+    factorisation) or stopped at their iteration cap; its global variance factor
+    ``v^T v / (m - n)`` above the ``1 - alpha`` quantile of ``chi2(m - n) / (m - n)`` (its
+    residuals say its noise model is optimistic, so its covariance claims too much; below the
+    band it is pessimistic and the consistency test only conservative); none at all; or its
+    mean position sigma more than :data:`REFERENCE_SIGMA_RATIO` times the estimate's own.
+    """
+    from odofuse import chi2
+
+    vc = (ref.result.extra or {}).get("variance_components")
+    out = []
+    if not vc:
+        out.append("the smoother has no variance components: its scale cannot be checked")
+    elif "skipped" in vc:
+        out.append(f"the smoother's variance components failed ({vc['skipped']})")
+    else:
+        if vc.get("converged") is False:
+            out.append(
+                f"the smoother's variance components did not converge in "
+                f"{vc.get('iterations')} passes"
+            )
+        f, r = vc.get("variance_factor"), vc.get("redundancy")
+        if f is not None and r and r > 0:
+            hi = float(chi2.ppf(1.0 - alpha, r)) / r if alpha > 0 else math.inf
+            if not (math.isfinite(f) and f <= hi):
+                out.append(
+                    f"the smoother's variance factor {f:.3g} is above its chi-square band "
+                    f"({hi:.3g} at {r} degrees of freedom, false alarm {alpha:.2g}): its "
+                    "noise model is optimistic, its covariance claims too much"
+                )
+    sm = ref.result.trajectory
+    if sm.covariances is not None and estimate.covariances is not None and len(estimate):
+        ts = sm.covariances[:, 0, 0] + sm.covariances[:, 1, 1]
+        te = estimate.covariances[:, 0, 0] + estimate.covariances[:, 1, 1]
+        ts, te = ts[np.isfinite(ts)], te[np.isfinite(te)]
+        if ts.size and te.size and te.mean() > 0:
+            q = math.sqrt(float(ts.mean()) / float(te.mean()))
+            if not q <= REFERENCE_SIGMA_RATIO:
+                out.append(
+                    f"the smoother's position sigma is {q:.3g}x the estimate's own (more "
+                    f"than {REFERENCE_SIGMA_RATIO:g}x: it has every reading the estimate had)"
+                )
+    return out
+
+
+def skipped_finding(estimator: str, reason: str, failed: bool) -> Finding:
+    """The ``cross_check_skipped`` finding: the second opinion did not judge the run.
+
+    It degrades when the reference *failed* (``failed``: the smoother raised, is itself
+    degraded, or could not serve as a yardstick, :func:`reference_problems`) and the
+    estimator has no other evidence of a drift its covariance does not cover (not in
+    :data:`DRIFT_EVIDENCE`): then nothing vouches for the covariance, and a skipped check must
+    not read as ``ok`` (issue 31). A check that did not run for a reason of the log's shape
+    (no absolute sensor: nothing could judge a drift; a log above ``max_odometry_steps``) is
+    a note: on a log that matches the config the run must not say ``degraded`` for it.
+    """
+    alone = estimator not in DRIFT_EVIDENCE
+    if alone:
+        tail = f"; {estimator}'s own checks cannot see a drift its covariance does not cover"
+        tail += ", so nothing vouches for its covariance" if failed else ""
+    else:
+        tail = "; the status rests on the run's own checks"
+    return Finding(
+        "cross_check_skipped",
+        f"the batch smoother could not judge: {reason}{tail}",
+        degrades=alone and failed,
+    )
+
+
+#: Skip reasons that mean the check does not apply (the user's choice, or another problem):
+#: no finding. Any other skip of an estimator in :data:`CHECKED` is a ``cross_check_skipped``.
+NOT_APPLICABLE = (
+    "off (",
+    "the estimate is the batch smoother",
+    "estimator '",
+    "a SLAM run",
+    "the log holds loop closures",
+)
 
 
 def cross_check(config, log, result: EstimateResult, reference=None):
-    """``result`` with the cross-check's findings added, and the ``cross_check`` block.
+    """``result`` with the cross-check's findings added, the ``cross_check`` block and the
+    advice.
 
     Parameters
     ----------
@@ -349,35 +556,60 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     Returns
     -------
     result : EstimateResult
-        With the findings of :func:`compare` appended to ``findings``.
+        With the findings of :func:`compare` appended to ``findings``, or a
+        ``cross_check_skipped`` finding (:func:`skipped_finding`) when the check should have
+        judged and could not: the log has no absolute sensor or is too long (``auto``), holds
+        loop closures, the smoother raised, is itself degraded, or fails
+        :func:`reference_problems`.
     block : dict
-        ``metrics.json``'s ``cross_check``: the figures and ``smoother_status`` (and
+        ``metrics.json``'s ``cross_check``: the figures, ``smoother_status`` (and
         ``smoother_config`` when the reference ran with another config than the run's), or
-        ``skipped: <reason>`` (also when the smoother raised: the run it only checks goes on).
+        ``skipped: <reason>``.
+    advice : list of str
+        :func:`compare`'s advice (never a finding).
     """
+    budget = alpha_budget(config, log)
     reason = skip_reason(config, log)
     if reason is not None:
-        return result, {"skipped": reason}
+        return _skipped(result, reason, {"skipped": reason}, failed=False)
     try:  # a smoother that cannot run this log must not fail the run it only checks
         if reference is None:
             ref = reference_of(config, log)
         else:
             ref = reference() if callable(reference) else reference
     except Exception as exc:
-        return result, {"skipped": f"the batch smoother failed: {one_line(exc)}"}
+        why = f"the batch smoother failed: {one_line(exc)}"
+        return _skipped(result, why, {"skipped": why})
     # no wall-clock time here: metrics.json is the same for the same inputs (odofuse batch
     # equals odofuse run to the last digit); the config only when it is not the run's own
     about = {"smoother_status": ref.status}
     if ref.config != config.source:
         about["smoother_config"] = ref.config
     if ref.status != "ok":
-        return result, {"skipped": f"the batch smoother's own status is {ref.status}", **about}
+        why = f"the batch smoother's own status is {ref.status}"
+        return _skipped(result, why, {"skipped": why, **about})
+    problems = reference_problems(ref, result.trajectory, budget["checks"]["reference_variance"])
+    if problems:
+        why = "unable to judge: " + "; ".join(problems)
+        return _skipped(result, why, {"skipped": why, **about})
     fused = result.estimator not in UNAIDED
     vc = (ref.result.extra or {}).get("variance_components") or {}
     scale = vc.get("position_variance_scale")
     es = (ref.result.extra or {}).get("_error_samples")
     samples = getattr(es, "xy", None)
-    block, found = compare(result.trajectory, ref.result.trajectory, fused, scale, samples)
+    alpha = budget["checks"]["cross_check_nees"]
+    block, found, advice = compare(
+        result.trajectory, ref.result.trajectory, fused, scale, samples, alpha
+    )
+    if "skipped" in block:
+        return _skipped(result, block["skipped"], {**block, **about})
     if found:
         result = dataclasses.replace(result, findings=(*result.findings, *found))
-    return result, {**block, **about}
+    return result, {**block, **about}, advice
+
+
+def _skipped(result: EstimateResult, reason: str, block: dict, failed: bool = True):
+    if result.estimator not in CHECKED or reason.startswith(NOT_APPLICABLE):
+        return result, block, []
+    found = skipped_finding(result.estimator, reason, failed)
+    return dataclasses.replace(result, findings=(*result.findings, found)), block, []

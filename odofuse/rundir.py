@@ -194,14 +194,18 @@ def checked_metrics(config, log, result, runtime: float, reference=None) -> dict
     The one path from an estimate to its ``metrics.json`` content, shared by
     :func:`finish_run` and the trust scenarios' runs
     (:func:`odofuse.teaching.trust_scenarios.run`): :func:`odofuse.cross_check.cross_check`
-    adds its findings (so ``status`` and ``warnings`` follow) and the ``cross_check`` block.
+    adds its findings (so ``status`` and ``warnings`` follow), the ``cross_check`` block, the
+    ``advice`` list (accuracy against the smoother: never a finding, never the status) and the
+    run's false-alarm budget ``alpha`` (:func:`odofuse.cross_check.alpha_budget`).
     """
-    from odofuse.cross_check import cross_check
+    from odofuse.cross_check import alpha_budget, cross_check
     from odofuse.evaluation import metrics
 
-    result, block = cross_check(config, log, result, reference)
+    result, block, advice = cross_check(config, log, result, reference)
     m = metrics(result, log, runtime)
     m["cross_check"] = block
+    m["advice"] = list(advice)
+    m["alpha"] = alpha_budget(config, log)
     return m
 
 

@@ -33,43 +33,66 @@ def _checks(found):
     return [f.check for f in found]
 
 
-def test_a_fused_estimate_3_sigma_from_the_smoother_is_flagged():
+def test_a_fused_estimate_3_sigma_from_the_smoother_gets_advice_not_a_finding():
+    # Issue 25: less accurate than the smoother is advice; its covariance (1 m) covers it.
     s = math.sqrt(2) * SIGMA
-    block, found = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), fused=True)
+    block, found, advice = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), fused=True)
     assert block["departure_rms_m"] == pytest.approx(3 * s)
     assert block["smoother_sigma_m"] == pytest.approx(s)
     assert block["predicted_ratio"] == pytest.approx(math.sqrt(10.0))  # sqrt(1 + 3^2)
-    assert block["departure_nees"] == pytest.approx((3 * s) ** 2 / 1.0)
-    assert _checks(found) == ["cross_check"]
-    assert found[0].figure == pytest.approx(math.sqrt(10.0)) and found[0].degrades
-    assert "likely more than 2x its error" in found[0].line()
-    assert (found[0].t_start, found[0].t_end) == (0.0, 20.0)
-
-
-def test_a_fused_estimate_within_the_smoothers_sigma_is_not_flagged():
-    s = math.sqrt(2) * SIGMA
-    block, found = xc.compare(_line(dy=s, var=1.0), _smoother(), fused=True)
-    assert block["predicted_ratio"] == pytest.approx(math.sqrt(2.0))
+    # against the estimate's covariance plus the smoother's
+    assert block["departure_nees"] == pytest.approx((3 * s) ** 2 / (1.0 + SIGMA**2))
     assert found == []
-    # just above the bound: ratio sqrt(1 + 1.8^2) = 2.06 > 2
-    assert _checks(xc.compare(_line(dy=1.8 * s, var=1.0), _smoother(), True)[1]) == ["cross_check"]
+    assert len(advice) == 1 and "about 3.2x more accurate" in advice[0]
+    assert advice[0].endswith("`estimator: smoother`") and "no error samples" in advice[0]
+
+
+def test_a_fused_estimate_within_the_smoothers_sigma_gets_no_advice():
+    s = math.sqrt(2) * SIGMA
+    block, found, advice = xc.compare(_line(dy=s, var=1.0), _smoother(), fused=True)
+    assert block["predicted_ratio"] == pytest.approx(math.sqrt(2.0))
+    assert found == [] and advice == []
+    # just above the ratio: sqrt(1 + 1.8^2) = 2.06 > 2: advice, still no finding
+    _, found, advice = xc.compare(_line(dy=1.8 * s, var=1.0), _smoother(), True)
+    assert found == [] and len(advice) == 1
+
+
+def test_the_nees_bound_holds_for_any_correlation_of_its_terms():
+    # c = 2 (1 + ln(1 / alpha)); fully correlated terms: the mean is one exponential of mean
+    # 2, whose tail at c is exp(-c / 2) = alpha / e <= alpha; independent terms: far less.
+    assert xc.nees_bound(0.05) == pytest.approx(2 * (1 + math.log(20)))
+    rng = np.random.default_rng(3)
+    for alpha in (0.05, 0.01):
+        c = xc.nees_bound(alpha)
+        one = rng.exponential(2.0, 200_000)
+        assert np.mean(one > c) <= alpha
+        assert np.mean(one > c) == pytest.approx(alpha / math.e, rel=0.1)
+        many = rng.exponential(2.0, (20_000, 50)).mean(axis=1)
+        assert np.mean(many > c) < alpha / 100
+    assert xc.nees_bound(0.0) == math.inf
 
 
 def test_dead_reckoning_is_held_to_its_covariance_not_to_the_smoothers_accuracy():
     # 0.5 m off: far outside the smoother's sigma, but inside its own 1 m sigma: no finding.
-    block, found = xc.compare(_line(dy=0.5, var=1.0), _smoother(), fused=False)
-    assert block["predicted_ratio"] > 30 and block["ratio_bound"] is None and found == []
-    # The same drift claimed with a 0.1 m sigma: departure NEES 0.25 / 0.01 = 25 > 10.
-    block, found = xc.compare(_line(dy=0.5, var=0.01), _smoother(), fused=False)
-    assert block["departure_nees"] == pytest.approx(25.0)
+    block, found, advice = xc.compare(_line(dy=0.5, var=1.0), _smoother(), fused=False)
+    assert block["predicted_ratio"] > 30 and block["ratio_bound"] is None
+    assert found == [] and advice == []  # no advice for an unaided estimate either
+    # The same drift claimed with a 0.1 m sigma: 0.25 / (0.01 + 1e-4) = 24.8 > 8.0
+    block, found, _ = xc.compare(_line(dy=0.5, var=0.01), _smoother(), fused=False)
+    assert block["departure_nees"] == pytest.approx(0.25 / (0.01 + SIGMA**2))
+    assert block["nees_bound"] == pytest.approx(xc.nees_bound(xc.ALPHA))
     assert _checks(found) == ["cross_check_nees"] and "overconfident" in found[0].message
+    assert found[0].degrades and (found[0].t_start, found[0].t_end) == (0.0, 20.0)
+    # a smaller share of alpha_run: a higher bound
+    block, found, _ = xc.compare(_line(dy=0.5, var=0.01), _smoother(), False, alpha=1e-12)
+    assert block["nees_bound"] > 24.8 and found == []
 
 
 def test_poses_outside_the_smoothers_span_are_not_compared():
     est = _line()
     late = Trajectory(est.t + 100.0, est.poses, est.covariances)
-    block, found = xc.compare(late, _smoother(), fused=True)
-    assert "skipped" in block and found == []
+    block, found, advice = xc.compare(late, _smoother(), fused=True)
+    assert "skipped" in block and found == [] and advice == []
 
 
 def _log(odometry_rows=50, gps=True, loops=False):
@@ -116,35 +139,53 @@ def test_when_the_check_applies():
     )
 
 
-def _reference(status="ok"):
-    return xc.Reference(EstimateResult("smoother", _smoother()), status, 1.0, "c.yaml")
+#: A sane reference's variance components (global factor 1 at 100 degrees of freedom).
+SANE = {"method": "global", "variance_factor": 1.0, "redundancy": 100, "converged": True}
 
 
-def test_a_degraded_smoother_disables_the_check():
+def _reference(status="ok", vc=SANE):
+    extra = {"variance_components": vc} if vc is not None else {}
+    return xc.Reference(EstimateResult("smoother", _smoother(), extra=extra), status, 1.0, "c.yaml")
+
+
+def test_a_degraded_smoother_skips_the_check_and_says_so():
+    # issue 31: the skip is a finding in warnings; an EKF's own NIS checks see drift, so it
+    # does not degrade; dead reckoning's cannot, so it does
     s = math.sqrt(2) * SIGMA
     far = EstimateResult("ekf", _line(dy=10 * s, var=1.0))
-    result, block = xc.cross_check(_config(), _log(), far, _reference("degraded"))
+    result, block, advice = xc.cross_check(_config(), _log(), far, _reference("degraded"))
     assert block == {
         "skipped": "the batch smoother's own status is degraded",
         "smoother_status": "degraded",
     }
-    assert result is far
-    result, block = xc.cross_check(_config(), _log(), far, _reference)  # lazily, the same ok
+    (f,) = result.findings
+    assert f.check == "cross_check_skipped" and not f.degrades and advice == []
+    assert "own status is degraded" in f.message
+    dr = EstimateResult("dead_reckoning", _line(dy=10 * s, var=1.0))
+    cfg = _config("dead_reckoning")
+    (f,) = xc.cross_check(cfg, _log(), dr, _reference("degraded"))[0].findings
+    assert f.check == "cross_check_skipped" and f.degrades and "nothing vouches" in f.message
+    result, block, advice = xc.cross_check(_config(), _log(), far, _reference)  # lazily, ok
     assert block["smoother_status"] == "ok" and "smoother_config" not in block
-    assert [f.check for f in result.findings] == ["cross_check"]
+    assert result.findings == () and len(advice) == 1  # 10 sigma off: advice, not a finding
 
 
-def test_the_check_reaches_status_warnings_and_a_skip_is_recorded_not_warned():
+def test_the_check_reaches_status_warnings_and_advice():
     s = math.sqrt(2) * SIGMA
     far = EstimateResult("ekf", _line(dy=3 * s, var=1.0))
     m = checked_metrics(_config(), _log(), far, 0.1, _reference())
-    assert m["status"] == "degraded"
-    assert m["warnings"] == [
-        f.line() for f in xc.cross_check(_config(), _log(), far, _reference())[0].findings
-    ]
+    assert m["status"] == "ok" and m["warnings"] == []  # covariance covers it: advice only
+    assert m["advice"] == xc.cross_check(_config(), _log(), far, _reference())[2]
+    assert len(m["advice"]) == 1
     assert m["cross_check"]["predicted_ratio"] == pytest.approx(math.sqrt(10.0))
+    # 5 sigma off, claimed with the smoother's own sigma: inconsistent, degraded
+    tight = EstimateResult("ekf", _line(dy=5 * s, var=SIGMA**2))
+    m = checked_metrics(_config(), _log(), tight, 0.1, _reference())
+    assert m["status"] == "degraded" and m["warnings"][0].startswith("[cross_check_nees]")
+    assert m["alpha"]["alpha_run"] == 0.05 and m["alpha"]["total"] <= 0.05
+    assert m["alpha"]["checks"]["cross_check_nees"] == m["cross_check"]["nees_alpha"]
     off = checked_metrics(_config(cross={"smoother": "off"}), _log(), far, 0.1, _reference())
-    assert off["status"] == "ok" and off["warnings"] == []
+    assert off["status"] == "ok" and off["warnings"] == [] and off["advice"] == []
     assert off["cross_check"] == {"skipped": "off (options.cross_check.smoother)"}
     json.dumps(m)  # metrics.json-ready
 
@@ -157,7 +198,13 @@ def test_a_shared_reference_names_its_config_and_a_smoother_run_reuses_it(tmp_pa
     assert m["cross_check"] == {"skipped": "the estimate is the batch smoother"}
     stored = json.loads((tmp_path / "s" / "metrics.json").read_text(encoding="utf-8"))
     assert stored["cross_check"] == m["cross_check"]
-    result, block = xc.cross_check(_config(), _log(), EstimateResult("ekf", _line()), ref)
+    ref = xc.Reference(
+        EstimateResult("smoother", _smoother(), extra={"variance_components": SANE}),
+        "ok",
+        1.0,
+        "other.yaml",
+    )
+    result, block, _ = xc.cross_check(_config(), _log(), EstimateResult("ekf", _line()), ref)
     assert block["smoother_config"] == "other.yaml"
 
 
@@ -168,14 +215,15 @@ def test_a_smoother_that_raises_skips_the_check_and_the_run_goes_on():
         raise ConfigError("options.smoother.lag: not a smoother option\nsecond line")
 
     est = EstimateResult("ekf", _line())
-    result, block = xc.cross_check(_config(), _log(), est, broken)
-    assert result is est
+    result, block, _ = xc.cross_check(_config(), _log(), est, broken)
+    assert [f.check for f in result.findings] == ["cross_check_skipped"]
     assert block == {
         "skipped": "the batch smoother failed: ConfigError: options.smoother.lag: not a "
         "smoother option"
     }
     m = checked_metrics(_config(), _log(), est, 0.1, broken)
-    assert m["status"] == "ok" and m["warnings"] == [] and m["cross_check"] == block
+    assert m["status"] == "ok" and m["cross_check"] == block
+    assert m["warnings"] == [result.findings[0].line()]  # issue 31: said, not silent
 
 
 def _brute_p_fail(est, smoother, samples):
@@ -215,35 +263,33 @@ def test_the_finding_follows_p_fail_not_the_predicted_ratio(monkeypatch):
     s = math.sqrt(2) * SIGMA
     samples = np.repeat(SIGMA * rng.standard_normal((200, 1, 2)), 21, axis=1)
     est = _line(dy=0.8 * s, var=1.0)
-    block, found = xc.compare(est, _smoother(), True, None, samples)
+    block, found, advice = xc.compare(est, _smoother(), True, None, samples)
     assert block["predicted_ratio"] == pytest.approx(math.sqrt(1 + 0.8**2))
     assert block["p_fail"] == pytest.approx(1 - math.exp(-0.32), abs=4 * 0.032)
     assert block["p_fail"] == _brute_p_fail(est, _smoother(), samples) > xc.ALPHA
-    assert block["samples"] == 200 and block["alpha"] == xc.ALPHA
-    assert block["rule"] == "posterior p_fail > 0.05"
-    assert _checks(found) == ["cross_check"] and found[0].figure == block["p_fail"]
-    assert f"posterior probability {block['p_fail']:.2f}" in found[0].line()
-    assert "predicted ratio 1.28x" in found[0].line()
+    assert block["samples"] == 200 and block["advice_alpha"] == xc.ALPHA
+    assert found == [] and len(advice) == 1  # issue 25: advice, never a finding
+    assert f"posterior probability {block['p_fail']:.2f}" in advice[0]
+    assert "about 1.3x more accurate" in advice[0]
     # the same estimate against a smoother whose errors average out (independent per
     # keyframe, 21 of them; interpolation between keyframes lowers the mean |e|^2 to 2/3):
     # R^2 ~ 1 + 0.64 * 1.5, above 4 only 3 standard deviations out: no finding
     ind = SIGMA * rng.standard_normal((200, 21, 2))
-    block, found = xc.compare(est, _smoother(), True, None, ind)
-    assert block["p_fail"] <= xc.ALPHA and found == []
+    block, found, advice = xc.compare(est, _smoother(), True, None, ind)
+    assert block["p_fail"] <= xc.ALPHA and found == [] and advice == []
     # monkeypatched SAMPLE_BLOCK (several blocks) changes nothing
     monkeypatch.setattr(xc, "SAMPLE_BLOCK", 7)
     assert xc.compare(est, _smoother(), True, None, ind)[0]["p_fail"] == block["p_fail"]
 
 
-def test_without_samples_the_predicted_ratio_rule_applies_and_the_block_says_so():
+def test_without_samples_the_advice_rests_on_the_predicted_ratio_and_says_so():
     s = math.sqrt(2) * SIGMA
-    block, found = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), fused=True)
+    block, found, advice = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), fused=True)
     assert block["p_fail"] is None and block["samples"] == 0
-    assert block["rule"].startswith("predicted ratio > 2 (fallback: smoother error samples none")
-    assert _checks(found) == ["cross_check"] and "fallback rule" in found[0].line()
-    bad = np.zeros((10, 5, 2))  # not one per smoother pose
-    block, _ = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), True, None, bad)
-    assert block["p_fail"] is None and "not one per smoother pose" in block["rule"]
-    # dead reckoning: no ratio rule at all
-    block, _ = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), False, None, bad)
-    assert block["rule"] is None and block["alpha"] is None
+    assert found == [] and "no error samples" in advice[0]
+    bad = np.zeros((10, 5, 2))  # not one per smoother pose: not used
+    block, _, advice = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), True, None, bad)
+    assert block["p_fail"] is None and "no error samples" in advice[0]
+    # dead reckoning: no ratio at all
+    block, _, advice = xc.compare(_line(dy=3 * s, var=1.0), _smoother(), False, None, bad)
+    assert block["ratio_bound"] is None and block["advice_alpha"] is None and advice == []
