@@ -180,7 +180,11 @@ def collapse_findings(loc, t, P) -> list[Finding]:
 
     A sample-based filter whose cloud loses its spread (resampling thinning a particle cloud
     the weights say nothing about) shows exactly that. Checked per span between accepted
-    readings of the absolute streams (every stream without cloned states).
+    readings of the absolute streams (every stream without cloned states). The finding names
+    one such span (the one with the deepest fall: from the running maximum to the last pose
+    below :data:`COLLAPSE_RATIO` of it) and the absolute streams' readings inside it, counted
+    from the monitor's record of what arrived (issue 31: one finding once merged the falls of
+    several spans into one window that held accepted GPS fixes).
 
     Parameters
     ----------
@@ -195,13 +199,12 @@ def collapse_findings(loc, t, P) -> list[Finding]:
     if t.size < 2:
         return []
     mon = loc.monitor
-    fixes = sorted(
-        tm
+    absolute = [
+        s
         for s, m in loc.models.items()
         if not (m.clones() if hasattr(m, "clones") else {}) and s in mon._t
-        for tm, ok in zip(mon._t[s], mon._ok[s], strict=True)
-        if ok
-    )
+    ]
+    fixes = sorted(tm for s in absolute for tm, ok in zip(mon._t[s], mon._ok[s], strict=True) if ok)
     seg = np.searchsorted(np.asarray(fixes, dtype=float), t, side="right")
     v = P[:, 2, 2]
     log_v = np.log(np.clip(np.nan_to_num(v, nan=0.0), 1e-300, 1e300))
@@ -213,14 +216,28 @@ def collapse_findings(loc, t, P) -> list[Finding]:
     idx = np.flatnonzero(bad)
     k = idx[int(np.argmin(log_v[idx] - peak[idx]))]
     drop = math.exp(log_v[k] - peak[k])
+    same = np.flatnonzero(seg == seg[k])  # the poses of the worst fall's span
+    before = same[same <= k]
+    at_peak = before[int(np.argmax(log_v[before]))]
+    last = same[bad[same]][-1]
+    t0, t1 = float(t[at_peak]), float(t[last])
+    inside = []
+    for s in absolute:
+        tm = np.asarray(mon._t[s], dtype=float)
+        ok = np.asarray(mon._ok[s], dtype=bool)
+        w = (tm > t0) & (tm <= t1)
+        inside.append(f"{s}: {int(np.count_nonzero(w & ok))} accepted of {int(w.sum())}")
+    spans = len(set(seg[idx].tolist()))
+    more = f"; {spans - 1} other span(s) fell too" if spans > 1 else ""
     return [
         Finding(
             "collapse",
             f"heading variance fell to {_s(v[k])} rad^2, {_s(drop)} of its "
-            f"{_s(math.exp(peak[k]))} rad^2 earlier, with no absolute measurement in between: "
-            "the covariance collapsed and claims more than the sensors told",
-            t_start=float(t[idx[0]]),
-            t_end=float(t[idx[-1]]),
+            f"{_s(math.exp(peak[k]))} rad^2 at {t0:.2f} s, with no accepted absolute "
+            f"reading in between ({', '.join(inside) or 'no absolute stream'}): the "
+            f"covariance collapsed and claims more than the sensors told{more}",
+            t_start=t0,
+            t_end=t1,
             figure=drop,
         )
     ]

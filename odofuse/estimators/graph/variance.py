@@ -24,6 +24,14 @@ MIN_REDUNDANCY = 20.0
 #: State dimensions above which only the global variance factor is estimated (the per-stream
 #: estimation's sparse solves grow with rows times states).
 MAX_VCE_DIMS = 6000
+#: Bounds of a group's variance component (the stream's sigma off by 10x either way, chosen a
+#: priori). Förstner's iteration has a degenerate fixed point at 0: a group whose residuals
+#: the estimate absorbs (a gyro whose increments the headings follow) gets a smaller factor,
+#: hence a larger weight, hence smaller residuals, pass after pass (issue 31: 1e-13 at the
+#: 20-pass cap). A group that reaches a bound keeps it and is reported ``at_bound``.
+VC_BOUNDS = (1e-2, 1e2)
+#: Largest relative change of any component at convergence.
+VC_TOLERANCE = 1e-3
 #: The variance group of priors and pseudo-observations (never re-scaled).
 PRIOR_GROUP = "prior"
 #: Joint samples of the smoother's position errors drawn for the cross-check (docs/trust.md
@@ -171,8 +179,10 @@ def variance_components(
     equations) and the group's redundancy ``r_g = m_g - tr(N^-1 N_g) / c_g`` (``N = sum_g
     N_g / c_g``, ``N_g = A_g^T A_g`` the group's whitened normal matrix, ``m_g`` its residual
     dimensions, ``sum_g r_g = m - n``) give ``c_g <- v_g^T v_g / r_g``, until no ``c_g``
-    moves by more than 0.1 % (at most ``iterations`` passes; a single pass is biased when the
-    groups' relative weights are off). A group whose redundancy is below
+    moves by more than 0.1 % (at most ``iterations`` passes, ``converged`` says whether it got
+    there; a single pass is biased when the groups' relative weights are off). Each
+    component is bounded to :data:`VC_BOUNDS` (a group that reaches a bound keeps it,
+    ``at_bound``: no factor is driven to zero). A group whose redundancy is below
     :data:`MIN_REDUNDANCY` keeps ``c_g = 1`` (too few degrees of freedom: relative standard
     deviation ``sqrt(2 / r_g)`` above 0.32), and so does the ``prior`` group. The solution
     itself (computed with the model's weights) is not changed; its error covariance under
@@ -211,9 +221,10 @@ def variance_components(
     dict
         ``method`` (``per-stream`` or ``global``), ``variance_factor`` (global
         ``sum v^T v / (m - n)`` at the optimum, None when ``m <= n``), ``redundancy``
-        (``m - n``), ``iterations``, ``groups``: group ->
-        ``{"variance_factor" (c_g), "redundancy" (r_g), "dims" (m_g), "estimated"}`` (per
-        stream only), and
+        (``m - n``), ``iterations``, ``converged`` (no component moved by more than
+        :data:`VC_TOLERANCE` in the last pass; True on the global path), ``groups``: group ->
+        ``{"variance_factor" (c_g), "redundancy" (r_g), "dims" (m_g), "estimated",
+        "at_bound"}`` (per stream only), and
         ``position_variance_scale``: mean trace of the sandwich's position blocks over the
         mean trace of ``N_0^-1``'s (1 when no group was estimated).
     ErrorSamples
@@ -232,6 +243,7 @@ def variance_components(
             "method": "global",
             "variance_factor": sigma0,
             "redundancy": int(redundancy),
+            "converged": True,  # one closed-form factor, no iteration
             "position_variance_scale": c0,
         }
         if samples <= 0:
@@ -243,7 +255,7 @@ def variance_components(
     rows = {g: np.flatnonzero(label == g) for g in sorted(set(label))}
     scale = dict.fromkeys(rows, 1.0)
     free = {g for g in rows if g != PRIOR_GROUP}
-    passes, red = 0, {}
+    passes, red, bounded, converged = 0, {}, set(), False
     while passes < iterations:
         passes += 1
         weight = np.empty(m)
@@ -261,11 +273,15 @@ def variance_components(
             if red[g] < MIN_REDUNDANCY:
                 free.discard(g)
                 new[g] = 1.0
-            else:
-                new[g] = float(v[rows[g]] @ v[rows[g]] / red[g])
+            elif g not in bounded:
+                c = float(v[rows[g]] @ v[rows[g]] / red[g])
+                new[g] = min(max(c, VC_BOUNDS[0]), VC_BOUNDS[1])
+                if new[g] != c:
+                    bounded.add(g)  # kept at its bound from now on
         moved = max((abs(new[g] / scale[g] - 1.0) for g in rows), default=0.0)
         scale = new
-        if moved < 1e-3:
+        if moved < VC_TOLERANCE:
+            converged = True
             break
     out_groups = {
         g: {
@@ -273,6 +289,7 @@ def variance_components(
             "redundancy": float(red[g]),
             "dims": int(rows[g].size),
             "estimated": g in free,
+            "at_bound": g in bounded,
         }
         for g in rows
     }
@@ -293,6 +310,7 @@ def variance_components(
         "variance_factor": sigma0,
         "redundancy": int(redundancy),
         "iterations": passes,
+        "converged": converged,
         "groups": out_groups,
         "position_variance_scale": sandwich / model if model > 0 else 1.0,
     }
