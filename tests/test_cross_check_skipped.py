@@ -196,8 +196,10 @@ def test_collapse_names_one_span_and_the_absolute_readings_in_it():
     mon = SimpleNamespace(_t={"gps": fixes.tolist()}, _ok={"gps": [1] * fixes.size})
     loc = SimpleNamespace(monitor=mon, models={"gps": object()})
     (f,) = collapse_findings(loc, t, P)
-    assert 50.0 <= f.t_start <= 80.01 and f.t_end == pytest.approx(99.9)  # the span after 50 s
-    inside = fixes[(fixes > f.t_start) & (fixes <= f.t_end)]
+    assert 80.0 <= f.t_start <= 80.11 and f.t_end == pytest.approx(99.9)  # after the GPS
+    peak = float(f.message.split(" rad^2 at ")[1].split(" s,")[0])  # the fall's maximum
+    assert 50.0 <= peak <= 80.01
+    inside = fixes[(fixes > peak) & (fixes <= f.t_end)]
     assert inside.size == 0 and "gps: 0 accepted of 0" in f.message
     assert "1 other span(s) fell too" in f.message
     assert f.figure == pytest.approx(0.01, rel=0.05)

@@ -103,15 +103,16 @@ def test_the_cross_check_scales_its_yardstick_and_records_the_factor():
     smoother = Trajectory(t, np.column_stack([t, 0 * t, 0 * t]), cov)
     s = math.sqrt(2e-4)
     est = Trajectory(t, np.column_stack([t, np.full(t.size, 1.5 * s), 0 * t]), cov * 1e4)
-    block, found = xc.compare(est, smoother, True)
+    block, found, advice = xc.compare(est, smoother, True)
     assert block["predicted_ratio"] == pytest.approx(math.sqrt(1 + 1.5**2)) and found == []
-    assert block["smoother_variance_factor"] is None
-    block, found = xc.compare(est, smoother, True, variance_scale=0.25)  # sigma halved
+    assert block["smoother_variance_factor"] is None and advice == []
+    block, found, advice = xc.compare(est, smoother, True, variance_scale=0.25)  # sigma halved
     assert block["smoother_sigma_m"] == pytest.approx(0.5 * s)
     assert block["smoother_sigma_model_m"] == pytest.approx(s)
     assert block["smoother_variance_factor"] == 0.25
     assert block["predicted_ratio"] == pytest.approx(math.sqrt(1 + 3.0**2))
-    assert [f.check for f in found] == ["cross_check"]
+    # issue 25: accuracy against the smoother is advice, not a finding
+    assert found == [] and len(advice) == 1 and "about 3.2x more accurate" in advice[0]
 
 
 def test_a_large_graph_gets_the_global_factor_only(monkeypatch):
@@ -140,7 +141,7 @@ def test_a_smoother_whose_variance_components_fail_still_runs_and_is_not_rescale
         "skipped": "RuntimeError: Factor is exactly singular"
     }
     est = Trajectory(res.trajectory.t, res.trajectory.poses + 0.01, res.trajectory.covariances)
-    block, _ = xc.compare(est, res.trajectory, True, None)
+    block, _, _ = xc.compare(est, res.trajectory, True, None)
     assert block["smoother_variance_factor"] is None
     assert block["smoother_sigma_m"] == block["smoother_sigma_model_m"]
 

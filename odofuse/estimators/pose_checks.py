@@ -181,8 +181,9 @@ def collapse_findings(loc, t, P) -> list[Finding]:
     A sample-based filter whose cloud loses its spread (resampling thinning a particle cloud
     the weights say nothing about) shows exactly that. Checked per span between accepted
     readings of the absolute streams (every stream without cloned states). The finding names
-    one such span (the one with the deepest fall: from the running maximum to the last pose
-    below :data:`COLLAPSE_RATIO` of it) and the absolute streams' readings inside it, counted
+    one such span (the one with the deepest fall: from its first to its last pose below
+    :data:`COLLAPSE_RATIO` of the running maximum) and the absolute streams' readings from
+    that maximum to its end (none accepted, by construction), counted
     from the monitor's record of what arrived (issue 31: one finding once merged the falls of
     several spans into one window that held accepted GPS fixes).
 
@@ -219,8 +220,8 @@ def collapse_findings(loc, t, P) -> list[Finding]:
     same = np.flatnonzero(seg == seg[k])  # the poses of the worst fall's span
     before = same[same <= k]
     at_peak = before[int(np.argmax(log_v[before]))]
-    last = same[bad[same]][-1]
-    t0, t1 = float(t[at_peak]), float(t[last])
+    fell = same[bad[same]]
+    t0, t1 = float(t[at_peak]), float(t[fell[-1]])
     inside = []
     for s in absolute:
         tm = np.asarray(mon._t[s], dtype=float)
@@ -233,10 +234,10 @@ def collapse_findings(loc, t, P) -> list[Finding]:
         Finding(
             "collapse",
             f"heading variance fell to {_s(v[k])} rad^2, {_s(drop)} of its "
-            f"{_s(math.exp(peak[k]))} rad^2 at {t0:.2f} s, with no accepted absolute "
-            f"reading in between ({', '.join(inside) or 'no absolute stream'}): the "
+            f"{_s(math.exp(peak[k]))} rad^2 at {t0:.2f} s, with no absolute measurement "
+            f"accepted in between ({', '.join(inside) or 'no absolute stream'}): the "
             f"covariance collapsed and claims more than the sensors told{more}",
-            t_start=t0,
+            t_start=float(t[fell[0]]),
             t_end=t1,
             figure=drop,
         )
