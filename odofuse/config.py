@@ -21,7 +21,6 @@ from pathlib import Path
 from odofuse.declarations import (
     ESTIMATOR_OPTIONS,
     EncoderOptions,
-    GraphOptions,
     InitialOptions,
     LogOptions,
     MotionOptions,
@@ -86,8 +85,8 @@ class RunConfig:
         """
         name = estimator or self.estimator
         opts = self.options.get(name) or estimator_options(name, None, self.source)
-        if isinstance(opts, GraphOptions):
-            return opts.for_run(name, self.sensors, self.source)
+        if hasattr(opts, "for_run"):  # graph options, filters (odometry_calibration: auto)
+            return opts.for_run(name, self.sensors, self.source, (self.robot or {}).get("drive"))
         return opts
 
 

@@ -61,7 +61,8 @@ def test_spec_example_loads(tmp_path):
     assert c.estimator == "ekf"
     assert c.initial == InitialOptions(pose=(0.0, 0.0, 0.0), sigma=(0.1, 0.1, 0.05))
     assert c.sensors["gps"] == GpsOptions(model="gps", sigma=1.5, gate=0.999)
-    assert c.estimator_options() == EkfOptions(late_window=0.5)
+    # odometry_calibration auto: the example fuses GPS, ranges, compass, so it is on
+    assert c.estimator_options() == EkfOptions(late_window=0.5, odometry_calibration=True)
     assert c.source == str(p)
 
 

@@ -4,11 +4,12 @@ every filter shares)."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from odofuse.declarations.common import _NONNEG, _OPEN_UNIT, _POSITIVE, DEFAULT_LATE_WINDOW
 from odofuse.errors import ConfigError
-from odofuse.options import option
+from odofuse.options import explicit, option
 
 
 def _compiled_mode(v, key: str, src: str) -> str:
@@ -68,6 +69,28 @@ class DeadReckoningOptions:
     )
 
 
+def odometry_calibration_mode(v, key: str, src: str):
+    """``auto``, ``true`` or ``false`` (a graph block also takes a list of prior sigmas)."""
+    if v == "auto" or isinstance(v, bool):
+        return v
+    raise ConfigError(f"must be auto, true or false, got {v!r}", src, key)
+
+
+#: Drives whose odometry calibration states exist (``odofuse.estimators.graph.calibration``).
+CALIBRATED_DRIVES = ("increments", "differential", "skid_steer")
+
+
+def odometry_calibration_auto(drive: str | None, sensors, slam: bool = False) -> bool:
+    """What ``odometry_calibration: auto`` means for a run: on when the drive has calibration
+    states and the run fuses an absolute sensor (GPS, compass, ranges, bearings, landmarks at
+    known positions: they make the odometry's scale and heading bias observable), off
+    otherwise (dead reckoning, wheels with a gyro only, SLAM's unknown landmarks: nothing
+    observes them, and the states would only carry their prior)."""
+    from odofuse.declarations.sensors import absolute_streams
+
+    return drive in CALIBRATED_DRIVES and not slam and bool(absolute_streams(sensors))
+
+
 @dataclass(frozen=True)
 class FilterOptions:
     """Keys of every recursive filter."""
@@ -78,14 +101,16 @@ class FilterOptions:
         doc="measurements up to this late are replayed, older dropped",
         **_NONNEG,
     )
-    odometry_calibration: bool = option(
-        False,
+    odometry_calibration: bool | str = option(
+        "auto",
         unit="-",
         doc=(
             "estimate the odometry's systematic errors online (increments: ds_scale, "
             "dtheta_scale, dtheta_bias; differential, skid_steer: wheel_radius_ratio, "
-            "track_width_scale)"
+            "track_width_scale); auto: when an absolute sensor is fused"
         ),
+        parse=odometry_calibration_mode,
+        type_name="auto, true or false",
     )
     odometry_calibration_sigma: tuple[float, ...] | None = option(
         None,
@@ -147,6 +172,16 @@ class FilterOptions:
         doc="chi-square probability of the per-step gyro-wheel disagreement",
         **_OPEN_UNIT,
     )
+
+    def for_run(self, estimator: str, sensors, source: str, drive: str | None = None):
+        """These options for a run with the sensor blocks ``sensors`` on ``drive``:
+        ``odometry_calibration: auto`` resolved (:func:`odometry_calibration_auto`)."""
+        if self.odometry_calibration != "auto":
+            return self
+        on = odometry_calibration_auto(drive, sensors)
+        resolved = dataclasses.replace(self, odometry_calibration=on)
+        object.__setattr__(resolved, "_explicit", explicit(self))
+        return resolved
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from odofuse.declarations.common import _NONNEG, _OPEN_UNIT, _POSITIVE, robust_loss
+from odofuse.declarations.filters import odometry_calibration_auto
+from odofuse.declarations.sensors import absolute_streams
 from odofuse.errors import ConfigError
 from odofuse.options import explicit, from_mapping, option, to_mapping
 
@@ -98,6 +100,28 @@ def freeze_option(value, key: str, source: str):
     return types.MappingProxyType(spec)
 
 
+def _odometry_calibration(value, key: str, source: str):
+    """``auto``, a bool, or a list of non-negative prior sigmas (as a tuple)."""
+    if value == "auto" or isinstance(value, bool):
+        return value
+    if isinstance(value, list | tuple) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) and v >= 0 for v in value
+    ):
+        return tuple(float(v) for v in value)
+    raise ConfigError(
+        f"must be auto, true, false or a list of prior sigmas, got {value!r}", source, key
+    )
+
+
+def gate_loss(gate: float, dim: int) -> tuple[str, float]:
+    """The graph's default loss of an absolute sensor with chi-square gate ``gate``: Tukey's
+    biweight at ``k = sqrt(chi2_dim(gate))``, whose influence is zero from the distance the
+    filters' gate rejects at (GTSAM weighs the whitened distance of the whole reading)."""
+    from odofuse.chi2 import ppf
+
+    return ("tukey", float(ppf(gate, dim)) ** 0.5)
+
+
 @dataclass(frozen=True)
 class GraphOptions:
     """``options.<smoother|isam2|fixed_lag>``: the factor-graph estimators (docs/graph.md).
@@ -166,15 +190,16 @@ class GraphOptions:
     final_relinearizations: int = option(
         3, unit="-", doc="isam2: forced full relinearisations at the end", minimum=1
     )
-    odometry_calibration: bool | tuple[float, ...] = option(
-        False,
+    odometry_calibration: bool | str | tuple[float, ...] = option(
+        "auto",
         unit="-, -, rad/s",
         doc=(
             "estimate the odometry's systematic errors as graph variables; true: default "
-            "prior sigmas, or the prior sigmas (one per state of the drive)"
+            "prior sigmas, or the prior sigmas (one per state of the drive); auto: true when "
+            "an absolute sensor is fused (not with slam)"
         ),
-        type_name="bool or list of float",
-        **_NONNEG,
+        parse=_odometry_calibration,
+        type_name="auto, bool or list of float",
     )
     calibration_freeze: Mapping | None = option(
         None,
@@ -207,11 +232,17 @@ class GraphOptions:
         **_OPEN_UNIT,
     )
 
-    def for_run(self, estimator: str, sensors: Mapping, source: str) -> GraphOptions:
+    def for_run(
+        self, estimator: str, sensors: Mapping, source: str, drive: str | None = None
+    ) -> GraphOptions:
         """These options for a run of ``estimator`` with the sensor blocks ``sensors``.
 
         ``robust`` becomes stream -> ``(kind, k)``: one loss applies to every sensor stream;
-        the sensor blocks' own ``robust`` fill in the streams the block does not name.
+        the sensor blocks' own ``robust`` fill in the streams the block does not name; an
+        absolute sensor with a gate and no loss from either gets :func:`gate_loss` (the
+        filters reject a reading beyond the gate; the graph gives it no influence there).
+        ``odometry_calibration: auto`` becomes true or false
+        (:func:`~odofuse.declarations.filters.odometry_calibration_auto`, on ``drive``).
 
         Raises
         ------
@@ -241,6 +272,18 @@ class GraphOptions:
         else:
             losses = {}
         own = {s: b.robust for s, b in sensors.items() if getattr(b, "robust", None) is not None}
-        resolved = dataclasses.replace(self, robust=types.MappingProxyType({**own, **losses}))
+        gated = {
+            s: gate_loss(sensors[s].gate, dim)
+            for s, dim in absolute_streams(sensors).items()
+            if getattr(sensors[s], "gate", None) is not None
+        }
+        odo_cal = self.odometry_calibration
+        if odo_cal == "auto":
+            odo_cal = odometry_calibration_auto(drive, sensors, self.slam)
+        resolved = dataclasses.replace(
+            self,
+            robust=types.MappingProxyType({**gated, **own, **losses}),
+            odometry_calibration=odo_cal,
+        )
         object.__setattr__(resolved, "_explicit", explicit(self))
         return resolved

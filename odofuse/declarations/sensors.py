@@ -71,7 +71,11 @@ class GyroOptions(SensorOptions):
 
     kind: ClassVar[str] = "gyro"
     sigma: float = option(1.0, unit="rad/s", doc="yaw-rate noise", **_POSITIVE)
-    calibrate: bool = option(False, unit="-", doc="estimate the gyro bias online")
+    calibrate: bool = option(
+        True,
+        unit="-",
+        doc="estimate the gyro bias (every MEMS gyro has one); false: the bias is known to be 0",
+    )
     bias_sigma: float = option(0.01, unit="rad/s", doc="prior sigma of the bias", **_POSITIVE)
     bias_walk: float = option(0.0, unit="rad/s/sqrt(s)", doc="random walk of the bias", **_NONNEG)
     gyrodometry: bool = option(
@@ -168,6 +172,16 @@ SENSOR_OPTIONS: dict[str, type] = {
         RangeBearingOptions,
     )
 }
+#: Absolute sensor kinds (they observe the pose against the world, not its change) and the
+#: dimension of one reading: the graph's default gate loss (:meth:`GraphOptions.for_run`) and
+#: the default odometry calibration (``odometry_calibration: auto``) read it.
+ABSOLUTE_KINDS: dict[str, int] = {
+    "gps": 2,
+    "compass": 1,
+    "range": 1,
+    "bearing": 1,
+    "range_bearing": 2,
+}
 #: Sensor blocks that configure the graph estimators' use of a stream, not a measurement model.
 GRAPH_STREAM_OPTIONS: dict[str, type] = {"loop_closures": LoopClosureOptions}
 
@@ -195,6 +209,15 @@ class PluginSensorOptions:
     params: object
     gate: float | None = 0.999
     robust: tuple[str, float] | None = None
+
+
+def absolute_streams(sensors: Mapping) -> dict[str, int]:
+    """Stream -> reading dimension of the absolute sensors among validated sensor blocks."""
+    return {
+        s: ABSOLUTE_KINDS[b.kind]
+        for s, b in sensors.items()
+        if getattr(b, "kind", None) in ABSOLUTE_KINDS and not isinstance(b, type)
+    }
 
 
 def stream_kind(stream: str) -> str | None:

@@ -20,6 +20,7 @@ factors use GTSAM's own LM.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -381,6 +382,29 @@ def _solve(graph, values, fac, opts) -> LMOutcome:
     )
 
 
+def _convex_start(problem: GraphProblem, opts):
+    """Initial values for a graph whose sensor streams have a redescending (Tukey) loss, or
+    None (dead reckoning) when none has.
+
+    Tukey's loss gives a reading beyond its threshold no pull at all, which is what rejects a
+    gross reading (the filters' gate, ``declarations.graph.gate_loss``); but from a
+    dead-reckoned start that has drifted past the threshold it would ignore the very readings
+    that correct the drift. The graph is therefore first solved with Cauchy losses of the same
+    thresholds (their influence decays but never vanishes), and the Tukey solve starts there:
+    graduated non-convexity in two steps.
+    """
+    tukey = {
+        s: k for s, (kind, k) in problem.robust.items() if kind == "tukey" and s in problem.models
+    }
+    if not tukey:
+        return None
+    soft = dataclasses.replace(
+        problem, robust={**problem.robust, **{s: ("cauchy", k) for s, k in tukey.items()}}
+    )
+    fac, graph, values = build_graph(soft)
+    return _solve(graph, values, fac, opts).values
+
+
 def _staged(problem: GraphProblem) -> bool:
     """Odometry calibration with a robust odometry loss: solved in stages."""
     loss = problem.robust.get(problem.odometry_stream, ("none", 0.0))[0]
@@ -463,7 +487,8 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
             "odometry_downweighted": int(np.count_nonzero(weights < 0.5)),
         }
     else:
-        fac, graph, values = build_graph(problem)
+        start = None if incremental or problem.loops else _convex_start(problem, opts)
+        fac, graph, values = build_graph(problem, None, start)
         if incremental:
             values, init = incremental_initial_values(problem, values)
             extra.update(init)

@@ -1,0 +1,383 @@
+"""Issue 25 item 5: a Monte Carlo benchmark of the run status's false-alarm and detection rates.
+
+Run from any directory: ``python benchmarks/bench_status.py [--seeds N] [--first S]
+[--estimators ...] [--faults ...] [--quick]``.
+
+Each seed simulates short logs (about 90 s) with the simulator of ``odofuse.teaching`` and
+writes them as ``odofuse simulate`` does, with the config a user would write for the robot
+(:func:`user_config`: geometry, the wheel error model, each sensor's ``sigma``; nothing else).
+The sensors are real ones: every gyro has a constant bias (drawn per seed, sigma 2 mrad/s,
+within the default prior) and, with an absolute sensor, the wheels small systematic errors
+(``E_d``, ``E_b`` drawn per seed, sigma 0.2 %: what the default odometry calibration models;
+wheels-only logs have the exact geometry their config states). Every estimator then runs
+through the path of ``odofuse run``
+(:func:`odofuse.log_defaults.apply_log_defaults`, :func:`odofuse.rundir.estimate`,
+:func:`odofuse.rundir.checked_metrics`: with the batch smoother's second opinion, one smoother
+run per log shared by its estimators, as ``odofuse run`` shares it).
+
+* **Nominal logs**: seed ``s`` takes drive ``DRIVES[s % 3]``, sensor set ``SENSOR_SETS[(s //
+  3) % 3]`` and noise level ``NOISE[(s // 9) % 2]``, so consecutive seeds cover every
+  combination. Printed per estimator: the fraction of runs that say ``degraded`` against
+  ``alpha_run`` (:data:`ALPHA_RUN`), with the largest count that a true rate of ``alpha_run``
+  exceeds with probability 1 % (:func:`binomial_bound`, the binomial 99 % bound).
+* **Faults** (:data:`FAULTS`), injected on the differential robot of the seed, each of a size
+  the checks should see (below): the fraction ``degraded`` (detection, target 95 %: the same
+  binomial bound on the misses) and the runs that say ``ok`` while their error is not covered.
+* For every run that says ``ok``: its position NEES against the chi-square 99.9 % bound of its
+  run (:func:`nees_bound`: the mean of ``n_eff`` independent chi-square(2) values, ``n_eff``
+  the run's effective number of independent NEES values from their integrated autocorrelation
+  time). Ground truth only scores.
+
+``--quick``: 2 seeds, EKF and smoother, the nominal logs and three faults (the tests' form is
+``tests/test_status_rate.py``). Serial on purpose (the machine's two cores are shared).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from odofuse.io.log import Stream  # noqa: E402
+
+ESTIMATORS = ("dead_reckoning", "ekf", "ukf", "particle", "smoother", "isam2", "fixed_lag")
+#: The run's false-alarm rate the status promises (issue 25 item 1, 5 % by default).
+ALPHA_RUN = 0.05
+#: Confidence of the binomial bound on a count of degraded runs (issue 25 item 5).
+BOUND_CONFIDENCE = 0.99
+#: Chi-square probability of the NEES bound of one run (issue 25 item 5).
+NEES_PROBABILITY = 0.999
+#: Detection the faults must reach (issue 25 item 5).
+DETECTION = 0.95
+
+DRIVES = ("differential", "skid_steer", "increments")
+SENSOR_SETS = ("gyro_gps", "gyro_ranges", "wheels")
+#: Noise levels: gyro sigma (rad/s), GPS sigma (m), range sigma (m), wheel k (m^2/m).
+NOISE = (
+    {"gyro": 0.003, "gps": 0.5, "ranges": 0.05, "k": 2e-6},
+    {"gyro": 0.01, "gps": 2.0, "ranges": 0.3, "k": 2e-5},
+)
+BEACONS = [[1, 0.0, 6.0], [2, 0.0, -6.0], [3, 8.0, 0.0], [4, -8.0, 0.0]]
+#: Sensor rates (Hz): a 20 Hz gyro, 1 Hz GPS, 2 Hz ranges; odometry at 50 Hz (dt 0.02 s).
+RATES = {"gyro": 20.0, "gps": 1.0, "ranges": 2.0}
+
+#: Fault kind -> (sensor set, what is injected). Sizes (fixed before any run, from the
+#: sensors' own noise): a slip burst loses 40 % of one wheel's travel for 3 s (0.5 m of
+#: travel, 0.2 m unseen by the encoder, against k |ds| noise of mm); a stuck encoder freezes one
+#: counter for 10 s; the gyro's bias steps by 0.03 rad/s mid-run (3 to 10 gyro sigmas, 1.7
+#: deg/s); a multipath burst moves 15 s of fixes by 8 m (4 to 16 GPS sigmas); the wheel radius
+#: or the track is 3 % off (the robot's, not the config's); the ranges read 5 % long (0.2-0.5 m
+#: at 4-10 m, 1.5 to 10 range sigmas); the range timestamps are 0.5 s late (0.2 m of travel
+#: at 0.4 m/s, 0.7 to 4 range sigmas).
+FAULTS = {
+    "slip_burst": ("gyro_gps", "simulated: left wheel 40 % slip over 30-33 s"),
+    "stuck_encoder": ("gyro_gps", "left counter frozen over 30-40 s"),
+    "gyro_bias_step": ("gyro_gps", "gyro bias +0.03 rad/s from 45 s"),
+    "gps_multipath": ("gyro_gps", "fixes over 40-55 s moved 8 m east"),
+    "wheel_radius_3pct": ("gyro_gps", "simulated: true wheel radii 3 % larger"),
+    "track_width_3pct": ("gyro_gps", "simulated: true track 3 % wider"),
+    "range_5pct_long": ("gyro_ranges", "ranges x 1.05"),
+    "range_time_shift": ("gyro_ranges", "range timestamps +0.5 s"),
+}
+QUICK_FAULTS = ("stuck_encoder", "gps_multipath", "range_5pct_long")
+
+
+# ------------------------------------------------------------------------------- the logs
+def scenario_dict(seed: int, drive: str, sensors: str, noise: dict, fault: str | None) -> dict:
+    """The simulator's scenario of one log (``odofuse.teaching.scenario`` form)."""
+    rng = np.random.default_rng(10_000 + seed)  # the robot's own errors, drawn per seed
+    bias = float(rng.normal(0.0, 0.002))
+    e_d, e_b = (float(v) for v in 1.0 + rng.normal(0.0, 0.002, 2))
+    if drive == "increments":
+        robot = {"drive": "increments"}
+        path = {"kind": "figure_eight", "radius": 3.0, "speed": 0.4, "laps": 1}
+        systematic = {}
+    else:
+        robot = {"drive": drive, "wheel_radius": 0.04, "track_width": 0.3}
+        path = (
+            {"kind": "figure_eight", "radius": 3.0, "speed": 0.4, "laps": 1}
+            if drive == "differential"
+            else {"kind": "square", "side": 5.0, "speed": 0.4, "laps": 1}
+        )
+        # systematic errors where the default config models them (an absolute sensor fused:
+        # odometry_calibration auto); a config without one says the geometry is exact
+        systematic = {"E_d": e_d, "E_b": e_b} if sensors != "wheels" else {}
+    nonsys: dict = {"k": noise["k"]}
+    if fault == "slip_burst":
+        nonsys["slip_bursts"] = [[30.0, 33.0, "left", 0.4]]
+    elif fault == "wheel_radius_3pct":
+        systematic["E_s"] = 1.03
+    elif fault == "track_width_3pct":
+        systematic["E_b"] = systematic.get("E_b", 1.0) * 1.03
+    sens: dict = {}
+    if sensors != "wheels":
+        sens["gyro"] = {"sigma": noise["gyro"], "bias": bias, "rate": RATES["gyro"]}
+    if sensors == "gyro_gps":
+        sens["gps"] = {"sigma": noise["gps"], "rate": RATES["gps"]}
+    if sensors == "gyro_ranges":
+        sens["ranges"] = {"sigma": noise["ranges"], "rate": RATES["ranges"], "max_range": 15.0}
+    return {
+        "seed": int(seed),
+        "dt": 0.02,
+        "robot": robot,
+        "path": path,
+        "systematic": systematic,
+        "nonsystematic": nonsys,
+        "sensors": sens,
+        "beacons": BEACONS,
+    }
+
+
+def user_config(sc: dict, noise: dict) -> dict:
+    """The config a user writes for the robot of ``sc``: geometry, error model, sigmas."""
+    robot = dict(sc["robot"])
+    if robot["drive"] == "increments":
+        # var(ds) = k_ds |ds|, var(dtheta) = k_dtheta |dtheta| + ...: the simulator's k per
+        # input; Siegwart's per-wheel k of the wheeled drives otherwise
+        motion = {"k": [noise["k"], noise["k"]]}
+    else:
+        motion = {"k_r": noise["k"], "k_l": noise["k"]}
+    sensors = {name: {"sigma": float(spec["sigma"])} for name, spec in sc["sensors"].items()}
+    return {
+        "log": ".",
+        "robot": robot,
+        "motion": motion,
+        "estimator": "ekf",
+        "initial": {"pose": [0.0, 0.0, 0.0]},
+        "sensors": sensors,
+    }
+
+
+def _with_stream(log, stream):
+    return dataclasses.replace(log, streams={**log.streams, stream.name: stream})
+
+
+def inject(log, fault: str | None):
+    """``log`` with the faults the simulator does not make itself (in memory)."""
+    if fault == "stuck_encoder":
+        from odofuse.teaching.trust_scenarios import stuck_encoder
+
+        return stuck_encoder(log, 30.0, 40.0)
+    if fault is None or fault not in (
+        "gyro_bias_step",
+        "gps_multipath",
+        "range_5pct_long",
+        "range_time_shift",
+    ):
+        return log
+    name = {"gyro_bias_step": "gyro", "gps_multipath": "gps"}.get(fault, "ranges")
+    st = log.streams[name]
+    t, v = st.t.copy(), st.values.copy()
+    if fault == "gyro_bias_step":
+        v[t >= 45.0, 0] += 0.03
+    elif fault == "gps_multipath":
+        v[(t >= 40.0) & (t < 55.0), st.columns.index("x")] += 8.0
+    elif fault == "range_5pct_long":
+        v[:, st.columns.index("range")] *= 1.05
+    else:
+        t = t + 0.5
+    return _with_stream(log, Stream(st.name, st.source, t, st.columns, v))
+
+
+def make_case(seed: int, fault: str | None = None):
+    """``(log, config, description)`` of one nominal log (``fault=None``) or one fault log."""
+    import yaml
+
+    from odofuse.config import load_config
+    from odofuse.io.loader import load_log_for
+    from odofuse.teaching.scenario import scenario_from_dict
+    from odofuse.teaching.simlog import write_log
+    from odofuse.teaching.simulate import simulate
+
+    if fault is None:
+        drive = DRIVES[seed % len(DRIVES)]
+        sensors = SENSOR_SETS[(seed // len(DRIVES)) % len(SENSOR_SETS)]
+        level = (seed // (len(DRIVES) * len(SENSOR_SETS))) % len(NOISE)
+    else:
+        drive, sensors, level = "differential", FAULTS[fault][0], seed % len(NOISE)
+    noise = NOISE[level]
+    sc = scenario_dict(seed, drive, sensors, noise, fault)
+    sim = simulate(scenario_from_dict(sc, f"seed {seed}"))
+    with tempfile.TemporaryDirectory(prefix="odofuse-status-") as folder:
+        write_log(sim, folder)
+        cfg_path = Path(folder) / "config.yaml"
+        cfg_path.write_text(yaml.safe_dump(user_config(sc, noise), sort_keys=False))
+        cfg = load_config(cfg_path)
+        log = load_log_for(cfg)
+    return inject(log, fault), cfg, f"{drive}/{sensors}/noise{level}"
+
+
+# ------------------------------------------------------------------------------- scoring
+def binomial_bound(n: int, rate: float = ALPHA_RUN, confidence: float = BOUND_CONFIDENCE) -> int:
+    """The largest count of ``n`` runs that a true rate ``rate`` reaches with probability at
+    least ``1 - confidence``: more than this rejects ``rate`` at that confidence."""
+    from scipy.stats import binom
+
+    return int(binom.ppf(confidence, n, rate))
+
+
+def n_eff(values: np.ndarray) -> float:
+    """Effective number of independent values of a correlated series: ``N / tau``, ``tau``
+    its integrated autocorrelation time (Sokal's window: the smallest ``M >= 5 tau``)."""
+    x = np.asarray(values, dtype=float)
+    n = len(x)
+    if n < 4:
+        return float(max(n, 1))
+    x = x - x.mean()
+    f = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(f * np.conj(f))[:n]
+    if not acf[0] > 0:
+        return 1.0
+    acf = acf / acf[0]
+    tau = 1.0
+    for m in range(1, n):
+        tau = 1.0 + 2.0 * float(acf[1 : m + 1].sum())
+        if m >= 5.0 * tau:
+            break
+    return float(min(n, max(1.0, n / max(tau, 1.0))))
+
+
+def nees_bound(values: np.ndarray, dim: int = 2) -> tuple[float, float]:
+    """``(bound, n_eff)``: the chi-square 99.9 % bound of a run's mean position NEES, as the
+    mean of ``n_eff`` independent chi-square(``dim``) values."""
+    from odofuse.chi2 import ppf
+
+    ne = n_eff(values)
+    return float(ppf(NEES_PROBABILITY, dim * ne) / ne), ne
+
+
+def run_log(log, cfg, estimators):
+    """``{estimator: (status, position NEES, bound, first warning, rmse)}`` on one log."""
+    from odofuse.evaluation import nees_values, trajectory_from_stream
+    from odofuse.log_defaults import apply_log_defaults
+    from odofuse.rundir import checked_metrics, estimate, smoother_reference
+
+    cfg, log = apply_log_defaults(cfg, log)
+    ref = smoother_reference(cfg, log)
+    gt = trajectory_from_stream(log.groundtruth)
+    out = {}
+    for est in estimators:
+        run_cfg = dataclasses.replace(cfg, estimator=est)
+        try:
+            result, runtime = estimate(run_cfg, log, ref)
+            m = checked_metrics(run_cfg, log, result, runtime, ref)
+        except Exception as exc:  # noqa: BLE001 - a crash is reported, and counts as a miss
+            out[est] = ("crashed", math.nan, math.nan, f"{type(exc).__name__}: {exc}", math.nan)
+            continue
+        v = nees_values(result.trajectory, gt, (0, 1))
+        mean = float(v.mean()) if v.size else math.nan
+        bound = nees_bound(v)[0] if v.size else math.nan
+        warn = next(
+            (w for w, f in zip(m["warnings"], m["findings"], strict=True) if f.get("degrades")),
+            m["warnings"][0] if m["warnings"] else "",
+        )
+        out[est] = (m["status"], mean, bound, warn, m.get("ate_rmse_m", math.nan))
+    return out
+
+
+# ------------------------------------------------------------------------------- the table
+def measure(seeds, estimators, faults, fault_seeds=None, log_lines=print):
+    """Run the benchmark: ``{"nominal": {est: [row...]}, fault: {est: [row...]}}`` (the
+    faults on ``fault_seeds``, default ``seeds``)."""
+    table: dict = {"nominal": {e: [] for e in estimators}}
+    for f in faults:
+        table[f] = {e: [] for e in estimators}
+    for kind in ("nominal", *faults):
+        for seed in seeds if kind == "nominal" or fault_seeds is None else fault_seeds:
+            t0 = time.perf_counter()
+            log, cfg, what = make_case(seed, None if kind == "nominal" else kind)
+            rows = run_log(log, cfg, estimators)
+            for est, row in rows.items():
+                table[kind][est].append((seed, what, *row))
+            brief = " ".join(f"{e}:{r[0][:3]}/{r[1]:.3g}" for e, r in rows.items())
+            log_lines(f"  {kind} seed {seed} {what} ({time.perf_counter() - t0:.0f} s): {brief}")
+            sys.stdout.flush()
+    return table
+
+
+def summary(table, estimators) -> list[str]:
+    """The per-estimator table (markdown) and the misses."""
+    faults = [k for k in table if k != "nominal"]
+    head = ["estimator", "nominal degraded (bound)", *faults, "ok runs over NEES bound"]
+    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    notes = []
+    for est in estimators:
+        nom = table["nominal"][est]
+        n = len(nom)
+        k = sum(r[2] != "ok" for r in nom)
+        cells = [est, f"{k}/{n} = {k / max(n, 1):.2f} ({binomial_bound(n)})"]
+        for f in faults:
+            rows = table[f][est]
+            d = sum(r[2] != "ok" for r in rows)
+            misses = len(rows) - d
+            mark = "" if misses <= binomial_bound(len(rows), 1 - DETECTION) else " **miss**"
+            cells.append(f"{d}/{len(rows)}{mark}")
+        over, oks, worst = 0, 0, None
+        for kind in table:
+            for seed, what, status, mean, bound, warn, _rmse in table[kind][est]:
+                if status != "ok":
+                    if kind == "nominal":
+                        notes.append(f"{est} nominal seed {seed} {what}: {warn}")
+                    continue
+                oks += 1
+                if math.isfinite(mean) and mean > bound:
+                    over += 1
+                    notes.append(
+                        f"{est} {kind} seed {seed} {what}: ok at NEES {mean:.3g} > {bound:.3g}"
+                    )
+                r = mean / bound if math.isfinite(mean) else math.inf
+                worst = r if worst is None or r > worst else worst
+        cells.append(f"{over}/{oks} (max NEES/bound {worst if worst is None else f'{worst:.2f}'})")
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines + [""] + notes
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, default=None, help="seeds per log kind (default 100)")
+    p.add_argument("--first", type=int, default=1000, help="first seed (default 1000)")
+    p.add_argument(
+        "--fault-seeds", type=int, default=None, help="seeds per fault kind (default: --seeds / 5)"
+    )
+    p.add_argument("--estimators", nargs="*", default=None, choices=ESTIMATORS)
+    p.add_argument("--faults", nargs="*", default=None, choices=list(FAULTS))
+    p.add_argument("--no-faults", action="store_true", help="nominal logs only")
+    p.add_argument("--quick", action="store_true", help="2 seeds, ekf and smoother, 3 faults")
+    args = p.parse_args(argv)
+    seeds_n = args.seeds if args.seeds is not None else (2 if args.quick else 100)
+    estimators = args.estimators or (["ekf", "smoother"] if args.quick else list(ESTIMATORS))
+    faults = (
+        args.faults
+        if args.faults is not None
+        else (list(QUICK_FAULTS) if args.quick else list(FAULTS))
+    )
+    if args.no_faults:
+        faults = []
+    seeds = range(args.first, args.first + seeds_n)
+    fault_n = args.fault_seeds if args.fault_seeds is not None else max(1, seeds_n // 5)
+    fault_seeds = range(args.first, args.first + fault_n)
+    print(
+        f"nominal seeds {seeds.start}-{seeds.stop - 1}, fault seeds {fault_seeds.start}-"
+        f"{fault_seeds.stop - 1}, estimators {' '.join(estimators)}"
+    )
+    t0 = time.perf_counter()
+    table = measure(seeds, estimators, faults, fault_seeds)
+    print(
+        f"\n{time.perf_counter() - t0:.0f} s; alpha_run {ALPHA_RUN}, bounds at "
+        f"{BOUND_CONFIDENCE:.0%} (binomial), NEES at {NEES_PROBABILITY} (chi-square, n_eff)"
+    )
+    for line in summary(table, estimators):
+        print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

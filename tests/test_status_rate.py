@@ -1,0 +1,71 @@
+"""Issue 25 item 5, short form of ``benchmarks/bench_status.py``: on nominal logs the status says
+``degraded`` no more often than ``alpha_run`` allows (the binomial 99 % bound for the small
+count), injected faults are detected (the same bound on the misses), and no run that says
+``ok`` has a position NEES above the chi-square 99.9 % bound of its run.
+
+Seeds 504, 507, 510 (the differential robot with gyro and GPS, gyro and ranges, wheels only;
+low noise) and faults on 504-506 were never looked at while choosing defaults (the benchmark's
+seed sets are 1000-1017 and 2000 on).
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import bench_status as bs  # noqa: E402
+
+ESTIMATORS = ("ekf", "smoother")
+NOMINAL_SEEDS = (504, 507, 510)
+FAULT_SEEDS = (504, 505, 506)
+FAULTS = ("stuck_encoder", "gps_multipath")
+
+
+def test_binomial_bound_and_effective_count():
+    # 100 runs at a true 5 %: more than 11 degraded has probability below 1 %
+    assert bs.binomial_bound(100) == 11
+    assert bs.binomial_bound(3) == 1  # the wide bound of a small count
+    rng = np.random.default_rng(0)
+    white = rng.chisquare(2, 4000)
+    assert bs.n_eff(white) > 2500  # independent values: n_eff near n
+    slow = np.repeat(rng.chisquare(2, 40), 100)  # 40 independent values, each held 100 times
+    assert 10 < bs.n_eff(slow) < 120
+    bound, ne = bs.nees_bound(white)
+    assert 2.0 < bound < 2.3 and ne > 2500
+
+
+@pytest.fixture(scope="module")
+def table():
+    return bs.measure(NOMINAL_SEEDS, ESTIMATORS, FAULTS, FAULT_SEEDS, log_lines=lambda _l: None)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("est", ESTIMATORS)
+def test_nominal_degraded_rate_is_within_the_binomial_bound(table, est):
+    rows = table["nominal"][est]
+    degraded = [r for r in rows if r[2] != "ok"]
+    assert len(degraded) <= bs.binomial_bound(len(rows)), degraded
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault", FAULTS)
+@pytest.mark.parametrize("est", ESTIMATORS)
+def test_injected_faults_are_detected(table, fault, est):
+    rows = table[fault][est]
+    missed = [r for r in rows if r[2] == "ok"]
+    assert len(missed) <= bs.binomial_bound(len(rows), 1 - bs.DETECTION), missed
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("est", ESTIMATORS)
+def test_ok_runs_are_consistent(table, est):
+    over = [
+        (kind, r)
+        for kind in table
+        for r in table[kind][est]
+        if r[2] == "ok" and np.isfinite(r[3]) and r[3] > r[4]
+    ]
+    assert not over, over
