@@ -1,33 +1,38 @@
-"""odofuse's graph estimators on the planar datasets of the gtsam wheel, beside GTSAM itself.
+"""Every planar file of the gtsam wheel through ``odofuse run``, beside GTSAM itself (issue 26).
 
-Run from any directory: ``python path/to/benchmarks/bench_datasets.py [posegraphs|victoria|
-goats|walk|all] [FILE ...]`` (default ``all``; ``posegraphs FILE ...`` runs only those pose
-graphs). Prints figures and wall times; asserts nothing.
+Run from any directory: ``python path/to/benchmarks/bench_datasets.py [table|goats|all]
+[FILE ...]`` (default ``all``; ``table FILE ...`` runs only those files). Prints figures and
+wall times; asserts nothing (tests/test_cli_datasets.py asserts).
 
-* ``posegraphs``: every pose graph GTSAM reads (w100, w10000, w20000, w100_30, pose2example,
-  the noisy toy graphs) and ``example.graph``: odofuse's smoother (with and without marginal
-  covariances) against GTSAM's LM from its reader's initial values, both scored by
-  ``graph.error`` of GTSAM's graph; pose RMS between the two optima; the iterations of both
-  (GTSAM / odofuse: 100 is the cap, not a minimum); iSAM2 for w100/w10000. For the files in
-  ``CONVERGED_REFERENCE`` (w20000, where GTSAM's LM from the reader's values is still
-  falling after 1,000 iterations) the reference is ``gtsam_reference.converged_optimum``
-  from ``chordal_start`` instead, its time the whole of that (iterations: LM + Gauss-Newton).
-* ``victoria``: ``victoria_park.txt`` as shipped, range-bearing SLAM with unknown trees.
-  GTSAM's best: its iSAM2 incremental solve polished by LM (``gtsam_reference``); odofuse's
-  smoother (``slam_init: auto`` = incremental, then LM) and isam2.
-* ``goats``: both GOATS files: range-only SLAM (smoother, isam2) and range-only localisation
-  against the known beacons, started from the SLAM map aligned onto them (the file's start
-  pose is in another frame). Figures without ground truth: range residuals, graph error,
-  outlier counts, aligned beacon mismatch.
-* ``walk``: every file of the Data folder: loaded and run (the smoother with every stream,
-  the config of ``gtsam_reference.dataset_config``), or refused with its one-line reason.
+* ``table``: for each file of ``gtsam_reference.FILES`` and each graph estimator (``smoother``,
+  ``isam2``), the documented minimal config (``gtsam_reference.minimal_config``) run as a user
+  runs it (``python -m odofuse run CONFIG -o OUT``, a subprocess), and per run: odofuse's
+  graph error (``metrics.json`` ``extra.final_error``), GTSAM's best
+  (``gtsam_reference.best``: the converged LM optimum from the best start; Victoria Park and
+  the other range-bearing SLAM files: GTSAM's iSAM2 incremental solve + LM; GOATS: LM from
+  odofuse's solution, GTSAM having no range-only initialiser), the pose RMS between the two,
+  g2o's chi-square at odofuse's solution and after g2o's own LM from it (pose graphs), the
+  status, and the time ratio odofuse / plain GTSAM on the same graph with the same solver:
+  odofuse's estimator wall time (``runtime_s``: start, solve, marginal covariances, checks)
+  and, for the smoother, its solve alone (``extra.solve_s``), over GTSAM's time for the same
+  solve: LM from the same start (smoother on a pose graph; chordal or the reader's values),
+  or iSAM2 incremental + LM (isam2, and the SLAM smoother, whose start is an incremental
+  pass). The Plaza files have no plain-GTSAM reference (their odometry noise is odofuse's
+  motion model): status and graph error only.
+* ``goats``: both GOATS files: range-only SLAM and range-only localisation against the known
+  beacons, started from the SLAM map aligned onto them (the file's start pose is in another
+  frame). Figures without ground truth: range residuals, graph error, outlier counts, aligned
+  beacon mismatch.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -37,19 +42,7 @@ sys.path[:0] = [str(HERE), str(HERE.parent)]  # gtsam_reference and odofuse from
 import gtsam_reference as ref  # noqa: E402
 import numpy as np  # noqa: E402
 
-POSE_GRAPHS = [
-    ("w100.graph", "load2D"),
-    ("w10000.graph", "load2D"),
-    ("w20000.txt", "load2D"),
-    ("w100_30.g2o", "load2D"),
-    ("pose2example.txt", "readG2o"),
-    ("noisyToyGraph.txt", "readG2o"),
-    ("optimizedNoisyToyGraph.txt", "readG2o"),
-    ("orientationsNoisyToyGraph.txt", "readG2o"),
-    ("example.graph", "load2D"),
-]
-#: Pose graphs whose reference is GTSAM's LM run to a standstill from the chordal start.
-CONVERGED_REFERENCE = {"w20000.txt"}
+ESTIMATORS = ("smoother", "isam2")
 
 
 def _data(name: str) -> str:
@@ -64,87 +57,112 @@ def _timed(fn):
     return out, time.perf_counter() - t0
 
 
-def _odofuse(name, estimator="smoother", log=None, **options):
-    from odofuse.estimators import run_estimator
-    from odofuse.io.loader import load_log
-
-    path = _data(name)
-    log = log or load_log(path)
-    cfg = ref.dataset_config(log, path, estimator, **options)
-    res, dt = _timed(lambda: run_estimator(estimator, log, cfg))
-    return log, res, dt
-
-
-def posegraphs() -> None:
-    print("\n== pose graphs: odofuse smoother vs GTSAM LM (error = GTSAM graph.error) ==")
-    print(
-        f"{'file':30s} {'gtsam err':>12s} {'odofuse err':>12s} {'rms m':>9s} "
-        f"{'gtsam s':>8s} {'odofuse s':>9s} {'+cov s':>8s} {'ratio':>6s} {'iterations':>10s}"
+def cli_run(name: str, estimator: str, folder: Path):
+    """``odofuse run`` of the minimal config in ``folder``: (metrics or None, stderr, wall s)."""
+    config = ref.minimal_config(_data(name), estimator)
+    (folder / "run.yaml").write_text(config)
+    env = {**os.environ, "PYTHONPATH": str(HERE.parent), "MPLBACKEND": "Agg"}
+    cmd = [sys.executable, "-m", "odofuse", "run", "run.yaml", "-o", "out"]
+    proc, wall = _timed(
+        lambda: subprocess.run(cmd, cwd=folder, env=env, capture_output=True, text=True)
     )
-    names = sys.argv[2:] or [n for n, _ in POSE_GRAPHS]
-    for name, reader in POSE_GRAPHS:
-        if name not in names:
-            continue
-        g, v, keys = ref.load(_data(name), reader)
-        if name in CONVERGED_REFERENCE:
-            (best, it_lm, gn), t_g = _timed(
-                lambda g=g, v=v, k=keys: ref.converged_optimum(g, ref.chordal_start(g, v, k))
-            )
-            it_g = f"{it_lm}+{gn}"
-        else:
-            (best, it_g), t_g = _timed(lambda g=g, v=v: ref.lm_solve(g, v))
-        _, res, t_o = _odofuse(name, covariances=False)
-        _, res_c, t_c = _odofuse(name)
-        ours = ref.odofuse_values(res, keys)
-        rms = ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys))
-        print(
-            f"{name:30s} {g.error(best):12.4f} {g.error(ours):12.4f} {rms:9.2e} "
-            f"{t_g:8.2f} {t_o:9.2f} {t_c:8.2f} {t_o / max(t_g, 1e-9):6.2f} "
-            f"{it_g!s:>6s}/{res.extra['iterations']:<5d}"
-            + (f"  findings: {[f.line() for f in res_c.findings]}" if res_c.findings else "")
+    if proc.returncode:
+        return None, proc.stderr.strip(), wall
+    return json.loads((folder / "out" / "metrics.json").read_text()), "", wall
+
+
+def gtsam_times(name: str, graph, keys):
+    """Plain GTSAM's solves of a file: ``{"lm": (values, s), "isam2": (values, s)}``.
+
+    ``lm``: the best start of a pose graph (:func:`gtsam_reference.best`) + converged LM;
+    ``isam2``: :func:`gtsam_reference.isam2_incremental` + converged LM (every kind but
+    range-only SLAM). Times include the start, not the file reading.
+    """
+    _, v, _ = ref.load_file(name)
+    kind = ref.FILES[name][0]
+    out = {}
+    if kind == "posegraph":
+
+        def lm():
+            chordal = ref.chordal_start(graph, v, keys)
+            start = chordal if graph.error(chordal) < graph.error(v) else v
+            return ref.converged_optimum(graph, start)[0]
+
+        out["lm"] = _timed(lm)
+    if kind in ("posegraph", "slam"):
+        out["isam2"] = _timed(
+            lambda: ref.converged_optimum(graph, ref.isam2_incremental(graph, keys))[0]
         )
-    for name in [n for n in ("w100.graph", "w10000.graph") if n in names]:
-        g, v, keys = ref.load(_data(name))
-        best = ref.lm_optimum(g, v)
-        _, res, t_o = _odofuse(name, "isam2", covariances=False)
-        ours = ref.odofuse_values(res, keys)
-        rms = ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys))
-        print(f"isam2 {name:24s} err {g.error(ours):12.4f}  rms {rms:9.2e} m  {t_o:8.2f} s")
+    return out
 
 
-def victoria() -> None:
-    print("\n== victoria_park.txt: range-bearing SLAM, unknown trees ==")
-    g, _, keys = ref.load(_data("victoria_park.txt"))
-    inc, t_i = _timed(lambda: ref.isam2_incremental(g, keys))
-    best, t_l = _timed(lambda: ref.lm_optimum(g, inc))
-    e_best = g.error(best)
+def table(names) -> None:
+    print("\n== every planar file through `odofuse run` (minimal config) vs plain GTSAM ==")
     print(
-        f"GTSAM iSAM2 incremental: error {g.error(inc):.2f} in {t_i:.1f} s; + LM: "
-        f"{e_best:.2f} in {t_l:.1f} s (GTSAM's best, the reference)"
+        f"{'file':30s} {'estimator':9s} {'odofuse error':>16s} {'GTSAM best':>16s} "
+        f"{'rel':>9s} {'rms m':>8s} {'g2o chi2 at -> after LM':>27s} {'status':8s} "
+        f"{'odofuse s':>9s} {'solve s':>8s} {'GTSAM s':>8s} {'ratio':>6s} {'solve':>6s}"
     )
-    for est, opts in (("smoother", {"covariances": False}), ("smoother", {}), ("isam2", {})):
-        log, res, dt = _odofuse("victoria_park.txt", est, **opts)
-        ours = ref.odofuse_values(res, keys)
-        e = g.error(ours)
-        rms = ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys))
-        print(
-            f"odofuse {est:8s} {str(opts):22s} error {e:10.2f} ({100 * (e / e_best - 1):+.2f} %), "
-            f"pose rms {rms:.4f} m, {dt:.1f} s (init {res.extra.get('init_s', 0):.1f} s), "
-            f"outliers {res.extra.get('outliers')}, findings {[f.line() for f in res.findings]}"
-        )
+    for name in names:
+        kind, reader = ref.FILES[name]
+        print(f"-- {name}: minimal config\n" + ref.minimal_config(_data(name), "<estimator>"))
+        graph = keys = times = None
+        if reader is not None and kind != "range_slam":
+            graph, _, keys = ref.load_file(name)
+            times = gtsam_times(name, graph, keys)
+        for est in ESTIMATORS:
+            with tempfile.TemporaryDirectory() as tmp:
+                m, err, wall = cli_run(name, est, Path(tmp))
+                if m is None:
+                    print(f"{name:30s} {est:9s} FAILED: {err}")
+                    continue
+                e = float(m["extra"]["final_error"])
+                cols = {"best": "-", "rel": "-", "rms": "-", "g2o": "-", "gt": "-", "r": "-"}
+                if reader is not None:
+                    _, _, k = ref.load_file(name)
+                    ours = ref.run_values(Path(tmp) / "out", k)
+                    start = ours if kind == "range_slam" else None
+                    g, k, best, _ = ref.best(name, start)
+                    e_best = g.error(best)
+                    rms = ref.position_rms(ref.poses_of(ours, k), ref.poses_of(best, k))
+                    cols.update(best=f"{e_best:.6f}", rel=f"{e / e_best - 1:+.1e}")
+                    cols["rms"] = f"{rms:.1e}"
+                    if kind == "posegraph":
+                        at, after = ref.g2o_chi2(g, ours)
+                        cols["g2o"] = f"{at:.6f} -> {after:.6f}"
+                    if times:  # not GOATS: GTSAM's LM from odofuse's solution is no run
+                        which = "lm" if est == "smoother" and kind == "posegraph" else "isam2"
+                        t_g = times[which][1]
+                        cols["gt"] = f"{t_g:.2f}"
+                        cols["r"] = f"{m['runtime_s'] / t_g:.2f}"
+                solve = m["extra"].get("solve_s")
+                solve_txt = f"{solve:.2f}" if solve is not None else "-"
+                solve_ratio = "-"
+                if solve is not None and cols["gt"] != "-":
+                    solve_ratio = f"{solve / float(cols['gt']):.2f}"
+                print(
+                    f"{name:30s} {est:9s} {e:16.6f} {cols['best']:>16s} {cols['rel']:>9s} "
+                    f"{cols['rms']:>8s} {cols['g2o']:>27s} {m['status']:8s} "
+                    f"{m['runtime_s']:9.2f} {solve_txt:>8s} {cols['gt']:>8s} {cols['r']:>6s} "
+                    f"{solve_ratio:>6s}  (wall {wall:.1f} s)",
+                    flush=True,
+                )
 
 
 def goats() -> None:
+    from odofuse.estimators import run_estimator
+    from odofuse.io.loader import load_log
+
     print("\n== GOATS (pyfg): range-only SLAM and localisation, no ground truth ==")
     for name in ("goats_15.pyfg", "goats_16.pyfg"):
-        from odofuse.io.loader import load_log
-
-        log = load_log(_data(name))
+        path = _data(name)
+        log = load_log(path)
         ids = sorted(log.landmarks)
         B = np.array([log.landmarks[i] for i in ids])
         slam = None
-        for est in ("smoother", "isam2"):
-            _, res, dt = _odofuse(name, est, log=log, slam=True)
+        for est in ESTIMATORS:
+            cfg = ref.dataset_config(log, path, est, slam=True)
+            res, dt = _timed(lambda cfg=cfg, est=est, log=log: run_estimator(est, log, cfg))
             r = ref.range_residuals(res, log)
             T, start = ref.aligned_start(res, log)
             A = np.array([res.extra["landmarks"][i] for i in ids])
@@ -156,10 +174,8 @@ def goats() -> None:
                 f"{res.extra.get('outliers')}  beacons vs map after alignment {mis.round(1)} m"
             )
             slam = slam or res
-        from odofuse.estimators import run_estimator
-
         T, start = ref.aligned_start(slam, log)
-        cfg = ref.dataset_config(log, _data(name))
+        cfg = ref.dataset_config(log, path)
         cfg = dataclasses.replace(cfg, initial={"pose": list(start), "sigma": [10.0, 10.0, 0.1]})
         loc, dt = _timed(lambda cfg=cfg, log=log: run_estimator("smoother", log, cfg))
         r = ref.range_residuals(loc, log)
@@ -170,38 +186,13 @@ def goats() -> None:
         )
 
 
-def walk() -> None:
-    from odofuse.errors import OdofuseError
-    from odofuse.estimators import run_estimator
-    from odofuse.io.loader import load_log
-
-    folder = os.path.dirname(_data("w100.graph"))
-    print(f"\n== walk of {folder} ==")
-    for name in sorted(os.listdir(folder)):
-        path = os.path.join(folder, name)
-        try:
-            log = load_log(path)
-        except OdofuseError as e:
-            print(f"refused  {name}: {e}")
-            continue
-        cfg = ref.dataset_config(log, path, covariances=False)
-        try:
-            res, dt = _timed(lambda cfg=cfg, log=log: run_estimator("smoother", log, cfg))
-        except OdofuseError as e:
-            print(f"FAILED   {name}: {e}")
-            continue
-        print(
-            f"ran      {name}: {len(res.trajectory)} poses, used {res.used}, rejected "
-            f"{res.rejected}, error {res.extra.get('final_error', float('nan')):.2f}, {dt:.1f} s"
-        )
-
-
 def main(argv) -> None:
     what = argv[1] if len(argv) > 1 else "all"
-    parts = {"posegraphs": posegraphs, "victoria": victoria, "goats": goats, "walk": walk}
-    for name, fn in parts.items():
-        if what in (name, "all"):
-            fn()
+    if what in ("table", "all"):
+        names = argv[2:] if what == "table" and len(argv) > 2 else list(ref.FILES)
+        table(names)
+    if what in ("goats", "all"):
+        goats()
 
 
 if __name__ == "__main__":

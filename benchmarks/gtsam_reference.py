@@ -18,8 +18,17 @@ is plain GTSAM (``gtsam.load2D`` / ``gtsam.readG2o``, ``LevenbergMarquardtOptimi
   order, each new pose initialised by composing the odometry onto the current estimate, each
   new landmark from its first bearing-range sighting off the current pose estimate, one
   ``ISAM2.update`` per pose.
-* :func:`solution_error` evaluates odofuse's solution in GTSAM's graph (``graph.error``) by
-  mapping pose times and landmark ids back to GTSAM's keys.
+* :func:`odofuse_values` / :func:`run_values` put odofuse's solution (a result, or the
+  ``trajectory.csv`` and ``landmarks.csv`` of an ``odofuse run``) under GTSAM's keys by
+  mapping pose times and landmark ids back, so that GTSAM's ``graph.error`` scores it.
+* :data:`FILES` lists the planar files of the Data folder with their kind, and
+  :func:`minimal_config` the smallest ``odofuse run`` config of each kind (docs/formats.md);
+  :func:`best` is GTSAM's best solution of a file (the converged LM optimum from the best
+  start), :func:`load_landmark2` and :func:`load_pyfg` read the two layouts no GTSAM reader
+  takes, with plain GTSAM factors.
+* :func:`g2o_chi2` is a second solver's reading of a pose graph: g2o's chi-square of the
+  same ``BetweenFactorPose2`` / prior measurements at given poses, and after g2o's own LM
+  from there.
 """
 
 from __future__ import annotations
@@ -143,7 +152,7 @@ def converged_optimum(graph, values, max_iterations: int = 1000):
         lm.iterate()
         still = still + 1 if err - lm.error() < 1e-12 * err else 0
         err = min(err, lm.error())
-    best, steps = lm.values(), 0
+    best, steps = gtsam.Values(lm.values()), 0  # a copy: lm.values() dies with lm
     gn_params = gtsam.GaussNewtonParams()
     gn_params.setLinearSolverType("MULTIFRONTAL_QR")
     gn = gtsam.GaussNewtonOptimizer(graph, best, gn_params)
@@ -151,7 +160,7 @@ def converged_optimum(graph, values, max_iterations: int = 1000):
         gn.iterate()
         if not gn.error() < err:
             break
-        best, err, steps = gn.values(), gn.error(), steps + 1
+        best, err, steps = gtsam.Values(gn.values()), gn.error(), steps + 1
     return best, int(lm.iterations()), steps
 
 
@@ -314,3 +323,254 @@ def range_residuals(result, log) -> np.ndarray:
     k = np.clip(np.searchsorted(tr.t, r.t), 0, len(tr.t) - 1)
     b = np.array([beacons[int(i)] for i in r["id"]])
     return np.linalg.norm(tr.poses[k, :2] - b, axis=1) - r["range"]
+
+
+# ---------------------------------------------------------------- the files and their runs
+#: The planar files of gtsam's Data folder: name -> (kind, reader). ``posegraph``: odometry
+#: chain and loop closures; ``slam``: range-bearing sightings of unknown landmarks;
+#: ``range_slam``: ranges to landmarks estimated with the poses (GOATS: the file's beacons are
+#: in another frame than its start pose, docs/graph.md); ``ranges``: ranges to the file's
+#: surveyed beacons. ``reader``: GTSAM's reader of the file, or this module's
+#: (:func:`load_landmark2`, :func:`load_pyfg`), or ``None`` (no plain-GTSAM reference: the
+#: Plaza odometry noise is odofuse's motion model).
+FILES = {
+    "w100.graph": ("posegraph", "load2D"),
+    "w100_30.g2o": ("posegraph", "load2D"),  # VERTEX2/EDGE2 lines despite the extension
+    "w10000.graph": ("posegraph", "load2D"),
+    "w20000.txt": ("posegraph", "load2D"),
+    "pose2example.txt": ("posegraph", "readG2o"),
+    "noisyToyGraph.txt": ("posegraph", "readG2o"),
+    "optimizedNoisyToyGraph.txt": ("posegraph", "readG2o"),
+    "orientationsNoisyToyGraph.txt": ("posegraph", "readG2o"),
+    "example.graph": ("slam", "load2D"),
+    "victoria_park.txt": ("slam", "load2D"),
+    "victoriaPark_reduced_1k.g2o": ("slam", "landmark2"),
+    "cityTrees_reduced_1k.g2o": ("slam", "landmark2"),
+    "goats_15.pyfg": ("range_slam", "pyfg"),
+    "goats_16.pyfg": ("range_slam", "pyfg"),
+    "Plaza1_DR.txt": ("range_slam", None),
+    "Plaza1_TD.txt": ("range_slam", None),
+    "Plaza2_DR.txt": ("range_slam", None),
+    "Plaza2_TD.txt": ("range_slam", None),
+    "Plaza1_.mat": ("ranges", None),
+    "Plaza2_.mat": ("ranges", None),
+}
+#: Lines of the minimal config after ``log``, ``robot`` and ``estimator`` (``EST``: the
+#: estimator's name).
+MINIMAL = {
+    "posegraph": "sensors: {loop_closures: {}}\n",
+    "slam": "sensors: {landmarks: {}}\noptions: {EST: {slam: true}}\n",
+    "range_slam": "sensors: {ranges: {}}\noptions: {EST: {slam: true}}\n",
+    "ranges": "sensors: {ranges: {}}\n",
+}
+
+
+def minimal_config(path, estimator: str = "smoother") -> str:
+    """The smallest ``odofuse run`` config of a file of :data:`FILES` (at most five lines)."""
+    kind, _ = FILES[os.path.basename(str(path))]
+    head = f"log: {path}\nrobot: {{drive: increments}}\nestimator: {estimator}\n"
+    return head + MINIMAL[kind].replace("EST", estimator)
+
+
+def _prior(graph, key, pose) -> None:
+    import gtsam
+
+    sig = gtsam.noiseModel.Diagonal.Sigmas(np.array(PRIOR_SIGMAS))
+    graph.add(gtsam.PriorFactorPose2(key, pose, sig))
+
+
+def load_landmark2(path):
+    """``victoriaPark_reduced_1k.g2o`` / ``cityTrees_reduced_1k.g2o`` as plain GTSAM factors.
+
+    ``EDGE_SE2 i j dx dy dtheta I11 I12 I13 I22 I23 I33``: ``BetweenFactorPose2`` with that
+    information matrix (g2o's convention, as ``readG2o``). ``LANDMARK2 i l x y I11 I12 I22``
+    (a point in the robot frame, information; no GTSAM reader takes it):
+    ``BearingRangeFactor2D`` with the first-order sigmas of docs/formats.md
+    (``sigma_r^2 = u^T C u``, ``sigma_b^2 = v^T C v / r^2``, ``C`` the inverted information,
+    ``u`` the unit vector to the point, ``v`` its normal). The files have no vertices: the
+    prior holds pose 0 at the origin (odofuse's default ``initial.pose``).
+
+    Returns ``(graph, values, pose_keys)``; ``values`` hold pose 0 only.
+    """
+    import gtsam
+
+    graph, poses = gtsam.NonlinearFactorGraph(), set()
+    for line in open(path):
+        c = line.split()
+        if not c:
+            continue
+        if c[0] == "EDGE_SE2":
+            i, j = int(c[1]), int(c[2])
+            a = [float(x) for x in c[6:12]]
+            info = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
+            m = gtsam.Pose2(*(float(x) for x in c[3:6]))
+            graph.add(
+                gtsam.BetweenFactorPose2(i, j, m, gtsam.noiseModel.Gaussian.Information(info))
+            )
+            poses.update((i, j))
+        elif c[0] == "LANDMARK2":
+            i, lid = int(c[1]), int(c[2])
+            x, y = float(c[3]), float(c[4])
+            a = [float(v) for v in c[5:8]]
+            cov = np.linalg.inv(np.array([[a[0], a[1]], [a[1], a[2]]]))
+            r, b = math.hypot(x, y), math.atan2(y, x)
+            u = np.array([math.cos(b), math.sin(b)])
+            v = np.array([-u[1], u[0]])
+            noise = gtsam.noiseModel.Diagonal.Sigmas(
+                np.array([math.sqrt(v @ cov @ v) / r, math.sqrt(u @ cov @ u)])
+            )
+            graph.add(
+                gtsam.BearingRangeFactor2D(i, gtsam.symbol("l", lid), gtsam.Rot2(b), r, noise)
+            )
+            poses.add(i)
+    keys = sorted(poses)
+    values = gtsam.Values()
+    values.insert(keys[0], gtsam.Pose2())
+    _prior(graph, keys[0], gtsam.Pose2())
+    return graph, values, keys
+
+
+def load_pyfg(path):
+    """A single-robot ``.pyfg`` file (GOATS) as plain GTSAM factors, landmarks unknown.
+
+    ``EDGE_SE2 t A<i> A<j> dx dy dtheta c1..c6`` (covariance, upper triangle by rows):
+    ``BetweenFactorPose2``; ``EDGE_RANGE t A<i> L<l> range variance``: ``RangeFactor2D`` of
+    pose ``i`` to landmark ``symbol('l', l)``; the prior holds the first ``VERTEX_SE2``.
+    Returns ``(graph, values, pose_keys)``; ``values`` hold the file's ``VERTEX_SE2`` poses.
+    """
+    import gtsam
+
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for line in open(path):
+        c = line.split()
+        if c and c[0] == "VERTEX_SE2":
+            values.insert(int(c[2][1:]), gtsam.Pose2(*(float(x) for x in c[3:6])))
+        elif c and c[0] == "EDGE_SE2":
+            a = [float(x) for x in c[7:13]]
+            cov = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
+            m = gtsam.Pose2(*(float(x) for x in c[4:7]))
+            noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+            graph.add(gtsam.BetweenFactorPose2(int(c[2][1:]), int(c[3][1:]), m, noise))
+        elif c and c[0] == "EDGE_RANGE":
+            noise = gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(float(c[5])))
+            lk = gtsam.symbol("l", int(c[3][1:]))
+            graph.add(gtsam.RangeFactor2D(int(c[2][1:]), lk, float(c[4]), noise))
+    keys = sorted(values.keys())
+    _prior(graph, keys[0], values.atPose2(keys[0]))
+    return graph, values, keys
+
+
+def load_file(name):
+    """``(graph, values, pose_keys)`` of a file of :data:`FILES` by its reader."""
+    import gtsam
+
+    path = gtsam.findExampleDataFile(name)
+    reader = FILES[name][1]
+    if reader == "landmark2":
+        return load_landmark2(path)
+    if reader == "pyfg":
+        return load_pyfg(path)
+    return load(path, reader)
+
+
+def best(name, start=None):
+    """GTSAM's best solution of a file of :data:`FILES`: ``(graph, pose_keys, values, how)``.
+
+    The converged LM optimum (:func:`converged_optimum`) from the best start:
+
+    * pose graphs: the reader's values or :func:`chordal_start`, whichever has the lower
+      graph error (w20000: only the chordal start reaches the optimum, docs/graph.md);
+    * range-bearing SLAM: GTSAM's iSAM2 incremental solve (:func:`isam2_incremental`, the
+      start of GTSAM's own SLAM examples; for Victoria Park the issue's definition of GTSAM's
+      best);
+    * range-only SLAM (GOATS): GTSAM has no initialiser of range-only landmarks, so the start
+      is ``start`` (odofuse's solution, :func:`run_values`): the reference then says whether
+      GTSAM's LM finds anything lower from there.
+
+    ``how`` names the start.
+    """
+    g, v, keys = load_file(name)
+    kind = FILES[name][0]
+    if kind == "posegraph":
+        chordal = chordal_start(g, v, keys)
+        how = "chordal" if g.error(chordal) < g.error(v) else "reader"
+        v = chordal if how == "chordal" else v
+    elif kind == "slam":
+        v, how = isam2_incremental(g, keys), "isam2"
+    else:
+        if start is None:
+            raise ValueError(f"{name}: range-only SLAM needs a start (odofuse's solution)")
+        v, how = start, "given"
+    return g, keys, converged_optimum(g, v)[0], how
+
+
+def run_values(out_dir, pose_keys):
+    """The poses (``trajectory.csv``) and landmarks (``landmarks.csv``) of an ``odofuse run``
+    output folder as GTSAM values under the reader's keys (pose ``k`` at ``t = k``)."""
+    import gtsam
+
+    traj = np.loadtxt(os.path.join(out_dir, "trajectory.csv"), delimiter=",", skiprows=1)
+    at = {int(round(t)): n for n, t in enumerate(traj[:, 0])}
+    v = gtsam.Values()
+    for k in pose_keys:
+        v.insert(k, gtsam.Pose2(*traj[at[gtsam.Symbol(k).index()], 1:4]))
+    lm = os.path.join(out_dir, "landmarks.csv")
+    if os.path.exists(lm):
+        for row in np.atleast_2d(np.loadtxt(lm, delimiter=",", skiprows=1)):
+            v.insert(gtsam.symbol("l", int(row[0])), gtsam.Point2(row[1], row[2]))
+    return v
+
+
+def g2o_chi2(graph, values, iterations: int = 50):
+    """g2o's chi-square of a pose graph at ``values``, and after g2o's LM from there.
+
+    Every ``BetweenFactorPose2`` becomes a g2o ``EdgeSE2`` and every ``PriorFactorPose2`` an
+    ``EdgeSE2Prior``, with the information matrix of its noise model; the poses are
+    ``VertexSE2``. GTSAM's error is half a chi-square, but its ``Pose2`` residual is the
+    tangent (``Logmap``) of the relative pose where g2o's is its ``(x, y, theta)``, so the two
+    agree to second order in the residuals only; the check of an optimum is that g2o's own
+    LM from it finds no lower chi-square. Returns ``(chi2_at_values, chi2_after_lm)``.
+    """
+    import g2opy as g2o
+    import gtsam
+
+    opt = g2o.SparseOptimizer()
+    opt.set_algorithm(
+        g2o.OptimizationAlgorithmLevenberg(g2o.BlockSolverSE2(g2o.LinearSolverEigenSE2()))
+    )
+    ids = {}
+
+    def vertex(key):
+        if key not in ids:
+            p = values.atPose2(key)
+            vx = g2o.VertexSE2()
+            vx.set_id(len(ids))
+            vx.set_estimate(g2o.SE2(p.x(), p.y(), p.theta()))
+            opt.add_vertex(vx)
+            ids[key] = vx
+        return ids[key]
+
+    for n in range(graph.size()):
+        f = graph.at(n)
+        info = None if f is None else np.linalg.inv(f.noiseModel().covariance())
+        if isinstance(f, gtsam.BetweenFactorPose2):
+            a, b = f.keys()
+            m = f.measured()
+            e = g2o.EdgeSE2()
+            e.set_vertex(0, vertex(a))
+            e.set_vertex(1, vertex(b))
+        elif isinstance(f, gtsam.PriorFactorPose2):
+            m = f.prior()
+            e = g2o.EdgeSE2Prior()
+            e.set_vertex(0, vertex(f.keys()[0]))
+        else:
+            raise ValueError(f"factor {n} is not a pose-graph factor: {type(f).__name__}")
+        e.set_measurement(g2o.SE2(m.x(), m.y(), m.theta()))
+        e.set_information(info)
+        opt.add_edge(e)
+    opt.initialize_optimization()
+    opt.compute_active_errors()
+    at = float(opt.chi2())
+    opt.optimize(iterations)
+    opt.compute_active_errors()
+    return at, float(opt.chi2())

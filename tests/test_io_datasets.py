@@ -41,6 +41,8 @@ PLANAR = {
     "Plaza1_TD.txt",
     "Plaza2_DR.txt",
     "Plaza2_TD.txt",
+    "Plaza1_.mat",
+    "Plaza2_.mat",
 }
 #: Planar, but refused by name (the reason must appear in the message).
 REFUSED_PLANAR = {"T1_city10000_04.txt": "multi-hypothesis"}
@@ -338,6 +340,55 @@ def test_repair_policy_reaches_metrics_and_config_errors_name_the_key(tmp_path, 
     cfg.write_text("log: {path: builtin:plaza1, repair: {sort: true}}\n" + base)
     assert main(["run", str(cfg)]) == 2
     assert "CSV log folders only" in capsys.readouterr().err
+
+
+def test_plaza_mat_file_equals_builtin(walk):
+    mat, builtin = walk["Plaza1_.mat"], load_log("builtin:plaza1")
+    assert set(mat.streams) == set(builtin.streams) == {"odometry", "ranges"}
+    for s in mat.streams:
+        np.testing.assert_array_equal(mat.streams[s].values, builtin.streams[s].values)
+    np.testing.assert_array_equal(mat.initial_pose, builtin.initial_pose)
+    assert mat.landmarks.keys() == builtin.landmarks.keys() and mat.groundtruth is not None
+    assert mat.repairs == builtin.repairs and not mat.invented_times
+
+
+def test_a_mat_file_that_is_not_plaza_is_refused_in_one_line(tmp_path):
+    import scipy.io
+
+    path = tmp_path / "other.mat"
+    scipy.io.savemat(path, {"DR": np.zeros((3, 3))})
+    with pytest.raises(InputError, match="must be a Plaza file.*missing TD") as exc:
+        load_log(path)
+    assert "\n" not in str(exc.value) and "other.mat" in str(exc.value)
+    (tmp_path / "junk.mat").write_bytes(b"not a mat file at all")
+    with pytest.raises(InputError, match="not a readable MATLAB"):
+        load_log(tmp_path / "junk.mat")
+
+
+def test_plausibility_judges_measured_times_only(walk, tmp_path):
+    """goats_15.pyfg stamps every line 0, so pose k gets t = k s: invented, and its 32 m
+    steps (row 193) are no speed. The same step with measured times is still refused."""
+    from odofuse.config import RunConfig
+    from odofuse.io.loader import load_log_for
+
+    for name in ("goats_15.pyfg", "w100.graph", "victoria_park.txt"):
+        log = walk[name]
+        assert set(log.invented_times) == set(log.streams), name
+    assert not walk["Plaza1_DR.txt"].invented_times  # the DR/TD files' own times
+    path = os.path.join(DATA, "goats_15.pyfg")
+    cfg = RunConfig(log=path, robot={"drive": "increments"}, source="<test>")
+    log = load_log_for(cfg)
+    assert np.max(np.abs(log.streams["odometry"]["ds"])) > 30.0  # > log.max_speed per "1 s"
+    odo = log.streams["odometry"]
+    folder = tmp_path / "measured"
+    folder.mkdir()
+    rows = "\n".join(
+        f"{t:.1f},{float(ds)!r},{float(dth)!r}"
+        for t, ds, dth in zip(odo.t, odo["ds"], odo["dtheta"], strict=True)
+    )
+    (folder / "odometry.csv").write_text("t,ds,dtheta\n" + rows + "\n")
+    with pytest.raises(InputError, match="impossible for this robot"):
+        load_log_for(RunConfig(log=str(folder), robot={"drive": "increments"}, source="<t>"))
 
 
 def test_pose_graph_log_round_trips_through_csv_export(walk, tmp_path):

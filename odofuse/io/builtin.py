@@ -7,11 +7,9 @@ in ``gtsam/Data``: odometry increments (``DR``: t, ds, dtheta), ranges to 4 surv
 
 from __future__ import annotations
 
-import numpy as np
-
 from odofuse.errors import InputError
 from odofuse.io.log import SensorLog
-from odofuse.io.plaza import plaza_log
+from odofuse.io.plaza import read_plaza_mat
 
 BUILTINS = ("plaza1", "plaza2")
 
@@ -35,15 +33,8 @@ def _data_file(name: str) -> str:
 
 def load_builtin(name: str) -> SensorLog:
     """Load a built-in dataset by name (``"plaza1"``/``"plaza2"``, ``builtin:`` optional)."""
-    import scipy.io
-
     key = name.removeprefix("builtin:").lower()
     if key not in BUILTINS:
         raise InputError(f"unknown built-in dataset '{name}'; known: {', '.join(BUILTINS)}")
     path = _data_file(f"{key.capitalize()}_.mat")
-    mat = scipy.io.loadmat(path)
-    dr, td, tl, gt = (np.asarray(mat[k], dtype=float) for k in ("DR", "TD", "TL", "GT"))
-    source = f"builtin:{key} ({path})"
-    # The dataset's dead-reckoned path (DRp) starts at the published initial pose.
-    initial = np.asarray(mat["DRp"][0, 1:4], dtype=float)
-    return plaza_log(dr, td, tl, gt, source, initial)
+    return read_plaza_mat(path, f"builtin:{key} ({path})")

@@ -11,6 +11,7 @@ any other folder                            :func:`odofuse.io.csvlog.read_csv_lo
 ``*.pyfg``, or a text file whose first      :func:`odofuse.io.pyfg.read_pyfg`
 line names pyfg variables (``A0``, ``L0``)
 ``<prefix>_DR/TD/GT/TL.txt``                :func:`odofuse.io.plaza.read_plaza_text`
+``*.mat`` (a Plaza ``<prefix>_.mat``)       :func:`odofuse.io.plaza.read_plaza_mat`
 ``*.g2o``, ``*.graph``, ``*.toro``, or a    :func:`odofuse.io.gtsam_text.read_gtsam_text`
 text file whose first line is a pose-graph  (g2o, TORO and iSAM line types; 3-D types are
 tag                                         refused by name)
@@ -35,7 +36,7 @@ GRAPH_SUFFIXES = (".g2o", ".graph", ".toro")
 
 
 def log_kind(path: Path) -> str:
-    """``"csv"``, ``"bag"``, ``"pyfg"``, ``"plaza"`` or ``"gtsam"`` for an existing path.
+    """``"csv"``, ``"bag"``, ``"pyfg"``, ``"plaza"``, ``"mat"`` or ``"gtsam"`` for a path.
 
     Raises InputError for a path that does not exist or whose format is not recognised.
     """
@@ -51,6 +52,8 @@ def log_kind(path: Path) -> str:
     suffix = path.suffix.lower()
     if suffix in BAG_SUFFIXES:
         return "bag"
+    if suffix == ".mat":
+        return "mat"
     from odofuse.io.gtsam_text import looks_like_gtsam_text
     from odofuse.io.plaza import is_plaza_text
     from odofuse.io.pyfg import looks_like_pyfg
@@ -63,7 +66,7 @@ def log_kind(path: Path) -> str:
         return "gtsam"
     raise InputError(
         "unknown log format (expected a CSV log folder, .db3/.mcap/.bag, a 2-D pose-graph "
-        "text file (g2o, TORO, iSAM, pyfg) or Plaza <name>_DR/TD.txt)",
+        "text file (g2o, TORO, iSAM, pyfg) or Plaza <name>_DR/TD.txt or <name>_.mat)",
         str(path),
     )
 
@@ -136,6 +139,10 @@ def _load_log(spec, base_dir, encoder, topics, repair, joints, groundtruth) -> S
         from odofuse.io.plaza import read_plaza_text
 
         return read_plaza_text(path)
+    if kind == "mat":
+        from odofuse.io.plaza import read_plaza_mat
+
+        return read_plaza_mat(path)
     from odofuse.io.gtsam_text import read_gtsam_text
 
     return read_gtsam_text(path)

@@ -68,7 +68,10 @@ class SensorLog:
     ``repairs`` counts documented repairs (``"wheels.duplicate_t"``, ``"wheels.rollover"``...).
     ``initial_pose`` is the dataset's own published start pose when it has one (m, m, rad).
     ``ros`` holds what a ROS bag says about frames and noise (empty for other logs): see
-    :func:`odofuse.io.bags.read_bag`.
+    :func:`odofuse.io.bags.read_bag`. ``invented_times`` names the streams whose times the
+    loader made up rather than read (a pose graph without times stamps pose ``k`` at
+    ``t = k`` s): no plausibility check judges a speed or a time unit by them
+    (:mod:`odofuse.io.plausibility`).
     """
 
     source: str
@@ -80,6 +83,7 @@ class SensorLog:
     ros: dict = field(default_factory=dict)
     #: Plausibility findings about the data (odofuse.io.plausibility): ``warnings`` lines.
     findings: tuple = ()
+    invented_times: tuple[str, ...] = ()
 
     def has(self, name: str) -> bool:
         return name in self.streams and len(self.streams[name]) > 0
@@ -100,6 +104,7 @@ class SensorLog:
             None if self.groundtruth is None else self.groundtruth.between(t_start, t_end),
             dict(self.repairs),
             self.initial_pose if t_start <= first else None,
+            invented_times=self.invented_times,
         )
 
 

@@ -14,7 +14,10 @@ the numbers can be physical for this robot and config. Each check ends in one of
   wrapped more than once, GPS fixes far from anything local).
 
 Checks (thresholds a priori, from the config and the data's own sampling, never from ground
-truth):
+truth). They judge measured times only: a stream the loader stamped itself
+(``SensorLog.invented_times``: a pose graph's ``t = pose id``) enters no check that divides
+by a time step or compares time scales (``speed``, ``time_units``, ``gps_jumps``,
+``gyro_units``):
 
 ``speed``
     odometry / wheel / cmd_vel steps whose speed ``|v| = |(vx, vy)| / dt`` exceeds
@@ -85,11 +88,12 @@ def check_log(log, config, max_speed: float = MAX_SPEED, max_yaw_rate: float = M
         For readings that cannot be right (see the module docstring).
     """
     findings: list[Finding] = []
-    _time_units(log)
+    invented = set(getattr(log, "invented_times", ()) or ())
+    _time_units(log, invented)
     drive = _drive(config)
     odo = next((s for s in ODOMETRY_STREAMS if log.has(s)), None)
     rates = None
-    if drive is not None and odo is not None:
+    if drive is not None and odo is not None and odo not in invented:
         rates = _step_rates(log.streams[odo], drive, odo)
         if rates is not None:
             _speed(log.streams[odo], rates, max_speed, max_yaw_rate, config)
@@ -97,8 +101,8 @@ def check_log(log, config, max_speed: float = MAX_SPEED, max_yaw_rate: float = M
         _wheel_columns(log.streams["wheels"], drive)
         findings += _counter_gaps(log.streams["wheels"], config)
     if log.has("gps"):
-        findings += _gps(log, config, max_speed)
-    if log.has("gyro") and rates is not None:
+        findings += _gps(log, config, max_speed, timed="gps" not in invented)
+    if log.has("gyro") and rates is not None and "gyro" not in invented:
         _gyro_units(log.streams["gyro"], rates)
     if not findings:
         return log
@@ -198,14 +202,15 @@ def _speed(stream, rates, max_speed: float, max_yaw_rate: float, config) -> None
     )
 
 
-def _time_units(log) -> None:
+def _time_units(log, invented=frozenset()) -> None:
     def unit(ratio: float) -> str:
         for name, k in (("nanoseconds", 1e9), ("microseconds", 1e6), ("milliseconds", 1e3)):
             if ratio >= k / 3:
                 return name
         return "a different unit"
 
-    for s in log.streams.values():
+    timed = [s for s in log.streams.values() if s.name not in invented]
+    for s in timed:
         if len(s) and float(np.max(np.abs(s.t))) > MAX_SECONDS:
             i = int(np.argmax(np.abs(s.t)))
             raise InputError(
@@ -216,10 +221,10 @@ def _time_units(log) -> None:
                 "t",
             )
     ref = next((log.streams[n] for n in ODOMETRY_STREAMS if log.has(n)), None)
-    if ref is None:
+    if ref is None or ref.name in invented:
         return
     m_ref = float(np.median(np.abs(ref.t)))
-    for s in log.streams.values():
+    for s in timed:
         if s is ref or not len(s) or m_ref <= 0:
             continue
         overlap = s.t[0] <= ref.t[-1] and s.t[-1] >= ref.t[0]
@@ -278,7 +283,7 @@ def _counter_gaps(stream, config) -> list[Finding]:
     ]
 
 
-def _gps(log, config, max_speed: float) -> list[Finding]:
+def _gps(log, config, max_speed: float, timed: bool = True) -> list[Finding]:
     s = log.streams["gps"]
     out: list[Finding] = []
     if "lat" in s.columns and "lon" in s.columns:
@@ -317,7 +322,7 @@ def _gps(log, config, max_speed: float) -> list[Finding]:
                 figure=float(np.median(dist)),
             )
         )
-    if len(s) > 1:
+    if len(s) > 1 and timed:
         dt = np.diff(s.t)
         step = np.hypot(*np.diff(xy, axis=0).T)
         jumps = (dt > 0) & (step > max_speed * np.where(dt > 0, dt, 1.0))

@@ -13,6 +13,10 @@ file        columns                         becomes
 ``*_TL``    ``id x y``                      the beacon map
 ==========  ==============================  ====================================================
 
+``Plaza1_.mat`` / ``Plaza2_.mat`` hold the same arrays (``DR``, ``TD``, ``TL``, ``GT``) and the
+dead-reckoned path ``DRp``, whose first row is the published start pose
+(:func:`read_plaza_mat`; ``builtin:plaza1`` reads the file of the installed gtsam).
+
 Naming any one of ``Plaza1_DR.txt`` / ``Plaza1_TD.txt`` / ... reads every sibling with the same
 prefix that exists. The gtsam wheel ships only ``DR`` and ``TD`` as text (ground truth and beacons
 are in ``Plaza1_.mat``, read by ``builtin:plaza1``), so a log from the text files has odometry
@@ -94,3 +98,35 @@ def read_plaza_text(path: str | Path) -> SensorLog:
     if "TD" not in found and "DR" not in found:
         raise InputError(f"neither {m['prefix']}_DR.txt nor {m['prefix']}_TD.txt exists", str(path))
     return plaza_log(found.get("DR"), found.get("TD"), found.get("TL"), found.get("GT"), str(path))
+
+
+#: The arrays a Plaza ``.mat`` file must hold.
+MAT_KEYS = ("DR", "TD", "TL", "GT", "DRp")
+
+
+def read_plaza_mat(path: str | Path, source: str | None = None) -> SensorLog:
+    """Read a Plaza ``*_.mat`` file (module docstring) into a SensorLog.
+
+    Raises
+    ------
+    InputError
+        A file MATLAB's format reader refuses, or one without the Plaza arrays.
+    """
+    import scipy.io
+
+    name = str(path)
+    try:
+        mat = scipy.io.loadmat(name)
+    except Exception as exc:  # noqa: BLE001 - scipy raises IndexError, ValueError ... on junk
+        raise InputError(f"not a readable MATLAB .mat file ({exc})"[:200], name) from None
+    missing = [k for k in MAT_KEYS if k not in mat]
+    if missing:
+        raise InputError(
+            f"a .mat log must be a Plaza file (arrays {', '.join(MAT_KEYS)}); missing "
+            f"{', '.join(missing)}",
+            name,
+        )
+    dr, td, tl, gt = (np.asarray(mat[k], dtype=float) for k in ("DR", "TD", "TL", "GT"))
+    # The dataset's dead-reckoned path (DRp) starts at the published initial pose.
+    initial = np.asarray(mat["DRp"][0, 1:4], dtype=float)
+    return plaza_log(dr, td, tl, gt, source or name, initial)

@@ -17,7 +17,9 @@ The format modules (:mod:`odofuse.io.g2o`, :mod:`odofuse.io.toro`, :mod:`odofuse
 
 The odometry chain is the pose ids in increasing order, whatever ids landmarks use: ids are one
 space in the iSAM format, so Victoria Park's poses skip the ids of its trees and the step
-``4 -> 6`` is odometry. A pose is stamped ``t = id`` unless the format has times (pyfg).
+``4 -> 6`` is odometry. A pose is stamped ``t = id`` unless the format has times (pyfg); such
+made-up stamps are listed in ``SensorLog.invented_times`` (every stream of the log), so that
+no plausibility check takes ``1 s`` per pose for a measured time.
 
 Covariances are of the edge's ``(dx, dy, dtheta)`` in GTSAM's ``Pose2`` tangent space (the
 frame of the ``to`` pose; ``BetweenFactorPose2`` uses the same), upper triangle, SI units.
@@ -276,7 +278,17 @@ class GraphBuilder:
             gt = Stream("groundtruth", name, g[:, 0], ("x", "y", "theta"), g[:, 1:])
         first = order[0]
         initial = np.array(self.vertices[first], dtype=float) if first in self.vertices else None
-        return SensorLog(name, streams, dict(self.landmark_map), gt, dict(self.repairs), initial)
+        # without times in the file every stamp is a pose id: made up, not measured
+        invented = () if self.times else tuple(streams)
+        return SensorLog(
+            name,
+            streams,
+            dict(self.landmark_map),
+            gt,
+            dict(self.repairs),
+            initial,
+            invented_times=invented,
+        )
 
 
 LineParser = Callable[[GraphBuilder, list[str], int], None]

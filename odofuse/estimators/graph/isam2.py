@@ -23,6 +23,7 @@ from odofuse.estimators.graph.health import solver_findings
 from odofuse.estimators.graph.isam2_slam import incremental_slam
 from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, model_kind
+from odofuse.estimators.graph.loops import oldest_referenced
 from odofuse.estimators.graph.problem import GraphProblem, build_problem
 from odofuse.estimators.graph.solvers import (
     finish,
@@ -371,6 +372,8 @@ def run_isam2(log, config) -> EstimateResult:
         return float(isam.calculateEstimateVector(key)[j])
 
     window = KeyframeWindow()
+    # a loop closure is added with its later keyframe: its earlier one stays in the tree
+    hold = oldest_referenced((lp.later, min(lp.i, lp.j)) for lp in problem.loops)
     current = gtsam.Pose2(*problem.pose0)
     online = np.empty((len(problem.kt), 3))  # each keyframe's estimate right after its update
     findings: list[Finding] = []
@@ -382,6 +385,7 @@ def run_isam2(log, config) -> EstimateResult:
         graph.push_back(g)
         values.insert(v)
         window.add(graph, values)
+        window.hold = hold(i)
         t0 = _clock()
         try:
             window.update(isam, i, graph, values, frozen)  # old keyframes may leave

@@ -10,7 +10,9 @@ Owns (no GTSAM objects):
 * :func:`loop_closures`: the ``loop_closures`` rows as :class:`Loop` records between two
   keyframes, with the file's covariance or the config's ``sigma``, and the rows refused
   (an end outside the odometry span or not at a keyframe, and for the fixed-lag smoother an
-  earlier end older than the window).
+  earlier end older than the window);
+* :func:`oldest_referenced`: for an incremental solver, the oldest keyframe that a factor
+  still to come refers to (which iSAM2's keyframe window must keep).
 
 The covariances are of ``(dx, dy, dtheta)`` in the ``to`` pose's tangent space, the frame
 ``BetweenFactorPose2`` uses (docs/formats.md section 3), so they go into the factor unchanged.
@@ -18,6 +20,8 @@ The covariances are of ``(dx, dy, dtheta)`` in the ``to`` pose's tangent space, 
 
 from __future__ import annotations
 
+import bisect
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -194,3 +198,23 @@ def loop_closures(log, block: dict, kt: np.ndarray, lag: float | None = None):
         for r in np.flatnonzero(ok)
     ]
     return loops, int((~ok).sum())
+
+
+def oldest_referenced(pairs) -> Callable[[int], int | None]:
+    """``i -> `` the oldest keyframe that a factor added after keyframe ``i`` refers to.
+
+    Parameters
+    ----------
+    pairs : iterable of (int, int)
+        ``(later, earliest)`` per factor: added with keyframe ``later``, it refers to keyframe
+        ``earliest`` (a loop closure's ``(later, min(i, j))``).
+
+    Returns
+    -------
+    callable
+        ``None`` when no factor comes after ``i``.
+    """
+    pairs = sorted((int(a), int(b)) for a, b in pairs)
+    later = [a for a, _ in pairs]
+    hold = [int(x) for x in np.minimum.accumulate([b for _, b in pairs][::-1])[::-1]] + [None]
+    return lambda i: hold[bisect.bisect_right(later, i)]

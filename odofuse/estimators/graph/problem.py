@@ -398,5 +398,7 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         lag = options.lag if estimator == "fixed_lag" else None
         problem.loops, rejected[STREAM] = loop_closures(log, loops_cfg, kt, lag)
     if options.slam:
-        problem.landmarks = slam_initial_landmarks(problem, problem.dead_reckoning())
+        problem.landmarks = slam_initial_landmarks(
+            problem.measurements, problem.models, problem.dead_reckoning(), options.slam_grid
+        )
     return problem

@@ -10,16 +10,10 @@ SLAM run are built. The closed-form initialisations are in
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from odofuse.estimators.graph.keys import model_kind
 from odofuse.estimators.graph.landmarks import from_sighting, multilaterate, refine
-
-if TYPE_CHECKING:  # a type only: problem.py imports this module
-    from odofuse.estimators.graph.problem import GraphProblem
-
 
 #: The grid search uses at most this many cells along each axis (its cell grows beyond
 #: ``slam_grid`` for ranges of hundreds of metres, e.g. the acoustic ranges of GOATS).
@@ -37,7 +31,7 @@ def log_with_ids(log):
     return dataclasses.replace(log, landmarks={i: np.zeros(2) for i in ids})
 
 
-def slam_initial_landmarks(problem: GraphProblem, poses) -> dict[int, np.ndarray]:
+def slam_initial_landmarks(measurements, models, poses, cell: float) -> dict[int, np.ndarray]:
     """Initial positions of unknown landmarks from their measurements and a pose guess.
 
     A landmark with a range-bearing sighting starts where its first sighting places it off
@@ -48,8 +42,15 @@ def slam_initial_landmarks(problem: GraphProblem, poses) -> dict[int, np.ndarray
 
     Parameters
     ----------
+    measurements : list of Measurement
+        The sensor rows of a :class:`~odofuse.estimators.graph.problem.GraphProblem` (their
+        ``landmark``, ``keyframe``, ``stream`` and ``row``).
+    models : dict
+        Stream -> measurement model.
     poses : ndarray (K, 3)
         A guess of the keyframe poses (dead reckoning, or the current estimate).
+    cell : float
+        m, the grid search's cell (``options.slam_grid``).
 
     Returns
     -------
@@ -59,10 +60,10 @@ def slam_initial_landmarks(problem: GraphProblem, poses) -> dict[int, np.ndarray
     poses = np.asarray(poses, dtype=float)
     per_id: dict[int, list[tuple[np.ndarray, float, float]]] = {}
     out: dict[int, np.ndarray] = {}
-    for meas in problem.measurements:
+    for meas in measurements:
         if meas.landmark is None:
             continue
-        m = problem.models[meas.stream]
+        m = models[meas.stream]
         kind = model_kind(m)
         if kind == "LandmarkRangeBearing" and meas.landmark not in out:
             pose = poses[meas.keyframe]
@@ -78,7 +79,7 @@ def slam_initial_landmarks(problem: GraphProblem, poses) -> dict[int, np.ndarray
         R = np.array([o[1] for o in obs])
         sig = np.array([o[2] for o in obs])
         lm = multilaterate(P, R, sig)
-        out[lid] = grid_search(P, R, sig, problem.options.slam_grid) if lm is None else lm
+        out[lid] = grid_search(P, R, sig, cell) if lm is None else lm
     return out
 
 

@@ -365,7 +365,8 @@ def _gtsam_lm(graph, values, opts) -> LMOutcome:
             reason = "converged"
             break
         lam = new_lam
-    return LMOutcome(optimizer.values(), int(optimizer.iterations()), err, reason)
+    # a copy: the values() reference would dangle once the optimiser is collected
+    return LMOutcome(gtsam.Values(optimizer.values()), int(optimizer.iterations()), err, reason)
 
 
 def _solve(graph, values, fac, opts) -> LMOutcome:

@@ -1,0 +1,166 @@
+"""Every planar file of gtsam's Data folder through the front door: ``odofuse run`` (issue 26).
+
+Each file runs as a user runs it: a subprocess ``python -m odofuse run CONFIG -o OUT`` with the
+documented minimal config of its format (``gtsam_reference.minimal_config``, at most five
+lines; docs/formats.md), for both batch and incremental graph estimators. The run must exit 0
+with the expected ``status``, and its graph error (``metrics.json`` ``extra.final_error``) must
+be GTSAM's best (``gtsam_reference.best``: plain GTSAM, the converged LM optimum from the best
+start; Victoria Park: iSAM2 incremental + LM) to 1e-6 relative, its poses within 0.01 m RMS of
+that solution, scored again by GTSAM's own ``graph.error`` at the written ``trajectory.csv`` /
+``landmarks.csv``. A second solver (g2o, ``g2opy``) confirms the pose graphs' optimum.
+Files taking more than ~10 s are in the ``slow`` tier (and in ``benchmarks/bench_datasets.py``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import gtsam_reference as ref  # noqa: E402
+
+DATA = os.path.dirname(gtsam.findExampleDataFile("w100.graph"))
+ESTIMATORS = ("smoother", "isam2")
+#: Above ~10 s for one of the two estimators on the shared 2-core machine.
+SLOW = {
+    "w10000.graph",
+    "w20000.txt",
+    "victoria_park.txt",
+    "victoriaPark_reduced_1k.g2o",
+    "cityTrees_reduced_1k.g2o",
+    "goats_15.pyfg",
+    "Plaza1_DR.txt",
+    "Plaza1_TD.txt",
+    "Plaza2_DR.txt",
+    "Plaza2_TD.txt",
+    "Plaza1_.mat",
+    "Plaza2_.mat",
+}
+#: The runs that judge themselves ``degraded`` (every other one says ``ok``), and why; no
+#: ground truth is involved in either verdict.
+DEGRADED = {
+    # range residuals 2.5-2.7x the file's 0.75 m sigma, with either map (docs/graph.md, GOATS)
+    "goats_15.pyfg": "residuals",
+    "goats_16.pyfg": "residuals",
+    # the minimal config's default range sigma is too optimistic for Plaza's ranges
+    "Plaza1_.mat": "residuals",
+    "Plaza2_.mat": "residuals",
+}
+_RUNS: dict = {}
+
+
+def run_cli(name: str, estimator: str, tmp_root: Path):
+    """``odofuse run`` of ``name``'s minimal config (once per module): (process, out, config)."""
+    key = (name, estimator)
+    if key not in _RUNS:
+        folder = tmp_root / f"{name}.{estimator}"
+        folder.mkdir(parents=True)
+        config = ref.minimal_config(os.path.join(DATA, name), estimator)
+        (folder / "run.yaml").write_text(config)
+        env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+        cmd = [sys.executable, "-m", "odofuse", "run", "run.yaml", "-o", "out"]
+        proc = subprocess.run(cmd, cwd=folder, env=env, capture_output=True, text=True)
+        _RUNS[key] = (proc, folder / "out", config)
+    return _RUNS[key]
+
+
+@pytest.fixture(scope="module")
+def tmp_root(tmp_path_factory):
+    return tmp_path_factory.mktemp("cli_datasets")
+
+
+def _cases():
+    for name in ref.FILES:
+        for estimator in ESTIMATORS:
+            marks = [pytest.mark.slow] if name in SLOW else []
+            yield pytest.param(name, estimator, marks=marks, id=f"{name}-{estimator}")
+
+
+@pytest.mark.parametrize(("name", "estimator"), list(_cases()))
+def test_odofuse_run_ends_at_gtsams_best(name, estimator, tmp_root):
+    proc, out, config = run_cli(name, estimator, tmp_root)
+    assert len(config.splitlines()) <= 5, config
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    warnings = metrics["warnings"]
+    if name in DEGRADED:
+        assert metrics["status"] == "degraded"
+        assert any(w.startswith(f"[{DEGRADED[name]}]") for w in warnings), warnings
+    else:
+        assert metrics["status"] == "ok", warnings
+    assert not any(w.startswith("[solver]") for w in warnings), warnings  # LM converged
+    final = metrics["extra"]["final_error"]
+    assert np.isfinite(final)
+    kind, reader = ref.FILES[name]
+    if reader is None:  # Plaza: odofuse's motion model is the odometry noise, no plain GTSAM
+        return
+    _, _, keys = ref.load_file(name)
+    ours = ref.run_values(out, keys)
+    graph, keys, best, _ = ref.best(name, ours if kind == "range_slam" else None)
+    e_best = graph.error(best)
+    assert final == pytest.approx(e_best, rel=1e-6)
+    assert graph.error(ours) == pytest.approx(e_best, rel=1e-6)  # the written solution
+    assert ref.position_rms(ref.poses_of(ours, keys), ref.poses_of(best, keys)) < 0.01
+
+
+@pytest.mark.slow
+def test_victoria_park_is_at_gtsams_published_optimum(tmp_root):
+    """The issue's figure: 2,339.22, whichever graph estimator (iSAM2 SLAM used to stop at
+    3,026.2, its keyframe window having marginalised 6,850 of the 6,969 poses)."""
+    for estimator in ESTIMATORS:
+        proc, out, _ = run_cli("victoria_park.txt", estimator, tmp_root)
+        assert proc.returncode == 0, proc.stderr
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert metrics["extra"]["final_error"] == pytest.approx(2339.2195, rel=1e-6)
+        assert len((out / "landmarks.csv").read_text().splitlines()) == 1 + 151  # every tree
+
+
+POSE_GRAPHS = [n for n, (kind, _) in ref.FILES.items() if kind == "posegraph"]
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=[pytest.mark.slow] if n in SLOW else []) for n in POSE_GRAPHS]
+)
+def test_g2o_confirms_the_pose_graph_optimum(name, tmp_root):
+    """g2o's LM from odofuse's optimum finds no lower chi-square (1e-6 relative), and g2o's
+    chi-square there is twice GTSAM's error up to the charts' difference (g2o's residual is
+    the relative pose's ``(x, y, theta)``, GTSAM's its ``Logmap``: equal to second order)."""
+    pytest.importorskip("g2opy")
+    proc, out, _ = run_cli(name, "smoother", tmp_root)
+    assert proc.returncode == 0, proc.stderr
+    graph, _, keys = ref.load_file(name)
+    ours = ref.run_values(out, keys)
+    at, after = ref.g2o_chi2(graph, ours)
+    assert after == pytest.approx(at, rel=1e-6) and after <= at * (1 + 1e-12)
+    assert at == pytest.approx(2.0 * graph.error(ours), rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("name", "why"),
+    [
+        ("T1_city10000_04.txt", "multi-hypothesis"),  # discrete alternatives, no noise
+        ("Klaus3.g2o", "3-D"),  # VERTEX_SE3:QUAT: not planar despite its place in the issue
+    ],
+)
+def test_a_file_that_cannot_be_read_gets_one_line_saying_why(name, why, tmp_path):
+    path = os.path.join(DATA, name)
+    (tmp_path / "run.yaml").write_text(
+        f"log: {path}\nrobot: {{drive: increments}}\nestimator: smoother\n"
+        "sensors: {loop_closures: {}}\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    cmd = [sys.executable, "-m", "odofuse", "run", "run.yaml", "-o", "out"]
+    proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and why in lines[0] and name in lines[0], proc.stderr
+    assert "Traceback" not in proc.stderr
