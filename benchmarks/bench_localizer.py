@@ -12,9 +12,13 @@ the run is kept outside the Localizer). Printed:
   peak RSS 5.7 GiB for N = 10^7);
 * with ``--against REV`` (a git revision, e.g. the merge base), the same run through that
   revision's ``odofuse/estimators/localizer.py`` and ``inputs.py`` in the same process
-  (interleaved, best of three), and the ratio.
+  (interleaved, best of three), and the ratio;
+* with ``--health M``: only the cost of the live health (issue 25), ``M`` steps with the
+  monitor's streaming checks off, on, and with ``health()`` asked at 1 Hz, 10 Hz and every
+  step (interleaved, best of three, same process).
 
-Run from anywhere: ``python benchmarks/bench_localizer.py [--steps N] [--check N] [--against REV]``
+Run from anywhere: ``python benchmarks/bench_localizer.py [--steps N] [--check N] [--against REV]
+[--health M]``
 (``nice -n 10`` on a shared machine; 10^7 steps take about half an hour there).
 """
 
@@ -64,12 +68,22 @@ def rss_mib() -> float:
 
 
 def feed(
-    cls, n: int, marks=(), delay: float = 0.3, t0: float = 0.0, verbose: bool = False
+    cls,
+    n: int,
+    marks=(),
+    delay: float = 0.3,
+    t0: float = 0.0,
+    verbose: bool = False,
+    ask_every: int = 0,
+    checks: bool = True,
 ) -> tuple[object, dict]:
     """Feed ``n`` steps to a live ``cls`` Localizer, each GPS fix ``delay`` s late (negative:
     early, buffered); RSS (MiB) at the step counts ``marks`` (printed as reached when
-    ``verbose``)."""
+    ``verbose``). ``ask_every`` > 0: ``loc.health()`` after every that many steps;
+    ``checks=False``: the monitor's streaming checks switched off (the cost they add)."""
     loc = cls.from_config(config(), t0)
+    if not checks:
+        loc.monitor._advance = lambda stream, n: None
     noise = np.random.default_rng(0).normal(0.0, 0.5, (n // GPS_EVERY + 1, 2)).tolist()
     dt = 1.0 / RATE
     ds, dth = 0.5 * dt, 0.05 * dt  # 0.5 m/s, 0.05 rad/s
@@ -86,6 +100,8 @@ def feed(
         if k % GPS_EVERY == 0:
             ex, ey = noise[k // GPS_EVERY]
             loc.add_measurement("gps", {"t": t - delay, "x": x + ex, "y": y + ey})
+        if ask_every and k % ask_every == 0:
+            loc.health()
         if k in marks:
             rss[k] = rss_mib()
             if verbose:
@@ -172,6 +188,30 @@ def base_localizer(rev: str):
     return mod.Localizer
 
 
+def health_cost(m: int) -> None:
+    """Steps/s with and without the live health bookkeeping, and asking ``health()``: best of
+    three interleaved runs of ``m`` steps in this process (GPS fixes 0.3 s late)."""
+    rows = (
+        ("streaming checks off", {"checks": False}),
+        ("streaming checks on, health() never asked", {}),
+        ("health() at 1 Hz (every 50 steps)", {"ask_every": 50}),
+        ("health() at 10 Hz (every 5 steps)", {"ask_every": 5}),
+        ("health() every step (50 Hz)", {"ask_every": 1}),
+    )
+    best = dict.fromkeys(range(len(rows)), 0.0)
+    for _ in range(3):
+        for i, (_, kw) in enumerate(rows):
+            t0 = time.perf_counter()
+            feed(Localizer, m, **kw)
+            best[i] = max(best[i], m / (time.perf_counter() - t0))
+    print(f"\nlive health cost, {m:,} steps, best of 3 interleaved runs in this process")
+    print("| variant | steps/s | us/step | cost over checks off |")
+    print("| --- | --- | --- | --- |")
+    for i, (label, _) in enumerate(rows):
+        extra = best[0] / best[i] - 1.0
+        print(f"| {label} | {best[i]:,.0f} | {1e6 / best[i]:.1f} | {100 * extra:+.1f} % |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=200_000)
@@ -180,7 +220,13 @@ def main() -> None:
     ap.add_argument(
         "--check", type=int, metavar="N", help="compare online with odofuse run over N steps"
     )
+    ap.add_argument(
+        "--health", type=int, metavar="M", help="only the live health cost table, M steps"
+    )
     args = ap.parse_args()
+    if args.health:
+        health_cost(args.health)
+        return
     if args.check:
         print(check_offline(args.check))
 

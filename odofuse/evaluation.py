@@ -417,7 +417,8 @@ def metrics(
     Returns
     -------
     dict
-        Always ``estimator, poses, runtime_s, sensors {name: {used, rejected}}, repairs``; with
+        Always ``estimator, poses, runtime_s, sensors {name: {used, rejected, mde}}, repairs``
+        (``mde``: a filter's minimal detectable errors, docs/filters.md); with
         ground truth also ``ate_rmse_m, ate_aligned_rmse_m, final_error_m, rpe_trans_m,
         rpe_rot_rad, rpe_delta_m, nees_mean, nees_position_mean`` (3-D pose NEES, expected 3,
         and position-only NEES, expected 2; None without covariances). ``status`` (``ok`` or
@@ -438,6 +439,9 @@ def metrics(
         },
         "repairs": dict(getattr(log, "repairs", {}) or {}),
     }
+    for n, mde in ((result.extra or {}).get("mde") or {}).items():  # docs/filters.md
+        if n in out["sensors"]:
+            out["sensors"][n]["mde"] = mde
     gt_stream = getattr(log, "groundtruth", None)
     scoring = []
     if gt_stream is not None and len(gt_stream) and len(traj):

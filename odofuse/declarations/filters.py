@@ -127,13 +127,13 @@ class FilterOptions:
     nis_window: int = option(
         20,
         unit="readings",
-        doc="sliding window of one sensor's readings for the NIS band check",
+        doc="window of one sensor's accepted readings for the NIS band check",
         minimum=2,
     )
     nis_alpha: float = option(
         1e-3,
         unit="-",
-        doc="false-alarm probability of the NIS band over the run (Bonferroni)",
+        doc="false-alarm probability of the NIS band check over a run of any length",
         **_POSITIVE,
     )
     reject_run: int = option(
@@ -170,6 +170,27 @@ class FilterOptions:
         0.999,
         unit="-",
         doc="chi-square probability of the per-step gyro-wheel disagreement",
+        **_OPEN_UNIT,
+    )
+    health_persist: int = option(
+        3,
+        unit="windows",
+        doc=(
+            "consecutive NIS windows above their band before a sensor is failing (persistence; "
+            "docs/filters.md, Live health)"
+        ),
+        minimum=1,
+    )
+    health_recover: int = option(
+        3,
+        unit="windows",
+        doc="consecutive NIS windows inside their band before a failing sensor recovers",
+        minimum=1,
+    )
+    mde_power: float = option(
+        0.95,
+        unit="-",
+        doc="detection probability of the minimal detectable errors in metrics.json",
         **_OPEN_UNIT,
     )
 

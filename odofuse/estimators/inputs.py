@@ -86,10 +86,10 @@ def check_row(stream, row, known) -> tuple[float, dict]:
     return t, out
 
 
-def check_measurement(stream: str, model, t: float, row: dict, x: np.ndarray) -> None:
+def check_measurement(stream: str, model, t: float, row: dict, x: np.ndarray) -> np.ndarray:
     """The row has what the model reads (``z``; a landmark ``id`` in the map, through ``h`` at
     any state ``x`` of the right length), and it is finite; checked before the filter is
-    touched, so a bad late reading cannot leave a half-done replay."""
+    touched, so a bad late reading cannot leave a half-done replay. Returns ``z``."""
     try:
         z = np.asarray(model.z(row), dtype=float)
         if "id" in row:  # a landmark/beacon id must be in the map (h looks it up)
@@ -104,6 +104,7 @@ def check_measurement(stream: str, model, t: float, row: dict, x: np.ndarray) ->
         raise InputError(f"stream '{stream}' at t={t:.6f}: {excerpt(str(exc), 200)}") from None
     if not np.all(np.isfinite(z)):
         raise InputError(f"stream '{stream}' at t={t:.6f}: non-finite value {z.tolist()}")
+    return z
 
 
 def check_odometry(t, u, names) -> tuple[float, np.ndarray]:

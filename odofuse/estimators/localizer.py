@@ -71,6 +71,11 @@ _ODOM_BATCH = 512
 _KEEP_READINGS, _TRIM_EVERY = 1000, 4096
 
 
+#: :meth:`Localizer.health` re-runs its checks over the kept poses every this many steps.
+HEALTH_TRACK_EVERY = 64
+#: Findings that describe the filter as it is now (the others, episodes of the run so far).
+_CURRENT = frozenset({"calibration", "dropped", "rejected"})
+
 #: Key of the odometry-calibration states in the layout (not a measurement stream).
 ODOMETRY_CALIBRATION = "__odometry_calibration__"
 
@@ -147,6 +152,10 @@ class Localizer:
         self._duplicates = inputs.Duplicates(self.late_window)
         self._x_probe = np.zeros_like(x)  # any state of the right length, for input checks
         self._watch, self._fate = None, inputs.USED
+        self._last_row: dict[str, dict] = {}  # each stream's last applied reading (its MDE)
+        self._z_span: dict[str, tuple] = {}  # each stream's reading range (min, max)
+        self._n_steps = 0  # odometry steps processed (replays included): health()'s cadence
+        self._slow = (-math.inf, [])  # health(): (step of the last track checks, findings)
 
     @classmethod
     def from_config(
@@ -252,7 +261,13 @@ class Localizer:
             return inputs.USED
         if stream == self._slip_stream and "wz" in row:
             self._store_gyro(t, row["wz"])
-        inputs.check_measurement(stream, self.models[stream], t, row, self._x_probe)
+        z = inputs.check_measurement(stream, self.models[stream], t, row, self._x_probe)
+        span = self._z_span.get(stream)
+        if span is None:
+            self._z_span[stream] = (z.copy(), z.copy())
+        elif z.shape == span[0].shape:
+            np.minimum(span[0], z, out=span[0])
+            np.maximum(span[1], z, out=span[1])
         item = (t, self._seq, stream, row)
         self._seq += 1
         if t > self.t:
@@ -378,6 +393,7 @@ class Localizer:
         if not track.keep_all and len(track) % _TRIM_EVERY == 0:
             self._forget_readings()
         self.t = t1
+        self._n_steps += 1
         track.append(t1, self.backend.mean(), self.backend.cov())
 
     def _predict(self, u, dt, dtheta_gyro, frac, var_g, scale=1.0) -> None:
@@ -399,6 +415,7 @@ class Localizer:
                 return
             row = dict(row)
             row["dt"] = tm - t_ref
+        self._last_row[stream] = row
         accepted, nis = self.backend.update(model, row)
         if self.monitor.observe(stream, tm, accepted, nis):
             accepted, nis = monitors.recover(self, stream, model, row)
@@ -411,6 +428,33 @@ class Localizer:
         if clones:
             self._t_ref[stream] = tm
             self._clone(model, clones)
+
+    def note_readings(self, stream: str, rows, t_seen, z) -> None:
+        """Record readings of ``stream`` applied without :meth:`add_measurement` (the compiled
+        offline EKF): the last one (its innovation covariance gives the MDE) and the span of
+        the values.
+
+        Parameters
+        ----------
+        rows : odofuse.io.log.Stream
+            The log's stream.
+        t_seen : ndarray (n,)
+            Times of the stream's readings the filter saw, in order (clone-only ones too).
+        z : ndarray (m, >= dim)
+            The values of those it applied (the model's ``z`` in the first ``dim`` columns).
+        """
+        model = self.models[stream]
+        z = np.asarray(z, dtype=float)[:, : int(model.dim)]
+        if len(z) == 0 or len(t_seen) == 0:
+            return
+        self._z_span[stream] = (z.min(axis=0), z.max(axis=0))
+        t_last = float(t_seen[-1])
+        row = dict(rows.row(int(np.flatnonzero(rows.t == t_last)[-1])))
+        if model.clones() if hasattr(model, "clones") else {}:
+            if len(t_seen) < 2:
+                return
+            row["dt"] = t_last - float(t_seen[-2])
+        self._last_row[stream] = row
 
     def _clone(self, model, clones) -> None:
         index = getattr(model, "calib_index", {})
@@ -493,26 +537,66 @@ class Localizer:
         if self._slip_stream is not None:
             extra["slip_steps"] = int(self.slip_steps)
         extra["recoveries"] = len(self.monitor.recoveries)
+        mde = monitors.mde_of(self)
+        extra["mde"] = mde
         extra.update(getattr(self.backend, "extra", lambda: {})())
         traj = self.trajectory()
-        found = tuple(self._findings(traj.t, traj.covariances))
-        return EstimateResult(self.name, traj, dict(self.used), dict(self.rejected), extra, found)
+        found = self._findings(traj.t, traj.covariances) + monitors.inert_findings(self, mde)
+        return EstimateResult(
+            self.name, traj, dict(self.used), dict(self.rejected), extra, tuple(found)
+        )
 
     # ----------------------------------------------------------------- health
-    def health(self) -> monitors.Health:
-        """The filter's self-judgement so far (no ground truth): status and findings.
+    def health(self) -> monitors.LiveHealth:
+        """The filter's self-judgement so far (no ground truth): status, findings, test ratios.
 
-        The same checks as the offline result's (windowed NIS, rejection runs, recoveries,
-        covariance conditioning and growth, calibration bounds, wheel slip), plus the
-        rejected fractions and covariance checks every estimator gets
-        (:func:`odofuse.health.assess`), so a pipeline can react to ``status == "degraded"``.
+        The offline run's checks, from the same code (docs/filters.md, "Live health"): the
+        streaming checks of every sensor (test ratio, NIS windows with persistence and
+        hysteresis, rejection runs, outage; O(1) per reading), recoveries, calibration
+        bounds, rejected and dropped fractions, the current pose covariance; and the checks
+        over the kept poses (covariance conditioning and growth, collapse, gyro-bias
+        learning, inert gates), re-run every :data:`HEALTH_TRACK_EVERY` steps (a live
+        Localizer keeps the late window's poses: a fixed cost). ``status`` is degraded
+        while a check is failing now, ``run_status`` when any check failed in the run.
         """
-        from odofuse.health import assess
+        from odofuse import health as H
 
-        traj = self.trajectory()
-        own = self._findings(traj.t, traj.covariances)
-        result = EstimateResult(self.name, traj, self.used, self.rejected, findings=tuple(own))
-        return monitors.health_of(assess(result))
+        mon = self.monitor
+        span = (self.t_start, self.t)
+        fast = mon.stream_findings(span)
+        fast += mon._calibration_findings(self.calibration()) + monitors.slip_note(self)
+        fast += inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
+        fast += H.rejection_findings(self.used, self.rejected, span)
+        done, slow = self._slow
+        if self._n_steps >= done + HEALTH_TRACK_EVERY:
+            t, _, P = self._track.arrays()
+            slow = monitors.covariance_health(t, P, self.options)
+            slow += monitors.collapse_findings(self, t, P) + monitors.learning_of(self, t)
+            slow += monitors.inert_findings(self, monitors.mde_of(self))
+            self._slow = (self._n_steps, slow)
+        x, P_now = self.backend.mean()[:3], self.backend.cov()[:3, :3]
+        here = np.array([self.t])
+        now = H.pose_findings(here, x[None]) + H.covariance_findings(here, P_now[None])
+        failing = mon.failing()
+        current = (
+            failing
+            or now
+            or any(
+                f.degrades
+                for f in fast
+                if f.check in _CURRENT or (f.check == "outage" and f.t_end == self.t)
+            )
+        )
+        found = tuple(fast + slow + now)
+        live = mon.live
+        return monitors.LiveHealth(
+            status="degraded" if current else "ok",
+            run_status=H.status_of(found),
+            findings=found,
+            test_ratios={s: live[s].ratio for s in live},
+            nis_ratios={s: live[s].wratio for s in live},
+            t=self.t,
+        )
 
     def _findings(self, t, P) -> list:
         span = (float(t[0]), float(t[-1])) if len(t) else (None, None)

@@ -23,23 +23,25 @@ ground truth.
 
 from __future__ import annotations
 
+import functools
 import math
 from array import array
 from collections.abc import Mapping
 from dataclasses import dataclass
+from statistics import NormalDist
+from typing import NamedTuple
 
 import numpy as np
 
 from odofuse.declarations import FilterOptions
 from odofuse.estimators.pose_checks import (
     _s,
-    _spans,
     collapse_findings,
     covariance_health,
     learning_findings,
     record_learning,
 )
-from odofuse.health import Finding, status_of
+from odofuse.health import Finding
 from odofuse.measurements import gate_threshold
 
 
@@ -108,11 +110,35 @@ def slip_scale(
 
 # ----------------------------------------------------------------------------- monitor
 @dataclass(frozen=True)
-class Health:
-    """Live health of a streaming filter: :meth:`Localizer.health`'s answer."""
+class LiveHealth:
+    """Live health of a streaming filter: :meth:`Localizer.health`'s answer.
+
+    Attributes
+    ----------
+    status : str
+        ``"ok"`` or ``"degraded"`` *now*: degraded while a check is failing (after its
+        persistence, until its hysteresis lets it recover; docs/filters.md, "Live health").
+    run_status : str
+        What the offline run of the log so far would say of it: ``"degraded"`` when any
+        degrading finding was raised at any time of the run (``status_of(findings)``).
+    findings : tuple of odofuse.health.Finding
+        Everything noticed so far, the episodes that are over included (their time spans).
+    test_ratios : dict
+        Sensor -> the last reading's innovation test statistic (NIS) over its gate bound
+        (PX4 EKF2's test ratio: above 1 the reading was rejected; 0 without a gate).
+    nis_ratios : dict
+        Sensor -> the last complete NIS window's mean over its chi-square bound (above 1
+        the window failed; ``nan`` before the first window is complete).
+    t : float
+        Filter time (s) the answer is for.
+    """
 
     status: str
+    run_status: str
     findings: tuple
+    test_ratios: dict
+    nis_ratios: dict
+    t: float
 
 
 @dataclass(frozen=True)
@@ -159,6 +185,251 @@ def outage_findings(s: str, ts, t0: float, t1: float, reject_run: int) -> list[F
     ]
 
 
+# ----------------------------------------------------------------------------- live checks
+class _Live(NamedTuple):
+    """The streaming checks of one stream: O(1) work per reading, immutable (a snapshot for
+    the Localizer's replay is a reference). Fed by :func:`advance`."""
+
+    n: int = 0  # readings seen
+    t_first: float = math.nan
+    t_last: float = math.nan
+    gap: float = 0.0  # longest time between two consecutive readings
+    gap_t0: float = math.nan
+    ratio: float = 0.0  # the last reading's NIS over its gate
+    wsum: float = 0.0  # NIS of the accepted readings of the open window, summed
+    wn: int = 0
+    wt0: float = math.nan  # time of the open window's first reading
+    k: int = 0  # complete windows
+    wratio: float = math.nan  # the last complete window's mean over its upper bound
+    bad: int = 0  # consecutive windows above their band
+    bad_t0: float = math.nan
+    bad_worst: float = 0.0
+    low: int = 0  # consecutive windows below their band
+    good: int = 0  # consecutive windows inside their band while failing
+    failing: bool = False  # persistence reached, hysteresis not yet satisfied
+    episodes: int = 0  # times the NIS check started failing
+    ep_t0: float = math.nan
+    ep_t1: float = math.nan
+    ep_worst: float = 0.0
+    low_episodes: int = 0
+    low_t0: float = math.nan
+    low_t1: float = math.nan
+    low_worst: float = math.inf
+    run: int = 0  # consecutive rejections now
+    run_t0: float = math.nan
+    runs: int = 0  # runs of >= reject_run rejections
+    run_total: int = 0
+    longest: int = 0
+    long_t0: float = math.nan
+    long_t1: float = math.nan
+
+
+@functools.lru_cache(maxsize=4096)
+def _band(block: int, w: int, d: int, alpha: float, persist: int) -> tuple[float, float, float]:
+    """``(lo, hi, a)``: the band of a window's mean NIS and its per-window probability ``a``.
+
+    Alpha spending over a run of any length: the windows ``2^b <= k < 2^(b+1)`` of block
+    ``b`` share ``alpha * 6 / (pi^2 (b + 1)^2)`` (the blocks' shares sum to ``alpha``); a check
+    fails on ``persist`` consecutive windows, so one window's probability is that share's
+    per-window part to the power ``1 / persist`` (consistent windows are independent).
+    """
+    q = alpha * 6.0 / (math.pi**2 * (block + 1) ** 2) / 2**block
+    a = q ** (1.0 / persist)
+    from odofuse import chi2
+
+    lo, hi = chi2.ppf([a, 1.0 - a], w * d) / w
+    return float(lo), float(hi), a
+
+
+def window_band(k: int, w: int, d: int, alpha: float, persist: int) -> tuple[float, float, float]:
+    """``(lo, hi, a)`` of the ``k``-th (1-based) window of ``w`` readings of dimension ``d``."""
+    return _band(max(int(k), 1).bit_length() - 1, int(w), int(d), float(alpha), int(persist))
+
+
+def advance(st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts) -> _Live:
+    """The streaming checks after one gated reading (the Localizer's live health and the
+    offline run's findings both come from here: docs/filters.md, "Live health").
+
+    * the test ratio ``nis / gate`` (PX4 EKF2's: above 1 the reading was rejected);
+    * windows of ``nis_window`` accepted readings: the window's mean NIS against its
+      chi-square band (:func:`window_band`); ``health_persist`` consecutive windows above it
+      make the stream failing, ``health_recover`` consecutive windows inside it clear that
+      (ArduPilot EKF3's persistence and hysteresis); below the band is a note;
+    * rejection runs: ``reject_run`` consecutive rejections make the stream failing too;
+    * reading times, for the outage check.
+    """
+    w, persist = max(int(opts.nis_window), 1), int(opts.health_persist)
+    kw = {"n": st.n + 1, "t_last": t, "ratio": nis / gate if math.isfinite(gate) else 0.0}
+    if st.n == 0:
+        kw["t_first"] = t
+    elif t - st.t_last > st.gap:
+        kw["gap"], kw["gap_t0"] = t - st.t_last, st.t_last
+    if not ok:
+        run = st.run + 1
+        kw["run"] = run
+        if run == 1:
+            kw["run_t0"] = t
+        k = max(int(opts.reject_run), 1)
+        if run >= k:
+            kw["run_total"] = st.run_total + (k if run == k else 1)
+            if run == k:
+                kw["runs"] = st.runs + 1
+                kw["failing"], kw["good"] = True, 0
+            if run > st.longest:
+                kw["longest"], kw["long_t0"], kw["long_t1"] = run, kw.get("run_t0", st.run_t0), t
+        return st._replace(**kw)
+    kw["run"] = 0
+    wsum, wn = st.wsum + min(nis, 1e12), st.wn + 1
+    if wn == 1:
+        kw["wt0"] = t
+    if wn < w:
+        kw["wsum"], kw["wn"] = wsum, wn
+        return st._replace(**kw)
+    k = st.k + 1
+    mean = wsum / w
+    lo, hi, _ = window_band(k, w, d, opts.nis_alpha, persist)
+    t0 = kw.get("wt0", st.wt0)
+    kw.update(wsum=0.0, wn=0, k=k, wratio=mean / hi)
+    failing, good = kw.get("failing", st.failing), st.good
+    if mean > hi:
+        bad = st.bad + 1
+        bad_t0 = t0 if bad == 1 else st.bad_t0
+        worst = max(mean, st.bad_worst if bad > 1 else 0.0)
+        kw.update(bad=bad, bad_t0=bad_t0, bad_worst=worst, low=0)
+        good = 0
+        if bad >= persist:
+            if bad == persist:
+                kw["episodes"] = st.episodes + 1
+                if st.episodes == 0:
+                    kw["ep_t0"] = bad_t0
+            failing = True
+            kw["ep_t1"], kw["ep_worst"] = t, max(st.ep_worst, worst)
+    else:
+        kw["bad"] = 0
+        if failing:
+            good += 1
+            if good >= int(opts.health_recover):
+                failing, good = False, 0
+        low = st.low + 1 if mean < lo else 0
+        kw["low"] = low
+        if low >= persist:
+            if low == persist:
+                kw["low_episodes"] = st.low_episodes + 1
+                if st.low_episodes == 0:
+                    kw["low_t0"] = t0
+            kw["low_t1"], kw["low_worst"] = t, min(st.low_worst, mean)
+    kw["failing"], kw["good"] = failing, good
+    return st._replace(**kw)
+
+
+def live_findings(s: str, st: _Live, t0: float, t1: float, opts, d: int) -> list[Finding]:
+    """The findings of one stream's streaming checks over the run ``[t0, t1]`` (s)."""
+    out: list[Finding] = []
+    w, persist = max(int(opts.nis_window), 1), int(opts.health_persist)
+    if st.episodes:
+        _, hi, a = window_band(st.k, w, d, opts.nis_alpha, persist)
+        now = "; failing now" if st.failing and st.bad >= persist else ""
+        out.append(
+            Finding(
+                "nis",
+                f"mean NIS over {w} readings above its band (expected {d}, bound {_s(hi)} at "
+                f"{_s(a)} per window) for >= {persist} consecutive windows, {st.episodes} "
+                f"time(s); worst {_s(st.ep_worst)}{now}: the filter is overconfident or off",
+                sensor=s,
+                t_start=st.ep_t0,
+                t_end=st.ep_t1,
+                figure=st.ep_worst,
+            )
+        )
+    if st.low_episodes:
+        out.append(
+            Finding(
+                "nis",
+                f"mean NIS over {w} readings below its band (expected {d}) for >= {persist} "
+                f"consecutive windows, {st.low_episodes} time(s); lowest {_s(st.low_worst)}: "
+                "the filter is pessimistic (covariance larger than the errors)",
+                sensor=s,
+                t_start=st.low_t0,
+                t_end=st.low_t1,
+                figure=st.low_worst,
+                degrades=False,
+            )
+        )
+    if st.runs:
+        k = max(int(opts.reject_run), 1)
+        out.append(
+            Finding(
+                "rejection_run",
+                f"{st.runs} run(s) of >= {k} consecutive rejections ({st.run_total} readings); "
+                f"longest {st.longest} readings over {st.long_t1 - st.long_t0:.2f} s",
+                sensor=s,
+                t_start=st.long_t0,
+                t_end=st.long_t1,
+                figure=float(st.longest),
+            )
+        )
+    out += _outage(s, st, t0, t1, opts.reject_run)
+    return out
+
+
+def _outage(s: str, st: _Live, t0: float, t1: float, reject_run: int) -> list[Finding]:
+    """:func:`outage_findings` from the streaming record (first, last, longest gap)."""
+    if st.n < 2 or not st.t_last > st.t_first:
+        return []  # fewer than two readings: no rate to miss (live start-up)
+    gaps = [(st.t_first - t0, t0, st.t_first), (st.gap, st.gap_t0, st.gap_t0 + st.gap)]
+    gaps.append((t1 - st.t_last, st.t_last, t1))
+    g, a, b = max(gaps, key=lambda x: x[0])
+    others = st.t_last - st.t_first - st.gap  # the typical step: without the longest gap
+    step = others / (st.n - 2) if st.n > 2 and others > 0 else st.gap
+    if not (g > 0.5 * (t1 - t0) and g > max(int(reject_run), 1) * step):
+        return []
+    return [
+        Finding(
+            "outage",
+            f"no reading for {g:.1f} s of the run's {t1 - t0:.1f} s ({st.n} readings in all): "
+            "over that span the estimate is dead reckoning",
+            sensor=s,
+            t_start=float(a),
+            t_end=float(b),
+            figure=float(g),
+        )
+    ]
+
+
+def gate_mde(gate: float, s_max: float, power: float) -> float:
+    """Smallest error of one reading that its gate rejects with probability >= ``power``.
+
+    ``(sqrt(gate) + z_power) * sqrt(s_max)``, ``s_max`` the largest eigenvalue of the
+    innovation covariance ``S``: an error ``b`` along the worst direction has noncentrality
+    ``|b|^2 / s_max``, and the NIS is at least the squared innovation along ``b`` (in ``S``'s
+    metric), so the gate fires when that normal draw exceeds ``sqrt(gate)``.
+    """
+    if not (math.isfinite(gate) and s_max > 0.0):
+        return math.inf
+    return (math.sqrt(gate) + NormalDist().inv_cdf(power)) * math.sqrt(s_max)
+
+
+def window_mde(k: int, w: int, d: int, s_max: float, opts) -> float:
+    """Smallest constant error of a stream's readings that its NIS window check detects.
+
+    The error must hold over ``health_persist`` windows, each failing with probability
+    ``mde_power^(1 / health_persist)``; a window's summed NIS is then noncentral chi-square
+    (``w d`` degrees of freedom, noncentrality ``lambda = w |b|^2 / s_max`` in the worst
+    direction), taken normal (mean ``w d + lambda``, variance ``2 (w d + 2 lambda)``): its
+    ``1 - power`` quantile reaches the bound ``w hi`` at
+    ``lambda = (s^2 - w d) / 2``, ``s = z sqrt(2) + sqrt(2 z^2 + 2 w hi - w d)``.
+    """
+    if not s_max > 0.0:
+        return math.inf
+    persist = int(opts.health_persist)
+    _, hi, _ = window_band(k + 1, w, d, opts.nis_alpha, persist)
+    z = NormalDist().inv_cdf(float(opts.mde_power) ** (1.0 / persist))
+    nu, bound = w * d, w * hi
+    root = z * math.sqrt(2.0) + math.sqrt(max(2.0 * z * z + 2.0 * bound - nu, 0.0))
+    lam = max(0.5 * (root * root - nu), 0.0)
+    return math.sqrt(lam / w * s_max)
+
+
 class FilterMonitor:
     """Per-stream innovation bookkeeping of one filter, its recovery trigger and its findings.
 
@@ -179,6 +450,8 @@ class FilterMonitor:
         self._nis = {s: array("d") for s in models}
         self._ok = {s: array("b") for s in models}
         self._floor = {s: 0 for s in models}  # rejections before this index are handled
+        self.live = {s: _Live() for s in models}  # the streaming checks (advance)
+        self._cursor = {s: 0 for s in models}  # readings of the record fed to advance
         self.recoveries: list[_Recovery] = []
         self._priors = {}
         self._clones = set()
@@ -189,15 +462,40 @@ class FilterMonitor:
 
     # -- live ------------------------------------------------------------------------------
     def snapshot(self):
-        """Cheap state token (list lengths) for the Localizer's late-measurement replay."""
-        return {s: len(a) for s, a in self._t.items()}, dict(self._floor), len(self.recoveries)
+        """Cheap state token (list lengths, the streaming checks' immutable states) for the
+        Localizer's late-measurement replay."""
+        self.catch_up()
+        lengths = {s: len(a) for s, a in self._t.items()}
+        return lengths, dict(self._floor), len(self.recoveries), dict(self.live)
 
     def restore(self, snap) -> None:
-        lengths, floor, n_rec = snap
+        lengths, floor, n_rec, live = snap
         for s, n in lengths.items():
             del self._t[s][n:], self._nis[s][n:], self._ok[s][n:]
         self._floor = dict(floor)
         del self.recoveries[n_rec:]
+        self.live = dict(live)
+        self._cursor = dict(lengths)
+
+    def catch_up(self) -> None:
+        """Feed the streaming checks the readings recorded without :meth:`observe` (the
+        compiled offline EKF fills the record in one go); O(1) per reading."""
+        for s, n in self._cursor.items():
+            if n < len(self._t[s]):
+                self._advance(s, n)
+
+    def _advance(self, s: str, n: int) -> None:
+        st, gate, d, opts = self.live[s], self.gates[s], self.dims[s], self.options
+        t, nis, ok = self._t[s], self._nis[s], self._ok[s]
+        for j in range(n, len(t)):
+            st = advance(st, t[j], ok[j] == 1, nis[j], gate, d, opts)
+        self.live[s] = st
+        self._cursor[s] = len(t)
+
+    def failing(self) -> list[str]:
+        """The streams whose checks are failing now (persistence reached, not recovered)."""
+        self.catch_up()
+        return [s for s, st in self.live.items() if st.failing]
 
     def observe(self, stream: str, t: float, accepted: bool, nis: float) -> bool:
         """Record one gated update; True when the stream shows divergence (recovery due).
@@ -210,6 +508,7 @@ class FilterMonitor:
         self._t[stream].append(t)
         self._nis[stream].append(nis if math.isfinite(nis) else 1e300)
         self._ok[stream].append(1 if accepted else 0)
+        self._advance(stream, self._cursor[stream])
         if accepted or not self.options.recovery:
             return False
         ok, k = self._ok[stream], self.options.reject_run
@@ -227,7 +526,7 @@ class FilterMonitor:
         self._floor[stream] = n
 
     # -- findings --------------------------------------------------------------------------
-    def findings(self, t, P, calibration) -> list[Finding]:
+    def findings(self, t, P, calibration, span=None) -> list[Finding]:
         """Everything the monitor noticed so far.
 
         Parameters
@@ -238,90 +537,25 @@ class FilterMonitor:
             Pose covariances (world frame).
         calibration : dict
             State -> ``{"value", "sigma"}`` (the filter's current augmented states).
+        span : tuple (t0, t1), optional
+            The run's time span (s) for the outage check; by default ``t[0], t[-1]``.
         """
-        out: list[Finding] = []
         t = np.asarray(t, dtype=float)
-        for s in self._t:
-            out += self._nis_findings(s)
-            out += self._run_findings(s)
-            if t.size > 1:
-                ts = np.frombuffer(self._t[s], dtype=float)
-                out += outage_findings(s, ts, float(t[0]), float(t[-1]), self.options.reject_run)
-        out += self._recovery_findings()
+        out = self.stream_findings(span or ((float(t[0]), float(t[-1])) if t.size else None))
         out += covariance_health(t, P, self.options)
         out += self._calibration_findings(calibration)
         return out
 
-    def _nis_findings(self, s: str) -> list[Finding]:
-        from odofuse import chi2
-
-        # Accepted readings only: gated outliers are the gate's business (rejection runs and
-        # fractions report those); the gate at 0.999 barely truncates the chi-square law.
-        ok = np.frombuffer(self._ok[s], dtype=np.int8) == 1
-        nis = np.minimum(np.frombuffer(self._nis[s], dtype=float)[ok], 1e12)
-        t = np.frombuffer(self._t[s], dtype=float)[ok]
-        n, d, w = nis.size, self.dims[s], max(int(self.options.nis_window), 1)
-        if n < w:
-            return []
-        c = np.concatenate([[0.0], np.cumsum(nis)])
-        mean = (c[w:] - c[:-w]) / w  # window k covers readings k .. k+w-1
-        # The sum of w consistent NIS values is chi-square with w*d degrees of freedom; the
-        # band holds all n/w independent windows with probability 1 - nis_alpha.
-        a = self.options.nis_alpha / max(n // w, 1)
-        lo, hi = chi2.ppf(0.5 * a, w * d) / w, chi2.ppf(1.0 - 0.5 * a, w * d) / w
-        out = []
-        for flags, side, degrades in ((mean > hi, "above", True), (mean < lo, "below", False)):
-            spans = _spans(flags)
-            if not spans:
-                continue
-            inside = np.zeros(n, dtype=bool)  # readings inside a flagged window
-            for a0, b in spans:
-                inside[a0 : b + w] = True
-            covered = sum(t[j1] - t[j0] for j0, j1 in _spans(inside))
-            a0, b = max(spans, key=lambda ab: np.max(np.abs(mean[ab[0] : ab[1] + 1] - d)))
-            worst = float(mean[a0 : b + 1].max() if side == "above" else mean[a0 : b + 1].min())
-            what = (
-                "the filter is overconfident or off"
-                if side == "above"
-                else "the filter is pessimistic (covariance larger than the errors)"
-            )
-            out.append(
-                Finding(
-                    "nis",
-                    f"mean NIS over {w} readings {side} its band [{_s(lo)}, {_s(hi)}] "
-                    f"(expected {d}) in {len(spans)} span(s), {covered:.1f} s in all; worst "
-                    f"{_s(worst)}: {what}",
-                    sensor=s,
-                    t_start=float(t[a0]),
-                    t_end=float(t[min(b + w - 1, n - 1)]),
-                    figure=worst,
-                    degrades=degrades,
-                )
-            )
+    def stream_findings(self, span) -> list[Finding]:
+        """The streaming checks' findings (:func:`live_findings`) and the recoveries; O(1)
+        per stream. ``span`` ``(t0, t1)`` is the run's time span (None: no outage check)."""
+        self.catch_up()
+        out: list[Finding] = []
+        t0, t1 = span if span is not None else (math.nan, math.nan)
+        for s, st in self.live.items():
+            out += live_findings(s, st, t0, t1, self.options, self.dims[s])
+        out += self._recovery_findings()
         return out
-
-    def _run_findings(self, s: str) -> list[Finding]:
-        k = max(int(self.options.reject_run), 1)
-        ok = np.frombuffer(self._ok[s], dtype=np.int8)
-        if ok.size < k:
-            return []
-        spans = [(a, b) for a, b in _spans(ok == 0) if b - a + 1 >= k]
-        if not spans:
-            return []
-        t = np.frombuffer(self._t[s], dtype=float)
-        a, b = max(spans, key=lambda ab: t[ab[1]] - t[ab[0]])
-        total = sum(b1 - a1 + 1 for a1, b1 in spans)
-        return [
-            Finding(
-                "rejection_run",
-                f"{len(spans)} run(s) of >= {k} consecutive rejections ({total} readings); "
-                f"longest {b - a + 1} readings over {t[b] - t[a]:.2f} s",
-                sensor=s,
-                t_start=float(t[a]),
-                t_end=float(t[b]),
-                figure=float(b - a + 1),
-            )
-        ]
 
     def _recovery_findings(self) -> list[Finding]:
         out = []
@@ -372,36 +606,98 @@ class FilterMonitor:
         return out
 
 
-def health_of(findings) -> Health:
-    """:class:`Health` of a list of findings."""
-    return Health(status_of(findings), tuple(findings))
-
-
 # ----------------------------------------------------------------------------- localizer
 def localizer_findings(loc, t, P) -> list:
-    """The Localizer monitor's findings plus its wheel-slip note."""
-    from odofuse.health import Finding
+    """The Localizer's findings over the poses ``t``, ``P`` (the offline run's): the monitor's
+    (streaming checks over the whole run, covariance conditioning and growth, calibration),
+    collapse, gyro-bias learning and the wheel-slip note."""
+    out = loc.monitor.findings(t, P, loc.calibration(), span=(loc.t_start, loc.t))
+    out += collapse_findings(loc, t, P) + learning_of(loc, t) + slip_note(loc)
+    return out
 
-    out = loc.monitor.findings(t, P, loc.calibration())
-    out += collapse_findings(loc, t, P)
-    if loc._bias_idx is not None and len(t) > 1:
-        i = loc._bias_idx
-        out += learning_findings(
-            "gyro_bias",
-            loc._slip_stream,
-            loc._bias_record,
-            float(t[0]),
-            float(t[-1]),
-            float(loc.backend.cov()[i, i]),
+
+def learning_of(loc, t) -> list:
+    """The ``learning`` check of the gyro bias over the run up to the pose times ``t``."""
+    if loc._bias_idx is None or len(t) <= 1:
+        return []
+    i = loc._bias_idx
+    return learning_findings(
+        "gyro_bias",
+        loc._slip_stream,
+        loc._bias_record,
+        float(t[0]),
+        float(t[-1]),
+        float(loc.backend.cov()[i, i]),
+    )
+
+
+def slip_note(loc) -> list:
+    """A note of the odometry steps on which robust odometry widened the wheel noise."""
+    if not loc.slip_steps:
+        return []
+    return [
+        Finding(
+            "slip",
+            f"gyro and wheels disagreed on {loc.slip_steps} odometry step(s): the "
+            "wheel noise of those steps was widened to cover it (robust odometry)",
+            sensor=loc._slip_stream,
+            figure=float(loc.slip_steps),
+            degrades=False,
         )
-    if loc.slip_steps:
+    ]
+
+
+def mde_of(loc) -> dict:
+    """Sensor -> ``{"gate", "nis_window"}``: the smallest error of a reading each check of
+    the stream detects with probability ``mde_power`` (in the sensor's units), at the
+    innovation covariance of the stream's last reading under the current state covariance
+    (:func:`gate_mde`, :func:`window_mde`); None where no reading was seen."""
+    mon, opts = loc.monitor, loc.options
+    mon.catch_up()
+    x, Pfull = loc.backend.mean(), loc.backend.cov()
+    out = {}
+    for s, row in loc._last_row.items():
+        model = loc.models[s]
+        try:
+            H = np.atleast_2d(np.asarray(model.H(x, row), dtype=float))
+            S = H @ Pfull @ H.T + np.atleast_2d(model.R(row))
+            s_max = float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
+        except (KeyError, ValueError, np.linalg.LinAlgError):
+            continue  # a row the model cannot read at this state: no figure
+        if not math.isfinite(s_max):
+            continue
+        gate = gate_mde(mon.gates[s], s_max, float(opts.mde_power))
+        w = max(int(opts.nis_window), 1)
+        window = window_mde(mon.live[s].k, w, mon.dims[s], s_max, opts)
+        out[s] = {
+            "gate": gate if math.isfinite(gate) else None,
+            "nis_window": window if math.isfinite(window) else None,
+        }
+    return out
+
+
+def inert_findings(loc, mde: dict) -> list:
+    """A note per stream whose gate can never fire: no gate, or a smallest detectable error
+    larger than the whole span its readings covered (max - min of each component)."""
+    out = []
+    for s, m in mde.items():
+        span = loc._z_span.get(s)
+        width = float(np.max(span[1] - span[0])) if span is not None else math.nan
+        gate = m["gate"]
+        if gate is not None and not (math.isfinite(width) and gate > width > 0.0):
+            continue
+        what = (
+            "it has no gate"
+            if gate is None
+            else f"its smallest detectable error {_s(gate)} exceeds the span {_s(width)} "
+            "of all its readings"
+        )
         out.append(
             Finding(
-                "slip",
-                f"gyro and wheels disagreed on {loc.slip_steps} odometry step(s): the "
-                "wheel noise of those steps was widened to cover it (robust odometry)",
-                sensor=loc._slip_stream,
-                figure=float(loc.slip_steps),
+                "inert",
+                f"the gate can never fire: {what}; a fault of this sensor goes unseen",
+                sensor=s,
+                figure=gate,
                 degrades=False,
             )
         )
@@ -494,15 +790,17 @@ def forget_readings(monitor: FilterMonitor, keep: int, snapshots) -> list:
         The same tokens, re-expressed for the shortened records (same order).
     """
     snaps = list(snapshots)
+    monitor.catch_up()  # the streaming checks have seen every reading that goes
     drop = {}
     for s, a in monitor._t.items():
-        lowest = min((lengths[s] for lengths, _, _ in snaps), default=len(a))
+        lowest = min((lengths[s] for lengths, *_ in snaps), default=len(a))
         drop[s] = max(0, min(len(a) - keep, lowest))
     for s, k in drop.items():
         if k:
             del monitor._t[s][:k], monitor._nis[s][:k], monitor._ok[s][:k]
             monitor._floor[s] = max(0, monitor._floor[s] - k)
-    n_rec = min((n for _, _, n in snaps), default=len(monitor.recoveries))
+            monitor._cursor[s] -= k
+    n_rec = min((n for _, _, n, _ in snaps), default=len(monitor.recoveries))
     gone = max(0, min(len(monitor.recoveries) - keep, n_rec))
     del monitor.recoveries[:gone]
     return [
@@ -510,6 +808,7 @@ def forget_readings(monitor: FilterMonitor, keep: int, snapshots) -> list:
             {s: n - drop[s] for s, n in lengths.items()},
             {s: max(0, f - drop[s]) for s, f in floor.items()},
             n - gone,
+            live,
         )
-        for lengths, floor, n in snaps
+        for lengths, floor, n, live in snaps
     ]

@@ -281,6 +281,7 @@ def run(log, config):
             return None  # a recovery would re-open the filter: the Python path does that
         loc.used[s] += int(np.count_nonzero(ok))
         loc.rejected[s] += int(ok.size - np.count_nonzero(ok))
+        loc.note_readings(s, log.streams[s], mt[mine], args["mz"][sel])  # its MDE (metrics)
     loc.backend.x, loc.backend.P = args["x"], args["P"]
     loc._track = Track.from_arrays(t, args["traj_x"], args["traj_P"])
     loc._odom = args["odom"]

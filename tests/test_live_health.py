@@ -1,0 +1,278 @@
+"""Live health (issue 25 items 3 and 4): the offline checks, streamed, with persistence and
+hysteresis; and the smallest fault each gate and NIS window can see (its MDE)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from statistics import NormalDist
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from test_ekf import sim_config, simulate
+
+from odofuse import chi2
+from odofuse.declarations import EkfOptions
+from odofuse.estimators import ekf, monitors, particle, run_estimator, ukf
+from odofuse.estimators.assembly import events
+from odofuse.estimators.common import odometry_inputs
+from odofuse.estimators.localizer import assemble
+from odofuse.health import assess, status_of
+from odofuse.io.log import Stream
+from odofuse.motion import motion_model_from_config
+
+BACKENDS = {"ekf": ekf, "ukf": ukf, "particle": particle}
+GPS_SIGMA = 0.5
+
+
+def _with_gps(log, truth, seed, offset=None):
+    """``log`` plus a GPS stream at 2 Hz (sigma 0.5 m) of the true positions; ``offset``
+    ``(t0, t1, dx, dy)`` adds a multipath bias (m) to the fixes inside ``[t0, t1]``."""
+    rng = np.random.default_rng(seed + 1000)
+    t_odo = log.streams["odometry"].t
+    idx = np.arange(4, len(t_odo), 5)
+    xy = truth[idx + 1, :2] + rng.normal(0.0, GPS_SIGMA, (idx.size, 2))
+    t = t_odo[idx]
+    if offset is not None:
+        t0, t1, dx, dy = offset
+        inside = (t >= t0) & (t <= t1)
+        xy[inside] += [dx, dy]
+    streams = dict(log.streams)
+    streams["gps"] = Stream("gps", "sim", t, ("x", "y"), xy)
+    return dataclasses.replace(log, streams=streams)
+
+
+def _config(estimator, **options):
+    cfg = sim_config(estimator=estimator, **options)
+    sensors = {**cfg.sensors, "gps": {"sigma": GPS_SIGMA}}
+    opts = {"particles": 300, "seed": 5} if estimator == "particle" else {}
+    opts.update(options)
+    return dataclasses.replace(
+        cfg, sensors=sensors, options={**cfg.options, estimator: opts} if opts else cfg.options
+    )
+
+
+def _live(log, cfg, estimator, every_step=None):
+    """Stream ``log`` through a live Localizer (memory-flat, as ``from_config`` makes it),
+    asking for its health after every odometry step; returns it and the answers."""
+    t, U = odometry_inputs(log, motion_model_from_config(cfg))
+    make = BACKENDS[estimator].make_backend
+    loc = assemble(cfg, estimator, make, float(t[0]), log, keep_trajectory=False)
+    answers = []
+    for te, kind, stream, i in events(log, t, U, [s for s in cfg.sensors if s in log.streams]):
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+            answers.append(loc.health())
+        else:
+            loc.add_measurement(stream, log.streams[stream].row(i))
+    loc.finish()
+    return loc, answers
+
+
+def _offline_status(log, cfg, estimator):
+    return status_of(assess(run_estimator(estimator, log, cfg)))
+
+
+# --------------------------------------------------------------------------- the state machine
+def _feed_windows(mon, means, t0=0.0):
+    """Feed ``mon`` (stream ``gps``, dim 2, windows of 20) one window per mean NIS."""
+    t = t0
+    states = []
+    for m in means:
+        for _ in range(20):
+            t += 1.0
+            mon.observe("gps", t, True, float(m))
+        states.append(mon.live["gps"])
+    return states, t
+
+
+def test_persistence_and_hysteresis_of_the_nis_windows():
+    opts = EkfOptions(recovery=False)  # health_persist 3, health_recover 3
+    mon = monitors.FilterMonitor(opts, {"gps": SimpleNamespace(dim=2, gate=0.999)})
+    hi = monitors.window_band(1, 20, 2, opts.nis_alpha, 3)[1]
+    bad, good = 2.0 * hi, 2.0  # above the band of every window here (it widens with k)
+    # Two failing windows in a row do not make the stream failing (persistence 3).
+    states, t = _feed_windows(mon, [good, bad, bad, good, bad, good])
+    assert not any(s.failing for s in states) and states[-1].episodes == 0
+    hi_2 = monitors.window_band(2, 20, 2, opts.nis_alpha, 3)[1]  # the second window's band
+    assert states[1].wratio == pytest.approx(bad / hi_2) and states[1].wratio > 1.0
+    assert mon.stream_findings((0.0, t)) == []
+    # Three do; it stays failing through two passing windows, and recovers on the third.
+    states, t = _feed_windows(mon, [bad, bad, bad, good, good, good], t)
+    assert [s.failing for s in states] == [False, False, True, True, True, False]
+    (f,) = mon.stream_findings((0.0, t))
+    assert (f.check, f.sensor, f.degrades) == ("nis", "gps", True)
+    assert f.t_start == 121.0 and f.t_end == 180.0  # the three failing windows
+    # A failing window during recovery starts the count of passing windows again.
+    states, t = _feed_windows(mon, [bad, bad, bad, good, good, bad, good, good, good], t)
+    assert [s.failing for s in states] == [False] * 2 + [True] * 6 + [False]
+    assert states[-1].episodes == 2
+
+
+def test_a_rejection_run_makes_the_stream_failing_until_its_windows_pass():
+    opts = EkfOptions(recovery=False)
+    mon = monitors.FilterMonitor(opts, {"gps": SimpleNamespace(dim=2, gate=0.999)})
+    gate = mon.gates["gps"]
+    for k in range(5):
+        mon.observe("gps", float(k), False, 2.0 * gate)
+    st = mon.live["gps"]
+    assert st.failing and st.runs == 1 and st.ratio == pytest.approx(2.0)
+    _feed_windows(mon, [2.0, 2.0], 10.0)
+    assert mon.failing() == ["gps"]
+    _feed_windows(mon, [2.0], 100.0)
+    assert mon.failing() == []
+    assert [f.check for f in mon.stream_findings((0.0, 200.0))] == ["rejection_run"]
+
+
+def test_the_band_spends_the_false_alarm_probability_over_a_run_of_any_length():
+    alpha, persist = 1e-3, 3
+    # Onset probability of window k (persist windows in a row) summed over an endless run.
+    total = 0.0
+    for b in range(60):
+        a = monitors.window_band(2**b, 20, 2, alpha, persist)[2]
+        assert monitors.window_band(2 ** (b + 1) - 1, 20, 2, alpha, persist)[2] == a
+        total += 2**b * a**persist
+    # The blocks' shares 6 / (pi^2 (b + 1)^2) sum to 1: the first 60 blocks to 1 - ~1/60.
+    tail = 6.0 / math.pi**2 * sum(1.0 / (b + 1) ** 2 for b in range(60, 10**6))
+    assert total == pytest.approx(alpha * (1.0 - tail), rel=1e-5) and total < alpha
+    lo, hi, a = monitors.window_band(1, 20, 2, alpha, persist)
+    assert hi == pytest.approx(chi2.ppf(1 - a, 40) / 20) and lo == pytest.approx(
+        chi2.ppf(a, 40) / 20
+    )
+
+
+def test_nominal_windows_fail_at_the_stated_rate():
+    # Consistent NIS (chi-square 2): the per-window false-alarm probability is the band's.
+    rng = np.random.default_rng(11)
+    opts = EkfOptions(recovery=False)
+    mon = monitors.FilterMonitor(opts, {"gps": SimpleNamespace(dim=2, gate=1.0)})
+    nis = rng.chisquare(2, 20 * 4000)
+    failed = 0
+    for j, v in enumerate(nis):
+        before = mon.live["gps"].k
+        mon.observe("gps", float(j), True, float(v))
+        st = mon.live["gps"]
+        failed += st.k > before and st.wratio > 1.0
+    # Windows 2048..4000 are in block 11; the earlier ones have larger a: bound the count.
+    a = [monitors.window_band(k, 20, 2, opts.nis_alpha, 3)[2] for k in range(1, 4001)]
+    expected = sum(a)
+    assert failed <= expected + 4 * math.sqrt(expected), (failed, expected)
+    assert failed >= expected - 4 * math.sqrt(expected), (failed, expected)
+
+
+# --------------------------------------------------------------------------- live == offline
+@pytest.mark.parametrize("estimator", ["ekf", "ukf", "particle"])
+def test_live_status_equals_the_offline_status(estimator):
+    for seed, offset in ((31, None), (32, (20.0, 60.0, 2.0, -1.0))):
+        log, truth = simulate(seed, steps=1200)  # 120 s: 30 s after the burst to recover
+        log = _with_gps(log, truth, seed, offset)
+        cfg = _config(estimator)
+        loc, answers = _live(log, cfg, estimator)
+        h = loc.health()
+        offline = _offline_status(log, cfg, estimator)
+        assert h.run_status == offline, (seed, [f.line() for f in h.findings])
+        assert offline == ("ok" if offset is None else "degraded"), (estimator, seed)
+        if offset is None:
+            assert all(a.status == "ok" for a in answers)
+        else:  # failing during the burst, recovered after it (hysteresis), on record
+            during = [a.status for a in answers if 30.0 <= a.t <= 60.0]
+            assert "degraded" in during and h.status == "ok"
+            assert any(f.degrades and f.sensor == "gps" for f in h.findings)
+        assert set(h.test_ratios) == {"ranges", "gps"} and h.t == loc.t
+
+
+def test_one_unlucky_window_does_not_flip_the_status():
+    log, truth = simulate(33, steps=800)
+    log = _with_gps(log, truth, 33)
+    gps = log.streams["gps"]
+    # 20 consecutive fixes (one window's worth) 3.3 sigma off in random directions: within the
+    # gate (NIS ~ 11 < 13.8), but the window (or the two it straddles) fails its band.
+    rng = np.random.default_rng(5)
+    xy = gps.values.copy()
+    k0 = 40
+    ang = rng.uniform(0, 2 * np.pi, 20)
+    xy[k0 : k0 + 20] += 3.3 * GPS_SIGMA * np.column_stack([np.cos(ang), np.sin(ang)])
+    log = dataclasses.replace(
+        log, streams={**log.streams, "gps": Stream("gps", "sim", gps.t, gps.columns, xy)}
+    )
+    cfg = _config("ekf", compiled="off")
+    loc, answers = _live(log, cfg, "ekf")
+    ratios = [a.nis_ratios["gps"] for a in answers]
+    assert np.nanmax(ratios) > 1.0  # a window did fail
+    assert all(a.status == "ok" for a in answers) and loc.health().run_status == "ok"
+    assert _offline_status(log, cfg, "ekf") == "ok"
+
+
+def test_a_range_sensor_reading_5_percent_long_degrades_live_and_offline():
+    log, truth = simulate(34, steps=800, scale=1.05)
+    log = _with_gps(log, truth, 34)
+    cfg = _config("ekf")
+    loc, answers = _live(log, cfg, "ekf")
+    h = loc.health()
+    assert h.status == h.run_status == _offline_status(log, cfg, "ekf") == "degraded"
+    assert any(f.sensor == "ranges" and f.degrades for f in h.findings), h.findings
+    first = next(a.t for a in answers if a.status == "degraded")
+    assert first < 40.0  # within the first windows of ranges (5 Hz, windows of 20)
+
+
+# --------------------------------------------------------------------------- what a gate can see
+def test_gate_mde_is_detected_with_its_power():
+    g, S, power = chi2.ppf(0.999, 1), 0.04, 0.95
+    mde = monitors.gate_mde(g, S, power)
+    assert mde == pytest.approx((math.sqrt(g) + NormalDist().inv_cdf(power)) * math.sqrt(S))
+    rng = np.random.default_rng(3)
+    y = mde + rng.normal(0.0, math.sqrt(S), 200_000)
+    assert np.mean(y * y / S > g) >= power - 0.005
+    # A 2-D gate: the worst direction's noise; the bound holds there too (it is conservative).
+    g2 = chi2.ppf(0.999, 2)
+    S2 = np.diag([0.25, 0.04])
+    m2 = monitors.gate_mde(g2, 0.25, power)
+    y = np.array([m2, 0.0]) + rng.normal(0.0, 1.0, (200_000, 2)) * np.sqrt(np.diag(S2))
+    assert np.mean(np.einsum("ij,ij->i", y @ np.linalg.inv(S2), y) > g2) >= power
+    assert monitors.gate_mde(math.inf, S, power) == math.inf
+
+
+def test_window_mde_is_detected_with_its_power_over_the_persistence():
+    opts = EkfOptions()
+    w, d, S = 20, 2, 0.3
+    mde = monitors.window_mde(0, w, d, S, opts)
+    rng = np.random.default_rng(4)
+    hi = monitors.window_band(1, w, d, opts.nis_alpha, opts.health_persist)[1]
+    n = 20_000
+    y = mde + rng.normal(0.0, math.sqrt(S), (n, opts.health_persist, w))
+    z = rng.normal(0.0, math.sqrt(S), (n, opts.health_persist, w))  # the other axis
+    mean = ((y * y + z * z) / S).mean(axis=2)
+    detected = np.all(mean > hi, axis=1).mean()
+    assert detected >= opts.mde_power - 0.01, detected
+    assert monitors.window_mde(0, w, d, S / 4, opts) == pytest.approx(mde / 2)
+
+
+def test_results_report_the_mde_of_every_gate_and_window_in_metrics():
+    from odofuse.evaluation import metrics
+
+    log, truth = simulate(35, steps=400)
+    log = _with_gps(log, truth, 35)
+    py = run_estimator("ekf", log, _config("ekf", compiled="off"))
+    compiled = run_estimator("ekf", log, _config("ekf"))
+    for s in ("ranges", "gps"):
+        m_py, m_c = py.extra["mde"][s], compiled.extra["mde"][s]
+        assert m_py["gate"] == pytest.approx(m_c["gate"], rel=1e-6)
+        assert m_py["nis_window"] == pytest.approx(m_c["nis_window"], rel=1e-6)
+        assert 0.0 < m_py["nis_window"] < m_py["gate"]  # 60 readings see a smaller bias
+    # GPS at 0.5 m: a single fix is seen from ~2 m on (sqrt(13.8) + 1.64) * ~0.5.
+    assert 1.5 < py.extra["mde"]["gps"]["gate"] < 3.5
+    m = metrics(py, log)
+    assert m["sensors"]["gps"]["mde"] == py.extra["mde"]["gps"]
+    assert not [f for f in assess(py) if f.check == "inert"]
+
+
+def test_a_gate_that_can_never_fire_is_reported_inert():
+    log, truth = simulate(36, steps=400)
+    log = _with_gps(log, truth, 36)
+    cfg = _config("ekf", compiled="off")
+    cfg = dataclasses.replace(cfg, sensors={**cfg.sensors, "gps": {"sigma": 500.0}})
+    res = run_estimator("ekf", log, cfg)
+    (f,) = [f for f in res.findings if f.check == "inert"]
+    assert f.sensor == "gps" and not f.degrades and f.figure > 1000.0
+    assert "never fire" in f.line()
