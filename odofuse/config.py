@@ -27,6 +27,7 @@ from odofuse.declarations import (
     estimator_options,
     sensor_options,
 )
+from odofuse.declarations.live import LiveOptions
 from odofuse.errors import ConfigError
 from odofuse.options import coerce, from_mapping
 from odofuse.plugins import check_allowed, check_module_name, load_function
@@ -58,9 +59,11 @@ class RunConfig:
     source: str = "<config>"
     log_options: dict = field(default_factory=dict)
     plugins: tuple[str, ...] = ()
+    live: LiveOptions = field(default_factory=LiveOptions)  # odofuse live (odofuse.live)
 
     def __post_init__(self) -> None:
         src, put = self.source, functools.partial(object.__setattr__, self)
+        put("live", coerce(LiveOptions, self.live, "live", src))
         put("motion", coerce(MotionOptions, self.motion, "motion", src))
         put("initial", coerce(InitialOptions, self.initial, "initial", src))
         sensors = _mapping(self.sensors, "sensors", src)
@@ -106,6 +109,7 @@ TOP_KEYS = (
     "options",
     "description",
     "plugins",
+    "live",
 )
 
 
@@ -392,6 +396,7 @@ def config_from_dict(
         source=src,
         log_options=log_options,
         plugins=plugins,
+        live=from_mapping(LiveOptions, top.get("live"), "live", src),
     )
 
 

@@ -8,6 +8,7 @@ import math
 from dataclasses import dataclass
 
 from odofuse.declarations.common import _NONNEG, _POSITIVE, DEFAULT_INITIAL_SIGMA, INTEGRATORS
+from odofuse.declarations.live import LiveOptions
 from odofuse.io.csvlog import REPAIR_DUPLICATES
 from odofuse.options import option
 
@@ -218,4 +219,5 @@ BLOCK_OPTIONS: dict[str, type] = {
     "initial": InitialOptions,
     "robot.encoder": EncoderOptions,
     "log": LogOptions,
+    "live": LiveOptions,
 }
