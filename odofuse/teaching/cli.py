@@ -1,4 +1,4 @@
-"""Teaching and simulation subcommands: ``simulate``, ``demo``, ``calibrate``.
+"""Teaching and simulation subcommands: ``simulate``, ``demo``, ``calibrate``, ``teach``.
 
 ``odofuse.cli`` imports this module when present and calls :func:`register` with its
 ``COMMANDS`` table (name -> ``(add_arguments, handler)``). Handlers return an exit status and
@@ -13,7 +13,7 @@ from pathlib import Path
 
 from odofuse.errors import ConfigError, OdofuseError
 
-__all__ = ["register", "cmd_simulate", "cmd_demo", "cmd_calibrate"]
+__all__ = ["register", "cmd_simulate", "cmd_demo", "cmd_calibrate", "cmd_teach"]
 
 
 def _as_config_error(exc: ValueError) -> OdofuseError:
@@ -195,8 +195,33 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------- teach
+def _teach_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "-o",
+        "--out",
+        default="odofuse-teach",
+        help="folder for odofuse-teach.html (one self-contained page: open it in a browser, "
+        "no server or network needed)",
+    )
+
+
+def cmd_teach(args) -> int:
+    """Write the interactive teaching page (error growth, UMBmark, drives, fusion)."""
+    from odofuse.teaching.web import write_page
+
+    try:
+        path = write_page(args.out)
+    except OSError as exc:
+        raise ConfigError(f"cannot write the teaching page into {args.out}: {exc}") from None
+    size = path.stat().st_size
+    print(f"wrote {path} ({size / 1024:.0f} KiB); open it in a browser: {path.resolve().as_uri()}")
+    return 0
+
+
 def register(commands) -> None:
-    """Add ``simulate``, ``demo`` and ``calibrate`` to the CLI's ``COMMANDS`` table."""
+    """Add ``simulate``, ``demo``, ``calibrate`` and ``teach`` to the CLI's ``COMMANDS`` table."""
     commands["simulate"] = (_simulate_args, cmd_simulate)
     commands["demo"] = (_demo_args, cmd_demo)
     commands["calibrate"] = (_calibrate_args, cmd_calibrate)
+    commands["teach"] = (_teach_args, cmd_teach)

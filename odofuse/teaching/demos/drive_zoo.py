@@ -137,10 +137,15 @@ def demo_drive_zoo(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
         dom = int(drive.degree_of_mobility)
         dos = int(getattr(drive, "degree_of_steerability", 0))
         ax.set_title(
-            f"{name}: δm = {dom}, δs = {dos}\ntwist ω={tw[0]:g}, vx={tw[1]:g}, vy={tw[2]:g} (1/s)",
+            f"{name}: δm = {dom}, δs = {dos}\n"
+            f"twist ω = {tw[0]:g} rad/s, vx = {tw[1]:g} m/s, vy = {tw[2]:g} m/s",
             fontsize=10,
         )
-        text = "\n".join(f"{k} = {v:+.2f}" for k, v in zip(drive.input_names, u, strict=False))
+        units = {"wheel": "rad/s", "steer": "rad", "steer_increment": "rad/s"}
+        text = "\n".join(
+            f"{k} = {v:+.2f} {units.get(kind, '')}"
+            for k, v, kind in zip(drive.input_names, u, drive.input_kinds, strict=True)
+        )
         ax.text(
             0.02,
             0.02,

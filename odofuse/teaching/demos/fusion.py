@@ -94,14 +94,19 @@ def demo_fusion(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
             "max_error_in_outage_m": float(err[during].max()) if during.any() else math.nan,
             "final_error_m": float(err[-1]),
         }
-    _xy_axes(ax, "Figure eight, wheels + gyro + GPS")
+    length = float(np.sum(np.hypot(*np.diff(sim.truth[:, :2], axis=0).T)))
+    dataset = f"simulated figure eight ({length:.0f} m, seed {seed})"
+    rmse = ", ".join(
+        f"{name.replace('_', ' ')} {numbers[name]['rmse_m']:.2f} m" for name in results
+    )
+    _xy_axes(ax, f"{dataset}: wheels + gyro + GPS\nATE RMSE: {rmse}")
     ax.legend(loc="best", fontsize=8)
     ax2.axvspan(*outage, color="gold", alpha=0.3, label="GPS outage")
     ax2.set_xlabel("time [s]")
     ax2.set_ylabel("position error [m]")
     ax2.set_yscale("log")
     ax2.set_ylim(bottom=1e-2)
-    ax2.set_title("Position error against ground truth")
+    ax2.set_title(f"Position error against ground truth (seed {seed})\nATE RMSE: {rmse}")
     ax2.grid(True, which="both", alpha=0.3)
     ax2.legend(loc="best", fontsize=8)
     png = _save(fig, out_dir, "fusion")
