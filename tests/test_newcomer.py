@@ -10,8 +10,8 @@ issue and checks the one line that names the key to fix.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -208,3 +208,105 @@ def test_5_localizer_and_run_estimator_refuse_wrong_shapes(robot):
         run_estimator("ekf", log, {"estimator": "ekf"})
     with pytest.raises(InputError, match=r"argument 'name': expected an estimator name"):
         run_estimator(3, log, cfg)
+
+
+# ------------------------------------------------------------------------------- point 2
+#: A user GPS model that refuses a noise below 0.9 m: a stand-in for a candidate whose filter
+#: run fails (the newcomer's log made 31 of 35 candidates overflow before the log checks
+#: learned to stop it first, point 1).
+PICKY_GPS = """\
+import dataclasses
+from odofuse.measurements.absolute import GpsPosition
+
+
+@dataclasses.dataclass(frozen=True)
+class PickyGps(GpsPosition):
+    def R(self, row):
+        if self.sigma < 0.9:
+            raise ValueError(f"sigma {self.sigma:.3g} m below what this receiver allows")
+        return super().R(row)
+"""
+
+
+def picky_tune_config(robot, name: str) -> Path:
+    """The radian-wheel log without its gyro (fast runs), GPS through the picky model."""
+    log = robot / "rad-gps"
+    if not log.exists():
+        log.mkdir()
+        for f in ("wheels.csv", "gps.csv"):
+            shutil.copy(robot / "rad" / f, log / f)
+    (robot / "picky_gps.py").write_text(PICKY_GPS)
+    cfg = robot / f"{name}.yaml"
+    cfg.write_text(
+        "log: rad-gps\nplugins: [picky_gps]\n"
+        "robot: {drive: differential, wheel_radius: 0.05, track_width: 0.30}\n"
+        "motion: {integrator: exact, k_r: 1.0e-5, k_l: 1.0e-5}\nestimator: ekf\n"
+        "initial: {pose: [0, 0, 0], sigma: [0.01, 0.01, 0.01]}\n"
+        "sensors:\n  gps: {class: 'picky_gps:PickyGps', sigma: 1.0, gate: 0.999}\n"
+    )
+    return cfg
+
+
+def tune_env(robot):
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(robot)])}
+
+
+def test_2_tune_skips_failing_candidates_and_reports_them(robot, monkeypatch):
+    """Before: the filter's error ended `odofuse tune` after 70 runs; no config written."""
+    cfg = picky_tune_config(robot, "picky")
+    out = robot / "picky-tuned.yaml"
+    proc = subprocess.run(
+        [sys.executable, "-m", "odofuse", "tune", str(cfg), "-o", str(out), "--max-seconds", "20"],
+        capture_output=True,
+        text=True,
+        env=tune_env(robot),
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    m = re.search(
+        r"(\d+) of (\d+) candidate runs failed and were skipped; the first: (.*)", proc.stdout
+    )
+    assert m, proc.stdout
+    assert 0 < int(m.group(1)) < int(m.group(2))
+    assert "sensors.gps.sigma = " in m.group(3) and "below what this receiver allows" in m.group(3)
+    assert "each value bounded to start x/ 1000" in proc.stdout
+    from odofuse.config import load_config
+
+    monkeypatch.syspath_prepend(str(robot))
+    tuned = load_config(out)
+    assert tuned.sensors["gps"].params["sigma"] >= 0.9  # a failing candidate never wins
+    assert "failed and were skipped" in out.read_text()
+
+
+def test_2_tune_keeps_its_best_config_when_interrupted(robot, monkeypatch):
+    """A checkpoint is written whenever the best improves; Ctrl-C says where it is."""
+    import signal
+    import time
+
+    cfg = picky_tune_config(robot, "picky-int")
+    out = robot / "picky-int-tuned.yaml"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "odofuse", "tune", str(cfg), "-o", str(out), "--max-seconds", "600"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=tune_env(robot),
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+        assert out.exists(), "no checkpoint written"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert f"tune: interrupted; the best config so far is in {out}" in err
+    text = out.read_text()
+    assert "CHECKPOINT: best so far after" in text and "the tuning had not finished" in text
+    from odofuse.config import load_config
+
+    monkeypatch.syspath_prepend(str(robot))
+    assert load_config(out).estimator == "ekf"

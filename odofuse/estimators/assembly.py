@@ -48,22 +48,24 @@ def feed(loc: Localizer, log, t, U, streams, config=None) -> Localizer:
     the trajectory by :func:`odofuse.estimators.run_estimator`.
     """
     te, what, step = float(t[0]), "odometry", None
-    try:
-        for te, kind, stream, i in events(log, t, U, streams):
-            if kind == 1:
-                what, step = "odometry", i
-                loc.add_odometry(te, U[i])
-            else:
-                what, step = stream, None
-                loc.add_measurement(stream, log.streams[stream].row(i))
-        te, what, step = float(t[-1]), "end of log", None
-        loc.finish()
-    except OdofuseError:
-        raise
-    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-        cause = numeric_cause(_last_finite_cov(loc), U[step] if step is not None else None)
-        name = getattr(loc, "name", None) or "filter"
-        raise NumericError(f"{one_line(exc)}; {cause}", name, float(te), what) from None
+    # an overflow is reported below as a NumericError, not as numpy's RuntimeWarning
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            for te, kind, stream, i in events(log, t, U, streams):
+                if kind == 1:
+                    what, step = "odometry", i
+                    loc.add_odometry(te, U[i])
+                else:
+                    what, step = stream, None
+                    loc.add_measurement(stream, log.streams[stream].row(i))
+            te, what, step = float(t[-1]), "end of log", None
+            loc.finish()
+        except OdofuseError:
+            raise
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            cause = numeric_cause(_last_finite_cov(loc), U[step] if step is not None else None)
+            name = getattr(loc, "name", None) or "filter"
+            raise NumericError(f"{one_line(exc)}; {cause}", name, float(te), what) from None
     return loc
 
 

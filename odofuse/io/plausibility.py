@@ -37,7 +37,8 @@ truth):
 ``gyro_units``
     a gyro whose yaw rate is 45-70 times the wheels' (57.3 = degrees per radian): an error.
 ``wheel_scale``
-    a gyro whose yaw rate is over :data:`WHEEL_SCALE` times the wheels' or under its inverse
+    a gyro whose yaw rate is over :data:`WHEEL_SCALE` (skid steer: :data:`SKID_WHEEL_SCALE`)
+    times the wheels' or under its inverse
     (outside the degrees band): the wheel increments do not fit the configured units (wheels
     logged in metres where radians are expected, a wrong ``robot.encoder.ticks_per_rev``,
     ``robot.wheel_radius`` or ``robot.track_width``): an error naming those keys.
@@ -68,8 +69,10 @@ UNIT_RATIO = 500.0
 FAR_GPS = 1e5
 DEG_PER_RAD = 180.0 / math.pi
 #: Gyro / wheel yaw-rate ratio beyond which (or below whose inverse) the wheels' units are
-#: wrong: a skid-steer robot's wheels overstate its turns by about 2x, a factor 4 is not slip.
-WHEEL_SCALE = 4.0
+#: wrong: slip and a few % of geometry error stay far inside a factor 2; a skid-steer robot's
+#: wheels overstate its turns by about 2x, so it gets :data:`SKID_WHEEL_SCALE`.
+WHEEL_SCALE = 2.0
+SKID_WHEEL_SCALE = 4.0
 ODOMETRY_STREAMS = ("wheels", "odometry", "cmd_vel")
 
 
@@ -381,7 +384,9 @@ def _gyro_units(gyro, rates, odo=None, config=None) -> None:
             1,
             "wz",
         )
-    if odo is not None and odo.name == "wheels" and not 1.0 / WHEEL_SCALE <= scale <= WHEEL_SCALE:
+    robot = getattr(config, "robot", None) or {}
+    bound = SKID_WHEEL_SCALE if robot.get("drive") == "skid_steer" else WHEEL_SCALE
+    if odo is not None and odo.name == "wheels" and not 1.0 / bound <= scale <= bound:
         _wheel_scale(scale, odo, config)
 
 
