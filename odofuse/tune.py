@@ -33,11 +33,12 @@ import math
 import re
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from odofuse.errors import ConfigError
+from odofuse.errors import ConfigError, one_line
 
 #: Default share of the log (by time, from its start) the parameters are fitted on.
 FIT_FRACTION = 2.0 / 3.0
@@ -84,6 +85,11 @@ class TuneResult:
         Per key ``""``, or ``"lower"``/``"upper"`` when the learned value sits at
         ``start / SPAN`` or ``start * SPAN`` (no uncertainty then; the others' is computed
         with it held there).
+    failed : int
+        Candidate runs that failed (an error of the filter, e.g. a covariance that
+        overflowed): skipped, as if their likelihood were zero.
+    failure : str
+        The first failure: the candidate values and the one-line error.
     """
 
     keys: tuple
@@ -100,6 +106,8 @@ class TuneResult:
     stopped: str
     raw: dict
     at_bound: tuple = ()
+    failed: int = 0
+    failure: str = ""
 
 
 class _Bound(Exception):
@@ -324,7 +332,10 @@ def loglik(records, t_min: float = -math.inf, t_max: float = math.inf) -> tuple[
 
 def heldout_summary(records, t_split: float) -> dict:
     """``{"updates", "mean_loglik", "nis": {stream: mean NIS/dim}}`` of updates after
-    ``t_split`` (NIS capped at the gate, expected 1 per dimension)."""
+    ``t_split`` (NIS capped at the gate, expected 1 per dimension). ``records`` may be the
+    exception of a run that failed: then ``{"updates": 0, ..., "error": one line}``."""
+    if isinstance(records, BaseException):
+        return {"updates": 0, "mean_loglik": None, "nis": {}, "error": one_line(records)}
     total, n = loglik(records, t_min=t_split)
     nis: dict = {}
     for s, t, _, v, d, _ in records:
@@ -352,6 +363,7 @@ def tune(
     max_evaluations: int = 400,
     uncertainty: bool = True,
     progress=None,
+    checkpoint=None,
 ) -> TuneResult:
     """Learn the noise parameters ``keys`` of ``config`` from ``log`` by maximum likelihood.
 
@@ -374,6 +386,14 @@ def tune(
         Compute the numerical Hessian (about ``2 p^2`` more filter runs for ``p`` keys).
     progress : callable, optional
         Called with one status line per filter run (default: a line on stderr).
+    checkpoint : callable, optional
+        Called as ``checkpoint(raw, lines)`` whenever the best candidate improves: the config
+        mapping with its values and a few lines saying how far the tuning got (what
+        :func:`tune_config` writes, so that a crash or an interrupt keeps the best so far).
+
+    A candidate whose filter run raises is skipped (its likelihood taken as zero), counted in
+    ``failed`` and reported; when every run fails, the first failure is raised. Each value
+    stays within ``start / SPAN .. start * SPAN``, so the likelihood cannot run away.
     """
     from scipy.optimize import minimize
 
@@ -401,6 +421,23 @@ def tune(
         return config_from_dict(r, config.source, Path(config.source).parent), r
 
     seen: dict = {}
+    fails: dict = {"n": 0, "first": ""}
+
+    def run_candidate(values):
+        """The fit part's ``-loglik`` of ``values``; inf (counted) when the run fails."""
+        try:
+            cfg, _ = config_for(values)
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # filterpy's overflow
+                total, n = loglik(innovations(fit_log, cfg))
+        except Exception as exc:  # noqa: BLE001 - one failing candidate must not end the tuning
+            fails["n"] += 1
+            if not fails["first"]:
+                where = ", ".join(f"{k} = {v:.4g}" for k, v in zip(keys, values, strict=True))
+                fails["first"] = f"{where}: {one_line(exc)}"
+            return math.inf, f"failed: {one_line(exc)[:80]}"
+        f = -total if math.isfinite(total) and n else math.inf
+        return f, f"-loglik {f:12.2f}"
 
     def nll(theta, bounded=True):
         key = tuple(np.asarray(theta, dtype=float).tolist())
@@ -411,14 +448,21 @@ def tune(
         if bounded and count["n"] >= max_evaluations:
             raise _Bound("evaluation bound")
         count["n"] += 1
-        cfg, _ = config_for(np.exp(theta))
-        total, n = loglik(innovations(fit_log, cfg))
-        f = -total if math.isfinite(total) and n else math.inf
+        f, text = run_candidate(np.exp(theta))
         if f < best["f"]:
             best.update(f=f, x=np.array(theta, dtype=float))
+            if checkpoint is not None:
+                checkpoint(
+                    set_values(raw, keys, np.exp(theta)),
+                    [
+                        f"CHECKPOINT: best so far after {count['n']} filter runs "
+                        f"({fails['n']} failed): -loglik {f:.2f} on the first part of the log "
+                        f"(t <= {t_split:.2f} s); the tuning had not finished",
+                    ],
+                )
         seen[key] = f
         show(
-            f"tune: run {count['n']:4d}  -loglik {f:12.2f}  best {best['f']:12.2f}  "
+            f"tune: run {count['n']:4d}  {text}  best {best['f']:12.2f}  "
             f"{time.perf_counter() - clock:6.0f} s"
         )
         return f
@@ -438,6 +482,12 @@ def tune(
         )
     except _Bound as exc:
         stopped = str(exc)
+    if not math.isfinite(best["f"]):
+        first = f"; the first failure: {fails['first']}" if fails["n"] else ""
+        raise ConfigError(
+            f"no finite likelihood in {count['n']} candidate runs ({fails['n']} failed){first}",
+            config.source,
+        )
     x = best["x"]
     at_bound = tuple(
         "lower" if xi - a < HESSIAN_STEP else "upper" if b - xi < HESSIAN_STEP else ""
@@ -461,9 +511,9 @@ def tune(
     sig = tuple(sig)
     values = start if np.array_equal(x, np.log(start)) else np.exp(x)
     cfg, tuned_raw = config_for(values)
-    learned_rec = innovations(log, cfg)
-    start_rec = innovations(log, config_for(start)[0])
-    _, n_fit = loglik(learned_rec, t_max=t_split)
+    learned_rec, start_rec = (_records_or_error(log, c) for c in (cfg, config_for(start)[0]))
+    failed_full = isinstance(learned_rec, BaseException)
+    n_fit = 0 if failed_full else loglik(learned_rec, t_max=t_split)[1]
     if progress is None:
         sys.stderr.write("\n")
     return TuneResult(
@@ -479,12 +529,22 @@ def tune(
             "learned": heldout_summary(learned_rec, t_split),
             "start": heldout_summary(start_rec, t_split),
         },
+        failed=fails["n"],
+        failure=fails["first"],
         evaluations=count["n"],
         seconds=time.perf_counter() - clock,
         stopped=stopped,
         raw=tuned_raw,
         at_bound=at_bound,
     )
+
+
+def _records_or_error(log, cfg):
+    """:func:`innovations` over the whole log, or the exception of a run that failed."""
+    try:
+        return innovations(log, cfg)
+    except Exception as exc:  # noqa: BLE001 - reported in the held-out summary
+        return exc
 
 
 def _time_span(log) -> tuple[float, float]:
@@ -537,8 +597,20 @@ def tune_config(path, out=None, keys=None, **kw) -> tuple[TuneResult, Path]:
     for key in keys or default_keys(raw):
         get_value(raw, key)  # a bad key fails before the log is read
     log = load_log_for(config, groundtruth=False)
-    res = tune(config, raw, log, keys, **kw)
     out = Path(out) if out is not None else path.with_name(f"{path.stem}-tuned.yaml")
+    saved: list = []
+
+    def checkpoint(best_raw: dict, lines: list) -> None:
+        write_config_file(best_raw, out, path, config.log, lines)
+        saved[:] = lines
+
+    try:
+        res = tune(config, raw, log, keys, checkpoint=checkpoint, **kw)
+    except BaseException as exc:  # a crash, Ctrl-C or SIGTERM: say where the best so far is
+        if saved:
+            why = "interrupted" if isinstance(exc, KeyboardInterrupt | SystemExit) else "stopped"
+            sys.stderr.write(f"\ntune: {why}; the best config so far is in {out} ({saved[0]})\n")
+        raise
     write_tuned(res, out, path, config.log)
     return res, out
 
@@ -549,8 +621,14 @@ def report_lines(res: TuneResult) -> list[str]:
         f"maximised: EKF innovation log-likelihood of the first part of the log (t <= "
         f"{res.t_split:.2f} s, {res.fit_updates} updates): {res.start_fit_loglik:.2f} at the "
         f"start values -> {res.fit_loglik:.2f} learned",
-        f"{res.evaluations} filter runs, {res.seconds:.1f} s, stopped: {res.stopped}",
+        f"{res.evaluations} filter runs, {res.seconds:.1f} s, stopped: {res.stopped}; each "
+        f"value bounded to start x/ {SPAN:g}",
     ]
+    if res.failed:
+        lines.append(
+            f"{res.failed} of {res.evaluations} candidate runs failed and were skipped; the "
+            f"first: {res.failure}"
+        )
     bounds = res.at_bound or ("",) * len(res.keys)
     for k, s, v, sg, b in zip(res.keys, res.start, res.values, res.log_sigma, bounds, strict=True):
         band = "uncertainty not computed" if sg is None else f"1-sigma x/ {math.exp(sg):.3f}"
@@ -561,6 +639,9 @@ def report_lines(res: TuneResult) -> list[str]:
         lines.append(f"  {k}: {v:.4g} ({band}; start {s:.4g})")
     for name in ("start", "learned"):
         h = res.heldout[name]
+        if h.get("error"):
+            lines.append(f"held-out, {name} values: the run failed: {h['error']}")
+            continue
         ml = "n/a" if h["mean_loglik"] is None else f"{h['mean_loglik']:.4f}"
         nis = ", ".join(f"{s} {v:.2f}" for s, v in h["nis"].items()) or "-"
         lines.append(
@@ -575,15 +656,7 @@ def write_tuned(res: TuneResult, out, source, log: str) -> Path:
 
     ``log`` is written resolved (the tuned file may live in another folder).
     """
-    import yaml
-
-    from odofuse.io.atomic import atomic_write_text
-
     raw = copy.deepcopy(res.raw)
-    if isinstance(raw.get("log"), dict):
-        raw["log"]["path"] = log
-    else:
-        raw["log"] = log
     raw["description"] = (
         f"Tuned by `odofuse tune {source}` from the log itself (no ground truth): "
         + "; ".join(
@@ -591,9 +664,23 @@ def write_tuned(res: TuneResult, out, source, log: str) -> Path:
             for k, v, s in zip(res.keys, res.values, res.log_sigma, strict=True)
         )
     )
-    header = [
-        f"Made by `odofuse tune {source}` on {log}; ground truth was not read.",
-        *report_lines(res),
-    ]
+    return write_config_file(raw, out, source, log, report_lines(res))
+
+
+def write_config_file(raw: dict, out, source, log: str, lines) -> Path:
+    """Write the config mapping ``raw`` to ``out`` (atomically) under a header of ``lines``.
+
+    ``log`` is written resolved (the tuned file may live in another folder).
+    """
+    import yaml
+
+    from odofuse.io.atomic import atomic_write_text
+
+    raw = copy.deepcopy(raw)
+    if isinstance(raw.get("log"), dict):
+        raw["log"]["path"] = log
+    else:
+        raw["log"] = log
+    header = [f"Made by `odofuse tune {source}` on {log}; ground truth was not read.", *lines]
     text = "".join(f"# {h}\n" for h in header) + yaml.safe_dump(raw, sort_keys=False)
     return atomic_write_text(out, text)

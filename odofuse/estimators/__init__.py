@@ -31,6 +31,52 @@ def get_estimator(name: str):
     return load_function(spec, "estimator")
 
 
+def _check_arguments(name, log, config) -> None:
+    """One-line :class:`~odofuse.errors.InputError` for arguments of the wrong kind."""
+    from odofuse.config import RunConfig
+    from odofuse.errors import InputError
+    from odofuse.io.log import SensorLog
+
+    if not isinstance(name, str):
+        raise InputError(f"argument 'name': expected an estimator name (str), got {name!r}")
+    if not isinstance(log, SensorLog):
+        raise InputError(
+            f"argument 'log': expected a SensorLog (odofuse.io.loader.load_log_for(config)), "
+            f"got {type(log).__name__}"
+        )
+    if not isinstance(config, RunConfig):
+        raise InputError(
+            f"argument 'config': expected a RunConfig (odofuse.config.load_config(path)), "
+            f"got {type(config).__name__}"
+        )
+
+
+def _check_finite(name: str, result) -> None:
+    """A :class:`~odofuse.errors.NumericError` at the first pose whose estimate or covariance
+    is not finite (any estimator, compiled or not): never a NaN in the outputs."""
+    import numpy as np
+
+    traj = result.trajectory
+    bad = ~np.isfinite(traj.poses).all(axis=1)
+    if traj.covariances is not None:
+        bad |= ~np.isfinite(traj.covariances).all(axis=(1, 2))
+    if not bad.any():
+        return
+    from odofuse.errors import NumericError
+    from odofuse.estimators.assembly import numeric_cause
+
+    k = int(np.argmax(bad))
+    P = traj.covariances[k - 1] if traj.covariances is not None and k else np.full((3, 3), np.nan)
+    dt = float(traj.t[k] - traj.t[k - 1]) if k else None
+    raise NumericError(
+        f"the estimate or its covariance is not finite, first here ({int(bad.sum())} of "
+        f"{len(bad)} poses); {numeric_cause(P, None, dt)}",
+        name,
+        float(traj.t[k]),
+        "the step ending here",
+    )
+
+
 def run_estimator(name: str, log, config, **options):
     """Run estimator ``name`` on ``log`` with ``config``; returns an ``EstimateResult``.
 
@@ -42,7 +88,9 @@ def run_estimator(name: str, log, config, **options):
     a non-degrading finding saying so (only the graph estimators use them, with
     ``sensors: {loop_closures: {}}``).
     """
+    _check_arguments(name, log, config)
     result = get_estimator(name)(log, config, **options)
+    _check_finite(name, result)
     noted = tuple(getattr(log, "findings", ()) or ())  # the log's plausibility findings
     if noted:
         import dataclasses

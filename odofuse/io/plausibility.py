@@ -39,6 +39,12 @@ by a time step or compares time scales (``speed``, ``time_units``, ``gps_jumps``
     implying a speed above ``log.max_speed`` (counted, non-degrading: the gate handles them).
 ``gyro_units``
     a gyro whose yaw rate is 45-70 times the wheels' (57.3 = degrees per radian): an error.
+``wheel_scale``
+    a gyro whose yaw rate is over :data:`WHEEL_SCALE` (skid steer: :data:`SKID_WHEEL_SCALE`)
+    times the wheels' or under its inverse
+    (outside the degrees band): the wheel increments do not fit the configured units (wheels
+    logged in metres where radians are expected, a wrong ``robot.encoder.ticks_per_rev``,
+    ``robot.wheel_radius`` or ``robot.track_width``): an error naming those keys.
 
 A stream mostly rejected by its gate, or mostly dropped as late, is reported by the run
 itself (:func:`odofuse.health.rejection_findings`, the Localizer's ``dropped`` finding).
@@ -65,6 +71,11 @@ UNIT_RATIO = 500.0
 #: Local GPS fixes farther than this (m) from the start pose are not local.
 FAR_GPS = 1e5
 DEG_PER_RAD = 180.0 / math.pi
+#: Gyro / wheel yaw-rate ratio beyond which (or below whose inverse) the wheels' units are
+#: wrong: slip and a few % of geometry error stay far inside a factor 2; a skid-steer robot's
+#: wheels overstate its turns by about 2x, so it gets :data:`SKID_WHEEL_SCALE`.
+WHEEL_SCALE = 2.0
+SKID_WHEEL_SCALE = 4.0
 ODOMETRY_STREAMS = ("wheels", "odometry", "cmd_vel")
 
 
@@ -103,7 +114,7 @@ def check_log(log, config, max_speed: float = MAX_SPEED, max_yaw_rate: float = M
     if log.has("gps"):
         findings += _gps(log, config, max_speed, timed="gps" not in invented)
     if log.has("gyro") and rates is not None and "gyro" not in invented:
-        _gyro_units(log.streams["gyro"], rates)
+        _gyro_units(log.streams["gyro"], rates, log.streams[odo], config)
     if not findings:
         return log
     old = tuple(getattr(log, "findings", ()) or ())
@@ -350,7 +361,7 @@ def _start_pose(log, config) -> np.ndarray:
     return np.zeros(3) if pose is None else np.asarray(pose, dtype=float)
 
 
-def _gyro_units(gyro, rates) -> None:
+def _gyro_units(gyro, rates, odo=None, config=None) -> None:
     if "wz" not in gyro.columns or len(gyro) < 2:
         return
     t_end, dt, omega, _, _ = rates
@@ -361,9 +372,15 @@ def _gyro_units(gyro, rates) -> None:
     g = np.interp(t_mid[inside], gyro.t, gyro["wz"])
     w = omega[inside]  # |omega|: the fit compares magnitudes
     turning = w > 0.05
-    if turning.sum() < 20:
-        return
-    scale = float(np.sum(np.abs(g[turning]) * w[turning]) / np.sum(w[turning] ** 2))
+    if turning.sum() >= 20:
+        scale = float(np.sum(np.abs(g[turning]) * w[turning]) / np.sum(w[turning] ** 2))
+    else:  # wheels that hardly turn: are they too small for a gyro that does?
+        turning = np.abs(g) > 0.05
+        if turning.sum() < 20:
+            return
+        scale = float(
+            np.sum(np.abs(g[turning]) ** 2) / max(np.sum(np.abs(g[turning]) * w[turning]), 1e-300)
+        )
     if 45.0 <= scale <= 70.0:
         raise InputError(
             f"wz is {scale:.3g} times the wheels' yaw rate ({DEG_PER_RAD:.1f} = degrees per "
@@ -372,3 +389,30 @@ def _gyro_units(gyro, rates) -> None:
             1,
             "wz",
         )
+    robot = getattr(config, "robot", None) or {}
+    bound = SKID_WHEEL_SCALE if robot.get("drive") == "skid_steer" else WHEEL_SCALE
+    if odo is not None and odo.name == "wheels" and not 1.0 / bound <= scale <= bound:
+        _wheel_scale(scale, odo, config)
+
+
+def _wheel_scale(scale: float, wheels, config) -> None:
+    """The wheels' yaw rate is ``1/scale`` of the gyro's: name the keys that set it."""
+    robot = getattr(config, "robot", None) or {}
+    enc = robot.get("encoder")
+    keys = ["robot.wheel_radius", "robot.track_width"]
+    if enc is not None:
+        keys.insert(0, f"robot.encoder.ticks_per_rev ({enc.ticks_per_rev:g} here)")
+    hint = (
+        "wheels.csv in metres where radians are expected?"
+        if enc is None and scale > 1
+        else "encoder ticks read as radians?"
+        if enc is None
+        else "a wrong encoder scale?"
+    )
+    raise InputError(
+        f"the gyro turns {scale:.3g} times as fast as these wheels say (expected about 1): "
+        f"the wheel increments do not fit the configured units; {hint} Check " + ", ".join(keys),
+        wheels.source,
+        1,
+        "left" if "left" in wheels.columns else wheels.columns[0],
+    )

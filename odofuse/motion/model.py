@@ -10,6 +10,7 @@ import numpy as np
 
 from odofuse import se2
 from odofuse.declarations import INTEGRATORS
+from odofuse.errors import check_array
 from odofuse.motion.integrators import (
     _chord,
     _cumulative_poses,
@@ -144,9 +145,23 @@ def dead_reckon(model: MotionModel, pose0, P0, U, with_cov: bool = True):
     poses : ndarray (N+1, 3)
         The initial pose and the pose after each step.
     covs : ndarray (N+1, 3, 3) or None
+
+    Raises
+    ------
+    InputError
+        An argument of another shape (``U`` must be ``(N, n)``, one column per drive input,
+        never reshaped), a non-numeric dtype or a non-finite value.
     """
-    pose0 = np.asarray(pose0, dtype=float)
-    U = np.asarray(U, dtype=float).reshape(-1, len(model.drive.input_names))
+    names = tuple(model.drive.input_names)
+    pose0 = check_array(pose0, "pose0", (3,), "(3,): x, y, theta")
+    if with_cov:  # P0 is not read without covariances (callers pass None)
+        P0 = check_array(P0, "P0", (3, 3))
+    U = check_array(
+        U,
+        "U",
+        (None, len(names)),
+        f"(N, {len(names)}): one row per step, columns {', '.join(names)}",
+    )
     twist = model.drive.twist(U)
     poses, theta_start = _cumulative_poses(pose0, twist, model.integrator)
     if not with_cov:
