@@ -130,22 +130,25 @@ def test_a_skip_for_the_logs_shape_is_a_note_and_not_applicable_ones_say_nothing
 
 
 def test_advice_never_changes_status():
-    # far from the smoother, covered by its covariance: advice and ok; the same departure
-    # with no advice possible (unaided) or with a tight covariance: the status follows the
-    # consistency test alone, advice or not
-    ref = _reference(var=1e-4)
-    far = EstimateResult("ekf", _line(dy=0.3, var=1.0))
-    m = checked_metrics(_config(), _log(), far, 0.1, ref)
-    assert m["advice"] and m["status"] == "ok" and m["warnings"] == []
-    without = dict(m, advice=[])
+    """Issue 25 item 2: the status is derived from the findings alone; the accuracy ratio is
+    an advice line and never a finding, whether the run is ok or degraded."""
     from odofuse.health import Finding, status_of
 
-    assert status_of([Finding(**{k: v for k, v in f.items()}) for f in m["findings"]]) == "ok"
-    assert without["status"] == m["status"]
+    def status_from_findings(m):
+        return status_of([Finding(**f) for f in m["findings"]])
+
+    # far from the smoother (30 of its sigmas) and covered by its own covariance: ok + advice
+    far = EstimateResult("ekf", _line(dy=0.3, var=1.0))
+    m = checked_metrics(_config(), _log(), far, 0.1, _reference(var=1e-4))
+    assert m["advice"] and m["status"] == "ok" and m["warnings"] == []
+    assert status_from_findings(m) == m["status"]
+    assert not any("more accurate" in f["message"] for f in m["findings"])
+    # the same departure with a tight covariance: degraded by the consistency test alone
     tight = EstimateResult("ekf", _line(dy=0.3, var=1e-3))
     m2 = checked_metrics(_config(), _log(), tight, 0.1, _reference(var=1e-3))
-    assert m2["status"] == "degraded" and m2["advice"]  # both: advice did not cause it
+    assert m2["status"] == "degraded" and m2["advice"]
     assert [f["check"] for f in m2["findings"] if f["degrades"]] == ["cross_check_nees"]
+    assert status_from_findings(m2) == "degraded"
 
 
 def test_the_variance_components_are_bounded_and_report_convergence():

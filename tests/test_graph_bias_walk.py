@@ -117,9 +117,10 @@ def test_walking_bias_beats_the_constant_one_on_nees(seed41):
 def test_incremental_smoothers_take_the_walking_bias(seed41, estimator):
     """Fixed-lag marginalises the old segments with their keyframes; both hold on seed 41
     (constant bias: fixed-lag NEES 29.0, iSAM2 57.9, both ``ok``), and their own checks say
-    ``ok``. Through ``odofuse run`` the second opinion may still flag a run that holds
-    (docs/trust.md 6.3: fixed-lag here, 0.140 m against the smoother's 0.103 m, p_fail 0.13 at
-    predicted ratio 1.41), never with another warning."""
+    ``ok``. Through ``odofuse run`` the second opinion judged fixed-lag here (0.140 m against
+    the smoother's 0.103 m, p_fail 0.13 at predicted ratio 1.41) a failure under issue 10's
+    rule (docs/trust.md 6.3); since issue 25 that ratio is advice, and the run stays ``ok``:
+    its covariance covers its departure from the smoother."""
     from odofuse.rundir import estimate
 
     log, cfg = seed41
@@ -129,8 +130,9 @@ def test_incremental_smoothers_take_the_walking_bias(seed41, estimator):
     assert np.isfinite(alone["extra"]["calibration"]["gyro_bias"])
     assert alone["status"] == "ok", alone["warnings"]
     checked = ts.run(log, cfg, estimator, estimated=made)
-    assert checked["cross_check"]["p_fail"] is not None
-    assert all(w.startswith("[cross_check]") for w in checked["warnings"]), checked["warnings"]
+    assert checked["cross_check"]["p_fail"] is not None, checked["cross_check"]
+    assert checked["cross_check"]["departure_nees"] < checked["cross_check"]["nees_bound"]
+    assert checked["status"] == "ok" and checked["warnings"] == [], checked["warnings"]
 
 
 def test_simulate_writes_the_simulated_bias_walk():

@@ -165,36 +165,21 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
 
 #: (scenario, estimator) pairs that still fail silently at one lap when the filter runs alone
 #: (cross-check off, as in a live pipeline; measured, not hidden: each is a strict xfail, so a
-#: fix shows up as an unexpected pass; docs/trust.md has the figures). Through the path of
-#: ``odofuse run`` the batch smoother's second opinion flags all six (its posterior rule,
-#: test_scenarios_as_odofuse_run_does_have_no_silent_failure, KNOWN_SILENT_CHECKED below,
-#: docs/trust.md section 6.3).
-#: All are the start-up with an unknown gyro bias on GPS alone (1 m sigma), seed 7: the bias
-#: is learnt from the wheels while the heading runs ~0.1 rad off inside the filter's own
-#: covariance (consistent innovations), where the smoother, which sees the whole log, is not.
-#: Since ``odofuse simulate`` writes the simulated bias walk into the config (2e-4 rad/s/sqrt(s)
-#: on gyro_bias_walk; it wrote 0), the graph models the walk and the smoother there is 0.047 m
-#: (was 0.054 m), and the EKF, now modelling the walk too, is consistent and its ``learning``
-#: check no longer fires: 0.263 m, NEES 2.85, ``ok`` (was 0.268 m, NEES 4.42, ``degraded``),
-#: 5.6x the smoother, so (gyro_bias_walk, ekf) is silent again when the filter runs alone; the
-#: second opinion flags it. Still silent: gps_outage
-#: EKF 0.308 m vs the smoother's 0.132 m, NEES 3.1 (``learning`` over 31 % of the run: the
-#: GPS stops at 60 s and the bias is never learnt well); particle filter, gyro_bias_walk
-#: 0.291 m vs 0.054 m, NEES 2.9, and gps_outage 0.361 m vs 0.132 m, NEES 3.1 (its cloud's
-#: heading-bias covariance is below the check's bound: 14 % of the run at 1000 particles).
-#: Since the graph's robust odometry (slip rule on keyframe intervals) the smoother on
-#: slip_bursts is 0.0121 m (was 0.0343 m, NEES 13.8 `ok`), and the filters, unchanged, fall
-#: outside 2x of it: EKF 0.0322 m (2.66x, NEES 2.39), particle 0.0417 m (3.4x, NEES 4.0). The
-#: EKF is 2.6x the smoother before the first burst too (0-19 s: 0.028 vs 0.011 m): the gap of
-#: a causal filter to a smoother with 0.1 m ranges, which the old smoother hid behind its own
-#: slip error. Both filters are consistent (NEES < 10), so no check sees a fault.
+#: fix shows up as an unexpected pass; docs/trust.md has the figures).
+#: Since issue 25 item 6 the judge asks for consistency (position NEES below 10) and no
+#: divergence (RMSE within 5x the best estimator on the log), not for 2x of the smoother: the
+#: filters on slip_bursts (EKF 0.0322 m, 2.66x the smoother's 0.0121 m, NEES 2.39; particle
+#: 0.0417 m, 3.4x, NEES 4.0) and gps_outage (EKF 0.308 m, 2.3x, NEES 3.1; particle 0.361 m,
+#: 2.7x, NEES 3.1) are consistent and within 5x: they hold (they were silent under the
+#: issue-10 judge). Still silent: the start-up with an unknown gyro bias on GPS alone (1 m
+#: sigma), seed 7, gyro_bias_walk: EKF 0.263 m, NEES 2.85, particle 0.271 m, NEES 2.68,
+#: against the smoother's 0.047 m: 5.6x and 5.8x. Their covariance covers their error
+#: (``status: ok`` keeps its promise), but they are beyond the judge's divergence ratio; the
+#: bias is learnt from the wheels while the heading runs ~0.1 rad off inside the filter's own
+#: covariance, where the smoother, which sees the whole log, knows it throughout.
 KNOWN_SILENT = {
-    ("slip_bursts", "ekf"),
-    ("slip_bursts", "particle"),
-    ("gps_outage", "ekf"),
     ("gyro_bias_walk", "ekf"),
     ("gyro_bias_walk", "particle"),
-    ("gps_outage", "particle"),
 }
 
 _TRUST_ESTIMATORS = (("dead_reckoning", None), ("ekf", None), ("particle", {"particles": 200}))
@@ -246,15 +231,15 @@ def test_scenarios_have_no_silent_failure(name, est, opts):
     assert ts.judge(m, ref) != "SILENT", (m["ate_rmse_m"], ref, m["nees_position_mean"])
 
 
-#: Pairs the cross-check misses too (measured, strict xfails; docs/trust.md section 6): none
-#: since the finding asks the smoother's posterior (docs/trust.md 6.3). The two it missed
-#: with the predicted ratio, one-lap gps_outage (GPS lost from 60 s to the end, 94 s) EKF
-#: (d 0.221 m, predicted 1.47x, realised 2.33x) and particle (d 0.255 m, predicted 1.60x,
-#: realised 2.73x), have p_fail 0.42 and 0.495 (> ALPHA 0.05): the smoother's own error
-#: there is strongly correlated along the trajectory (the 34 s without GPS are one random
-#: drift), so its realised mean squared error, and with it the judge's ratio, scatters
-#: widely about its expectation, and the posterior says so.
-KNOWN_SILENT_CHECKED: set = set()
+#: Pairs that are silent through ``odofuse run`` too (measured, strict xfails; docs/trust.md
+#: section 6). Since issue 25 the second opinion's accuracy ratio is advice, not a finding:
+#: the two gyro_bias_walk runs of :data:`KNOWN_SILENT` are consistent (departure NEES 1.72
+#: and 1.85 against the bound 9.4: their covariance covers their departure from the smoother)
+#: and ``ok``, with the advice that the smoother is more accurate (the test asserts it; EKF:
+#: about 2.4x, posterior probability 0.75 of more than 2x). Under the issue-10 rule the
+#: second opinion flagged them, with 30 false alarms among 42 holding fused runs (docs/trust.md
+#: 6.4).
+KNOWN_SILENT_CHECKED: set = set(KNOWN_SILENT)
 
 
 @pytest.mark.parametrize(
@@ -269,9 +254,9 @@ def test_scenarios_as_odofuse_run_does_have_no_silent_failure(name, est, opts):
     log, cfg, smoother, reference = _scenario_and_smoother(name)
     m = ts.run(log, cfg, est, opts, reference=reference, estimated=_estimated(name, est, opts))
     verdict = ts.judge(m, smoother["ate_rmse_m"])
+    if (name, est) in KNOWN_SILENT:  # what the filter alone missed, the advice says
+        assert any("more accurate" in a for a in m["advice"]), m["advice"]
     assert verdict != "SILENT", (m["ate_rmse_m"], smoother["ate_rmse_m"], m["cross_check"])
-    if (name, est) in KNOWN_SILENT:  # what the filter alone missed, the check says
-        assert verdict == "degraded" and any(w.startswith("[cross_check") for w in m["warnings"])
 
 
 @pytest.mark.parametrize("name", ts.SIMULATED)
@@ -282,6 +267,12 @@ def test_the_smoother_yardstick_has_no_silent_failure(name):
 
 
 def test_judge_holds_fused_estimators_to_the_smoother_and_dead_reckoning_to_its_nees():
+    # issue 25 item 6: consistent and within 5x of the best on the log holds (4x: was SILENT
+    # under the issue-10 rule of 2x), beyond 5x is a divergence
+    within = {"estimator": "ekf", "ate_rmse_m": 0.4, "nees_position_mean": 2.0, "status": "ok"}
+    assert ts.judge(within, 0.1) == "holds"
+    assert ts.judge({**within, "ate_rmse_m": 0.51}, 0.1) == "SILENT"
+    assert not ts.accurate(within, 0.1) and ts.accurate(within, 0.2)
     honest_drift = {"ate_rmse_m": 0.8, "nees_position_mean": 5.9, "status": "ok"}
     assert ts.judge({**honest_drift, "estimator": "dead_reckoning"}, 0.13) == "holds"
     assert ts.judge({**honest_drift, "estimator": "ekf"}, 0.13) == "SILENT"
