@@ -188,9 +188,12 @@ def base_localizer(rev: str):
     return mod.Localizer
 
 
-def health_cost(m: int) -> None:
+def health_cost(m: int, reps: int = 7) -> None:
     """Steps/s with and without the live health bookkeeping, and asking ``health()``: best of
-    three interleaved runs of ``m`` steps in this process (GPS fixes 0.3 s late)."""
+    ``reps`` interleaved runs of ``m`` steps in this process (GPS fixes 0.3 s late); and the
+    streaming checks' own cost per reading, timed alone (robust to a loaded machine)."""
+    from odofuse.estimators import monitors
+
     rows = (
         ("streaming checks off", {"checks": False}),
         ("streaming checks on, health() never asked", {}),
@@ -199,17 +202,34 @@ def health_cost(m: int) -> None:
         ("health() every step (50 Hz)", {"ask_every": 1}),
     )
     best = dict.fromkeys(range(len(rows)), 0.0)
-    for _ in range(3):
+    for _ in range(reps):
         for i, (_, kw) in enumerate(rows):
             t0 = time.perf_counter()
             feed(Localizer, m, **kw)
             best[i] = max(best[i], m / (time.perf_counter() - t0))
-    print(f"\nlive health cost, {m:,} steps, best of 3 interleaved runs in this process")
+    print(f"\nlive health cost, {m:,} steps, best of {reps} interleaved runs in this process")
     print("| variant | steps/s | us/step | cost over checks off |")
     print("| --- | --- | --- | --- |")
     for i, (label, _) in enumerate(rows):
         extra = best[0] / best[i] - 1.0
         print(f"| {label} | {best[i]:,.0f} | {1e6 / best[i]:.1f} | {100 * extra:+.1f} % |")
+    # The streaming checks alone: advance() over a stream's readings (windows included).
+    loc, _ = feed(Localizer, 2000)
+    opts, gate = loc.options, loc.monitor.gates["gps"]
+    nis = np.random.default_rng(1).chisquare(2, 20_000).tolist()
+    per = math.inf
+    for _ in range(reps):
+        st = monitors._Live()
+        t0 = time.perf_counter()
+        for k, v in enumerate(nis):
+            st = monitors.advance(st, float(k), True, v, gate, 2, opts)
+        per = min(per, (time.perf_counter() - t0) / len(nis))
+    step = 1.0 / best[0]
+    print(
+        f"advance(): {1e6 * per:.2f} us per reading; at one GPS fix per {GPS_EVERY} steps "
+        f"{1e6 * per / GPS_EVERY:.3f} us per step = {100 * per / GPS_EVERY / step:.2f} % of "
+        f"the {1e6 * step:.1f} us step"
+    )
 
 
 def main() -> None:

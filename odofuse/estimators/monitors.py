@@ -322,8 +322,11 @@ def advance(st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts
     return st._replace(**kw)
 
 
-def live_findings(s: str, st: _Live, t0: float, t1: float, opts, d: int) -> list[Finding]:
-    """The findings of one stream's streaming checks over the run ``[t0, t1]`` (s)."""
+def live_findings(
+    s: str, st: _Live, t0: float, t1: float, opts, d: int, outage: bool = True
+) -> list[Finding]:
+    """The findings of one stream's streaming checks over the run ``[t0, t1]`` (s) (the
+    outage check only with ``outage``)."""
     out: list[Finding] = []
     w, persist = max(int(opts.nis_window), 1), int(opts.health_persist)
     if st.episodes:
@@ -368,7 +371,8 @@ def live_findings(s: str, st: _Live, t0: float, t1: float, opts, d: int) -> list
                 figure=float(st.longest),
             )
         )
-    out += _outage(s, st, t0, t1, opts.reject_run)
+    if outage:
+        out += _outage(s, st, t0, t1, opts.reject_run)
     return out
 
 
@@ -546,16 +550,22 @@ class FilterMonitor:
         out += self._calibration_findings(calibration)
         return out
 
-    def stream_findings(self, span) -> list[Finding]:
+    def stream_findings(self, span, outage: bool = True) -> list[Finding]:
         """The streaming checks' findings (:func:`live_findings`) and the recoveries; O(1)
         per stream. ``span`` ``(t0, t1)`` is the run's time span (None: no outage check)."""
         self.catch_up()
         out: list[Finding] = []
         t0, t1 = span if span is not None else (math.nan, math.nan)
         for s, st in self.live.items():
-            out += live_findings(s, st, t0, t1, self.options, self.dims[s])
+            out += live_findings(s, st, t0, t1, self.options, self.dims[s], outage)
         out += self._recovery_findings()
         return out
+
+    def outage_findings(self, span) -> list[Finding]:
+        """The outage check alone over the run ``span`` ``(t0, t1)`` (it moves with time)."""
+        self.catch_up()
+        reject_run = self.options.reject_run
+        return [f for s, st in self.live.items() for f in _outage(s, st, *span, reject_run)]
 
     def _recovery_findings(self) -> list[Finding]:
         out = []
