@@ -12,6 +12,11 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   chi-square band, rejection runs, recoveries, a sensor silent for most of the run, pose
   covariance conditioning and growth, calibration states that ran to their bounds or
   collapsed, a heading that rested on a gyro bias still being learnt over most of the run);
+* the streaming checks (:func:`advance`: test ratio, NIS windows with persistence and
+  hysteresis, rejection runs, reading times; O(1) per reading) that both
+  :meth:`Localizer.health <odofuse.estimators.localizer.Localizer.health>` (a
+  :class:`LiveHealth`) and the offline result read, and the minimal detectable errors of
+  every gate and NIS window (:func:`gate_mde`, :func:`window_mde`, :func:`mde_of`);
 * :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
 * the track checks it calls live in :mod:`odofuse.estimators.pose_checks` (covariance
   health, collapse, and dead reckoning's gyro-vs-wheels tell-tale).
