@@ -461,7 +461,11 @@ def metrics(
         for key, dims in (("nees_mean", (0, 1, 2)), ("nees_position_mean", (0, 1))):
             n = nees(traj, gt, dims)
             out[key] = None if math.isnan(n) else n
-    extra = {k: v for k, v in (result.extra or {}).items() if not str(k).startswith("_")}
+    extra = {
+        k: v
+        for k, v in (result.extra or {}).items()
+        if not str(k).startswith("_") and k != "mde"  # mde: under "sensors" above
+    }
     if extra:  # keys starting with "_" are in memory only (the cross-check's error samples)
         out["extra"] = extra
     findings = assess(result) + scoring

@@ -27,7 +27,8 @@ SCENARIO = {
 
 def assert_same_run(res, ref) -> None:
     """Poses and covariances to 1e-9; used/rejected counts and extras equal (calibration
-    values and sigmas to 1e-9); findings equal, their figures to 1e-9 relative."""
+    values and sigmas, minimal detectable errors to 1e-9); findings equal, their figures to
+    1e-9 relative."""
     a, b = res.trajectory, ref.trajectory
     np.testing.assert_array_equal(a.t, b.t)
     np.testing.assert_allclose(a.poses, b.poses, rtol=0, atol=1e-9)
@@ -40,6 +41,12 @@ def assert_same_run(res, ref) -> None:
             assert abs(ex["calibration"][s][k] - ey["calibration"][s][k]) < 1e-9
     np.testing.assert_allclose(ex.pop("map_to_odom"), ey.pop("map_to_odom"), atol=1e-9)
     ex.pop("calibration", None), ey.pop("calibration", None)
+    mx, my = ex.pop("mde", {}), ey.pop("mde", {})  # figures: to 1e-9 relative
+    assert {s: set(m) for s, m in mx.items()} == {s: set(m) for s, m in my.items()}
+    for s, m in my.items():
+        for k, v in m.items():
+            assert (mx[s][k] is None) == (v is None)
+            assert v is None or mx[s][k] == pytest.approx(v, rel=1e-9, abs=1e-12)
     assert ex == ey
     assert len(res.findings) == len(ref.findings)
     for f, g in zip(res.findings, ref.findings, strict=True):  # messages print figures

@@ -72,7 +72,7 @@ _KEEP_READINGS, _TRIM_EVERY = 1000, 4096
 
 
 #: :meth:`Localizer.health` re-runs its checks over the kept poses every this many steps.
-HEALTH_TRACK_EVERY = 64
+HEALTH_TRACK_EVERY = 1024
 #: Findings that describe the filter as it is now (the others, episodes of the run so far).
 _CURRENT = frozenset({"calibration", "dropped", "rejected"})
 
@@ -155,7 +155,9 @@ class Localizer:
         self._last_row: dict[str, dict] = {}  # each stream's last applied reading (its MDE)
         self._z_span: dict[str, tuple] = {}  # each stream's reading range (min, max)
         self._n_steps = 0  # odometry steps processed (replays included): health()'s cadence
-        self._slow = (-math.inf, [])  # health(): (step of the last track checks, findings)
+        self._slow = (-math.inf, [], None)  # health(): (step, findings, time) of the track checks
+        self._version = 0  # readings applied or dropped: health() recomputes what they change
+        self._fast = (None, [], [])  # health(): (that version, its findings, failing streams)
 
     @classmethod
     def from_config(
@@ -286,6 +288,7 @@ class Localizer:
                 or t <= steps.first().t0
             ):
                 self.dropped_late[stream] += 1
+                self._version += 1
                 return inputs.DROPPED
             else:
                 self._replay_with(item)
@@ -404,6 +407,7 @@ class Localizer:
 
     def _apply(self, item) -> None:
         tm, _, stream, row = item
+        self._version += 1
         self._book = None  # counts, clone times and the monitor change below
         model = self.models[stream]
         clones = model.clones() if hasattr(model, "clones") else {}
@@ -515,6 +519,7 @@ class Localizer:
         for _, _, stream, _ in self._pending:
             self.dropped_late[stream] += 1
         self._pending.clear()
+        self._version += 1
 
     def trajectory(self) -> Trajectory:
         """Filtered poses at the initial time and after every odometry step.
@@ -563,29 +568,36 @@ class Localizer:
 
         mon = self.monitor
         span = (self.t_start, self.t)
-        fast = mon.stream_findings(span)
-        fast += mon._calibration_findings(self.calibration()) + monitors.slip_note(self)
-        fast += inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
-        fast += H.rejection_findings(self.used, self.rejected, span)
-        done, slow = self._slow
+        key = (self._version, self.slip_steps)
+        if key != self._fast[0]:  # what only a reading (or a slip) changes
+            fast = mon.stream_findings(span, outage=False) + monitors.slip_note(self)
+            if mon._priors:
+                fast += mon._calibration_findings(self.calibration())
+            fast += inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
+            fast += H.rejection_findings(self.used, self.rejected, span)
+            self._fast = (key, fast, mon.failing())
+        _, fast, failing = self._fast
+        fast = fast + mon.outage_findings(span)
+        done, slow, t_slow = self._slow
         if self._n_steps >= done + HEALTH_TRACK_EVERY:
             t, _, P = self._track.arrays()
             slow = monitors.covariance_health(t, P, self.options)
             slow += monitors.collapse_findings(self, t, P) + monitors.learning_of(self, t)
             slow += monitors.inert_findings(self, monitors.mde_of(self))
-            self._slow = (self._n_steps, slow)
+            t_slow = float(t[-1])
+            self._slow = (self._n_steps, slow, t_slow)
         x, P_now = self.backend.mean()[:3], self.backend.cov()[:3, :3]
-        here = np.array([self.t])
-        now = H.pose_findings(here, x[None]) + H.covariance_findings(here, P_now[None])
-        failing = mon.failing()
+        now = []
+        if not _plainly_fine(x, P_now):  # then the exact checks say what is wrong
+            here = np.array([self.t])
+            now = H.pose_findings(here, x[None]) + H.covariance_findings(here, P_now[None])
+        # Now: a stream failing (persistence, hysteresis), a count or state that is bad as it
+        # stands, or a finding whose span reaches the newest time its check saw.
         current = (
             failing
             or now
-            or any(
-                f.degrades
-                for f in fast
-                if f.check in _CURRENT or (f.check == "outage" and f.t_end == self.t)
-            )
+            or any(f.degrades and (f.check in _CURRENT or f.t_end == self.t) for f in fast)
+            or any(f.degrades and f.t_end == t_slow for f in slow)
         )
         found = tuple(fast + slow + now)
         live = mon.live
@@ -602,6 +614,22 @@ class Localizer:
         span = (float(t[0]), float(t[-1])) if len(t) else (None, None)
         dropped = inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
         return monitors.localizer_findings(self, t, P) + dropped
+
+
+def _plainly_fine(x, P) -> bool:
+    """True when pose ``x`` (3,) is finite and covariance ``P`` (3, 3) positive definite with
+    its smallest eigenvalue above :data:`odofuse.health.MIN_EIGEN_RATIO` of its largest
+    (leading minors > 0, and ``det > ratio * trace^3`` bounds ``l_min / l_max`` from below);
+    False says nothing (the exact checks then run). Scalar arithmetic: a few microseconds."""
+    from odofuse.health import MIN_EIGEN_RATIO
+
+    (a, b, c), (_, d, e), (_, _, f) = P.tolist()
+    if not all(map(math.isfinite, x.tolist())) or not math.isfinite(a + b + c + d + e + f):
+        return False
+    m2 = a * d - b * b
+    det = a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c)
+    trace = a + d + f
+    return a > 0.0 and m2 > 0.0 and det > MIN_EIGEN_RATIO * trace**3
 
 
 # --------------------------------------------------------------------- building from config

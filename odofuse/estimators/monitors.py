@@ -12,6 +12,11 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   chi-square band, rejection runs, recoveries, a sensor silent for most of the run, pose
   covariance conditioning and growth, calibration states that ran to their bounds or
   collapsed, a heading that rested on a gyro bias still being learnt over most of the run);
+* the streaming checks (:func:`advance`: test ratio, NIS windows with persistence and
+  hysteresis, rejection runs, reading times; O(1) per reading) that both
+  :meth:`Localizer.health <odofuse.estimators.localizer.Localizer.health>` (a
+  :class:`LiveHealth`) and the offline result read, and the minimal detectable errors of
+  every gate and NIS window (:func:`gate_mde`, :func:`window_mde`, :func:`mde_of`);
 * :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
 * the track checks it calls live in :mod:`odofuse.estimators.pose_checks` (covariance
   health, collapse, and dead reckoning's gyro-vs-wheels tell-tale).
@@ -322,8 +327,11 @@ def advance(st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts
     return st._replace(**kw)
 
 
-def live_findings(s: str, st: _Live, t0: float, t1: float, opts, d: int) -> list[Finding]:
-    """The findings of one stream's streaming checks over the run ``[t0, t1]`` (s)."""
+def live_findings(
+    s: str, st: _Live, t0: float, t1: float, opts, d: int, outage: bool = True
+) -> list[Finding]:
+    """The findings of one stream's streaming checks over the run ``[t0, t1]`` (s) (the
+    outage check only with ``outage``)."""
     out: list[Finding] = []
     w, persist = max(int(opts.nis_window), 1), int(opts.health_persist)
     if st.episodes:
@@ -368,7 +376,8 @@ def live_findings(s: str, st: _Live, t0: float, t1: float, opts, d: int) -> list
                 figure=float(st.longest),
             )
         )
-    out += _outage(s, st, t0, t1, opts.reject_run)
+    if outage:
+        out += _outage(s, st, t0, t1, opts.reject_run)
     return out
 
 
@@ -546,16 +555,22 @@ class FilterMonitor:
         out += self._calibration_findings(calibration)
         return out
 
-    def stream_findings(self, span) -> list[Finding]:
+    def stream_findings(self, span, outage: bool = True) -> list[Finding]:
         """The streaming checks' findings (:func:`live_findings`) and the recoveries; O(1)
         per stream. ``span`` ``(t0, t1)`` is the run's time span (None: no outage check)."""
         self.catch_up()
         out: list[Finding] = []
         t0, t1 = span if span is not None else (math.nan, math.nan)
         for s, st in self.live.items():
-            out += live_findings(s, st, t0, t1, self.options, self.dims[s])
+            out += live_findings(s, st, t0, t1, self.options, self.dims[s], outage)
         out += self._recovery_findings()
         return out
+
+    def outage_findings(self, span) -> list[Finding]:
+        """The outage check alone over the run ``span`` ``(t0, t1)`` (it moves with time)."""
+        self.catch_up()
+        reject_run = self.options.reject_run
+        return [f for s, st in self.live.items() for f in _outage(s, st, *span, reject_run)]
 
     def _recovery_findings(self) -> list[Finding]:
         out = []
