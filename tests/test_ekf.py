@@ -96,7 +96,9 @@ def sim_config(
         estimator=estimator,
         initial={"sigma": [sigma0, sigma0, sigma0 / 5]},
         sensors={"ranges": ranges},
-        options={estimator: options} if options else {},
+        # the simulated odometry has no systematic error: the config says its calibration is
+        # known (odometry_calibration defaults to auto, on with the ranges)
+        options={estimator: {"odometry_calibration": False, **options}},
         source="sim.yaml",
     )
 
