@@ -45,8 +45,8 @@ SLOW = {
     "Plaza1_.mat",
     "Plaza2_.mat",
 }
-#: The runs that judge themselves ``degraded`` (every other one says ``ok``), and why; no
-#: ground truth is involved in either verdict.
+#: The runs that judge themselves ``degraded`` (every other one says ``ok``), by (file,
+#: estimator) or file, and the check that says so; no ground truth is involved in either.
 DEGRADED = {
     # range residuals 2.5-2.7x the file's 0.75 m sigma, with either map (docs/graph.md, GOATS)
     "goats_15.pyfg": "residuals",
@@ -54,6 +54,9 @@ DEGRADED = {
     # the minimal config's default range sigma is too optimistic for Plaza's ranges
     "Plaza1_.mat": "residuals",
     "Plaza2_.mat": "residuals",
+    # the smoother's own check of odometry residual windows (graph.health; iSAM2 does not run
+    # it): 56 windows of 2747-3456 s above their chi-square bound at GTSAM's optimum
+    ("victoria_park.txt", "smoother"): "residual_windows",
 }
 _RUNS: dict = {}
 
@@ -92,9 +95,10 @@ def test_odofuse_run_ends_at_gtsams_best(name, estimator, tmp_root):
     assert proc.returncode == 0, proc.stderr
     metrics = json.loads((out / "metrics.json").read_text())
     warnings = metrics["warnings"]
-    if name in DEGRADED:
+    check = DEGRADED.get((name, estimator), DEGRADED.get(name))
+    if check:
         assert metrics["status"] == "degraded"
-        assert any(w.startswith(f"[{DEGRADED[name]}]") for w in warnings), warnings
+        assert any(w.startswith(f"[{check}]") for w in warnings), warnings
     else:
         assert metrics["status"] == "ok", warnings
     assert not any(w.startswith("[solver]") for w in warnings), warnings  # LM converged

@@ -389,3 +389,22 @@ def test_chordal_start_agrees_with_the_independent_reference_and_lm_is_converged
     sol = ref.odofuse_values(res, keys)
     assert g.error(sol) == pytest.approx(g.error(best), rel=1e-9, abs=1e-9)
     assert ref.position_rms(ref.poses_of(sol, keys), ref.poses_of(best, keys)) < 1e-3
+
+
+def test_a_landmark_seen_again_after_the_window_is_a_loop_closure():
+    """isam2_slam.resighting_loops: a landmark back in view after ``keep`` keyframes out of
+    sight ties that keyframe to its previous sighting (iSAM2's window then keeps the poses in
+    between); one in view all along closes nothing. loops.oldest_referenced turns the pairs
+    into the window's hold."""
+    from types import SimpleNamespace
+
+    from odofuse.estimators.graph.isam2_slam import resighting_loops
+    from odofuse.estimators.graph.loops import oldest_referenced
+
+    rows = {j: [SimpleNamespace(landmark=7)] for j in (*range(3, 10), 150, 151)}
+    for j in range(0, 300):
+        rows.setdefault(j, []).append(SimpleNamespace(landmark=8))  # always in view
+    pairs = resighting_loops(rows, keep=100)
+    assert pairs == [(150, 9)]  # to the sighting before the gap
+    hold = oldest_referenced(pairs + [(40, 20), (200, 120)])
+    assert [hold(i) for i in (0, 39, 40, 149, 150, 199, 200)] == [9, 9, 9, 9, 120, 120, None]

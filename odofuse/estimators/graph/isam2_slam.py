@@ -15,13 +15,12 @@ poses rather than from dead reckoning:
 Pose keyframes older than the last :data:`~odofuse.estimators.graph.isam2_window.KEEP` leave
 iSAM2's tree in batches (:class:`~odofuse.estimators.graph.isam2_window.KeyframeWindow`, as on
 the localisation path: bounded update cost); landmarks stay, and so does every keyframe from
-the oldest one a later loop closure refers to, a landmark seen again more than ``KEEP``
-keyframes after its first sighting counting as a loop closure to it
-(:func:`resighting_loops`). Not with range-only landmarks: there the
-marginal factors fix the linearisation of landmarks multilaterated from early, poor poses, and
-on Plaza1's first 400 s the final LM then stopped at its cap at graph error 20,610 instead of
-595.8 (unwindowed); so a problem with any range-only landmark keeps every keyframe in iSAM2 (as
-before issue 17).
+the oldest one a later loop closure refers to, a landmark seen again after ``KEEP`` keyframes
+out of sight counting as a loop closure to its previous sighting (:func:`resighting_loops`).
+Not with range-only landmarks: there the marginal factors fix the linearisation of landmarks
+multilaterated from early, poor poses, and on Plaza1's first 400 s the final LM then stopped at
+its cap at graph error 20,610 instead of 595.8 (unwindowed); so a problem with any range-only
+landmark keeps every keyframe in iSAM2 (as before issue 17).
 The window's :attr:`graph` and :meth:`estimate` hold the whole run for the final batch pass.
 
 Bearing-only landmarks are not initialised incrementally (their rows are counted as
@@ -36,8 +35,9 @@ import time
 import numpy as np
 
 from odofuse.errors import ConfigError
+from odofuse.estimators.graph import isam2_window
 from odofuse.estimators.graph.factors import Factors
-from odofuse.estimators.graph.isam2_window import KEEP, KeyframeWindow
+from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, model_kind
 from odofuse.estimators.graph.landmarks import from_sighting, multilaterate
 from odofuse.estimators.graph.loops import oldest_referenced
@@ -54,28 +54,33 @@ _clock = time.perf_counter
 ESTIMATE_EVERY = 10
 
 
-def resighting_loops(landmark_rows: dict[int, list]) -> list[tuple[int, int]]:
+def resighting_loops(landmark_rows: dict[int, list], keep: int) -> list[tuple[int, int]]:
     """``(later, earliest)`` keyframe pairs of landmark sightings that close a loop.
 
-    A sighting at keyframe ``j`` of a landmark first seen at keyframe ``f <= j - KEEP`` ties
-    ``j`` to ``f`` as a loop closure does: if ``f`` had left iSAM2's tree, its pose (and
-    the poses after it) would stay at the linearisation it had, and the landmark's new
-    evidence could not move them. On Victoria Park (trees seen again on every lap) the
-    window without this rule marginalised 6,850 of 6,969 keyframes, and the final LM from
-    that estimate stopped in a local minimum at graph error 3,026.2 instead of 2,339.22.
+    A landmark seen again at keyframe ``j`` after ``keep`` or more keyframes out of sight
+    (the robot left and came back) ties ``j`` to the landmark's previous sighting ``p`` as a
+    loop closure between the two poses does: had ``p`` left iSAM2's tree, it and the poses
+    after it would stay at the linearisation they had, and the landmark's new evidence could
+    not move them. On Victoria Park (trees seen again lap after lap) the window without this
+    rule stopped the final LM in a local minimum at graph error 3,026.2 instead of 2,339.22;
+    with it, 6,868 of the 6,969 keyframes still leave the tree over the run and the final LM
+    reaches 2,339.2195. A landmark in view all along closes no loop.
 
     Parameters
     ----------
     landmark_rows : dict
         Keyframe -> the landmark measurements added with it.
+    keep : int
+        Keyframes the window keeps (``isam2_window.KEEP``).
     """
-    first: dict[int, int] = {}
+    last: dict[int, int] = {}
     out = []
     for j in sorted(landmark_rows):
         for m in landmark_rows[j]:
-            f = first.setdefault(m.landmark, j)
-            if j - f >= KEEP:
-                out.append((j, f))
+            prev = last.get(m.landmark, j)
+            if j - prev >= keep:
+                out.append((j, prev))
+            last[m.landmark] = j
     return out
 
 
@@ -134,7 +139,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     # loop closures are added with their later keyframe: keep their earlier one in the tree;
     # so is a landmark seen again after its first sighting's keyframe could have left
     pairs = [(lp.later, min(lp.i, lp.j)) for lp in problem.loops]
-    pairs += resighting_loops(landmark_rows)
+    pairs += resighting_loops(landmark_rows, isam2_window.KEEP)
     hold = oldest_referenced(pairs)
     window = KeyframeWindow()
     latency, step = [], []

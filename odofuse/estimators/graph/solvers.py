@@ -283,6 +283,9 @@ def loop_initial_values(problem: GraphProblem, graph, values):
     both starts decides, so a graph whose other factors (GPS, landmarks) the relaxation
     ignores keeps dead reckoning when that is better.
 
+    ``values`` may also be an incremental SLAM pass's (its landmarks are kept with either
+    set of poses): ``"odometry"`` then names those values.
+
     Returns
     -------
     values : gtsam.Values
@@ -493,7 +496,7 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
         if incremental:
             values, init = incremental_initial_values(problem, values)
             extra.update(init)
-        elif problem.loops:
+        if problem.loops:  # the chordal poses where they beat dead reckoning or the pass
             values, extra["initial"] = loop_initial_values(problem, graph, values)
         out = _solve(graph, values, fac, opts)
         result = out.values
