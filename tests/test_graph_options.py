@@ -80,6 +80,15 @@ PACKAGED = {
         "robust": {"ranges": _HUBER},
     },
 }
+# the packaged copies of configs/ (`odofuse run --estimator NAME`) parse as their originals
+PACKAGED.update(
+    {
+        "default_" + key: value
+        for key, value in list(PACKAGED.items())
+        if key.startswith("configs/")
+        and (ROOT / "odofuse" / ("default_" + key.split(":")[0])).exists()
+    }
+)
 PACKAGED_FILES = sorted((ROOT / "configs").glob("plaza1-*.yaml")) + sorted(
     (ROOT / "odofuse" / "default_configs").glob("plaza1-*.yaml")
 )

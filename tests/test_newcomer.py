@@ -10,6 +10,7 @@ issue and checks the one line that names the key to fix.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import re
 import shutil
@@ -310,3 +311,94 @@ def test_2_tune_keeps_its_best_config_when_interrupted(robot, monkeypatch):
 
     monkeypatch.syspath_prepend(str(robot))
     assert load_config(out).estimator == "ekf"
+
+
+# ------------------------------------------------------------------------------- point 3
+@pytest.mark.parametrize("stream", ["gps", "compass"])
+def test_3_a_configured_sensor_without_its_file_is_an_error_naming_key_and_file(robot, stream):
+    """Before: gps configured, gps.csv absent: ``ok`` at 6.5 m with ``"gps": {"used": 0}``."""
+    log = robot / f"no-{stream}"
+    if not log.exists():
+        log.mkdir()
+        for f in ("wheels.csv", "gyro.csv", "gps.csv", "groundtruth.csv"):
+            if f != f"{stream}.csv":
+                shutil.copy(robot / "rad" / f, log / f)
+    extra = "\n  compass: {sigma: 0.05}" if stream == "compass" else ""
+    cfg = write_config(robot, f"no-{stream}", log.name)
+    cfg.write_text(cfg.read_text().replace("gate: 0.999}", "gate: 0.999}" + extra))
+    err = one_line_error(odofuse("run", cfg))
+    assert f"key 'sensors.{stream}'" in err and str(cfg) in err
+    assert f"{log / (stream + '.csv')} not found" in err and "optional: true" in err
+
+
+def test_3_an_optional_sensor_without_data_warns_and_degrades_when_it_was_the_only_absolute(
+    robot,
+):
+    log = robot / "no-gps"
+    cfg = write_config(robot, "no-gps-optional", "no-gps", gps=", optional: true")
+    proc = odofuse("run", cfg)
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((robot / "out" / "no-gps-optional" / "metrics.json").read_text())
+    assert m["status"] == "degraded"
+    line = [w for w in m["warnings"] if w.startswith("[missing] gps")]
+    assert line and f"{log / 'gps.csv'} not found" in line[0]
+    assert "no other absolute sensor is left" in line[0]
+    assert "[missing] gps" in proc.stdout
+
+
+def test_3_a_stream_present_but_never_used_is_not_ok(robot):
+    """GPS on another clock (500 s late): the smoother counts it rejected, the filters
+    dropped; the rule in run_estimator: ``used: 0`` and no degrading finding is a finding."""
+    from odofuse.estimators import _unused_streams
+    from odofuse.io.log import Stream
+    from odofuse.trajectory import EstimateResult, Trajectory
+
+    traj = Trajectory(np.arange(3.0), np.zeros((3, 3)), None)
+    result = EstimateResult("x", traj, used={"gps": 0}, rejected={"gps": 0})
+    gps = Stream("gps", "gps.csv", np.array([500.0, 501.0]), ("x", "y"), np.zeros((2, 2)))
+
+    class Config:
+        sensors = {"gps": None}
+
+    out = _unused_streams(result, Config(), {"gps": gps})
+    assert [f.check for f in out.findings] == ["unused"] and out.findings[0].degrades
+
+
+# ------------------------------------------------------------------------------- point 4
+@pytest.mark.parametrize("name", ["particle", "isam2", "fixed_lag", "slam"])
+def test_4_every_packaged_config_is_the_repository_one(name):
+    """``odofuse run --estimator NAME`` reads odofuse/default_configs/plaza1-NAME.yaml: the
+    same run as configs/plaza1-NAME.yaml (the estimators are deterministic, particle seeded)."""
+    from odofuse.cli import default_config, default_config_path
+    from odofuse.config import load_config
+
+    assert default_config_path(name).exists()
+    a, b = default_config(name), load_config(ROOT / "configs" / f"plaza1-{name}.yaml")
+    fields = ("log", "robot", "motion", "estimator", "initial", "sensors", "options")
+    assert [getattr(a, f) for f in fields] == [getattr(b, f) for f in fields]
+
+
+@pytest.mark.slow
+def test_4_run_estimator_particle_without_config_uses_its_packaged_config(tmp_path):
+    """Before: the dead-reckoning defaults, 8.4 m off, ``degraded`` with 10 warnings;
+    configs/plaza1-particle.yaml gives 0.308 m (README). Now the same figure."""
+    proc = odofuse("run", "--estimator", "particle", "-o", tmp_path / "default")
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((tmp_path / "default" / "particle" / "metrics.json").read_text())
+    ref = odofuse("run", ROOT / "configs" / "plaza1-particle.yaml", "-o", tmp_path / "config")
+    assert ref.returncode == 0, ref.stderr
+    r = json.loads((tmp_path / "config" / "metrics.json").read_text())
+    assert m["ate_rmse_m"] == r["ate_rmse_m"] and m["status"] == r["status"] == "ok"
+    row = next(line for line in proc.stdout.splitlines() if line.startswith("particle "))
+    assert f"{r['ate_rmse_m']:.3f}" in row
+
+
+def test_4_the_slam_row_is_the_aligned_figure_with_a_note(capsys):
+    from odofuse.cli import _row, default_config
+
+    metrics = {"estimator": "smoother", "ate_rmse_m": 1.416, "ate_aligned_rmse_m": 0.186}
+    row = _row("slam", default_config("slam"), metrics)
+    assert row["estimator"] == "slam" and row["ate_rmse_m"] == 0.186
+    assert "after SE(2) alignment" in row["note"] and "unaligned 1.416 m" in row["note"]
+    plain = _row("smoother", default_config("smoother"), metrics)
+    assert plain["ate_rmse_m"] == 1.416 and "note" not in plain
