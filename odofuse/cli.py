@@ -381,11 +381,33 @@ def cmd_options(args: argparse.Namespace) -> int:
             doc = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
             print(f"{name:22s} {prefix:18s} {doc}")
         return 0
-    if args.name not in blocks:
+    name = options_block(args.name, blocks)
+    if name is None:
         raise OdofuseError(f"no options block '{args.name}'; known: {', '.join(blocks)}")
-    cls, prefix = blocks[args.name]
+    cls, prefix = blocks[name]
     print(text_table(cls, prefix))
     return 0
+
+
+def options_block(name: str, blocks) -> str | None:
+    """The block of :func:`odofuse.declarations.catalogue` for ``name`` as a user writes it
+    in a config: ``sensors.ranges`` (the stream; its model kind is ``range``),
+    ``options.smoother``, ``smoother``/``isam2``/``fixed_lag`` (the graph block),
+    ``options.ekf``."""
+    from odofuse.declarations.sensors import stream_kind
+
+    name = name.strip()
+    if name in blocks:
+        return name
+    head, _, rest = name.partition(".")
+    if head == "sensors" and rest:
+        kind = stream_kind(rest)
+        return f"sensors.{kind}" if kind and f"sensors.{kind}" in blocks else None
+    if head == "options" and rest:
+        return options_block(rest, blocks)
+    if name in ("smoother", "isam2", "fixed_lag") and "graph" in blocks:
+        return "graph"
+    return None
 
 
 # -------------------------------------------------------------------------------------- main

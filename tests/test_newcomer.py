@@ -402,3 +402,56 @@ def test_4_the_slam_row_is_the_aligned_figure_with_a_note(capsys):
     assert "after SE(2) alignment" in row["note"] and "unaligned 1.416 m" in row["note"]
     plain = _row("smoother", default_config("smoother"), metrics)
     assert plain["ate_rmse_m"] == 1.416 and "note" not in plain
+
+
+# ------------------------------------------------------------------------------- point 6
+def test_6_a_gyro_nis_finding_names_motion_k(robot):
+    """Before: ``[nis] gyro ... pessimistic`` with no key; what cured it was ``motion.k``."""
+    cfg = write_config(robot, "big-k", "rad")
+    cfg.write_text(cfg.read_text().replace("k_r: 1.0e-5, k_l: 1.0e-5", "k_r: 1.0e-3, k_l: 1.0e-3"))
+    proc = odofuse("run", cfg)
+    assert proc.returncode == 0, proc.stderr
+    nis = [line for line in proc.stdout.splitlines() if "[nis] gyro" in line]
+    assert nis and all("keys: sensors.gyro.sigma and motion.k" in line for line in nis)
+
+
+def test_6_a_wrong_ticks_per_rev_is_one_line_naming_the_encoder_scale(robot):
+    """Before: ``ticks_per_rev: 48`` (1024 true) gave 10 warnings, among them "heading
+    variance fell to -0.0109 rad^2", and none saying "check the encoder scale"."""
+    cfg = write_config(robot, "ticks48", "ticks", encoder=", encoder: {ticks_per_rev: 48}")
+    err = one_line_error(odofuse("run", cfg))
+    assert "a wrong encoder scale?" in err and "robot.encoder.ticks_per_rev (48 here)" in err
+    good = write_config(robot, "ticks1024", "ticks", encoder=", encoder: {ticks_per_rev: 1024}")
+    assert odofuse("run", good).returncode == 0
+
+
+def test_6_units_are_the_same_in_the_docs_and_in_odofuse_options():
+    """Before: motion.k_r was "m^2 per m" in docs/formats.md and "rad" in odofuse options."""
+    proc = odofuse("options", "motion")
+    assert proc.returncode == 0, proc.stderr
+    shown = {line.split()[0]: line for line in proc.stdout.splitlines()[1:]}
+    docs = (ROOT / "docs" / "formats.md").read_text()
+    for key in ("motion.k_r", "motion.k_l"):
+        row = next(r for r in docs.splitlines() if r.startswith(f"| `{key}` |"))
+        unit = row.split("|")[3].strip()
+        assert unit == "m^2 per m" and f"  {unit}  " in shown[key]
+    assert "k_r: 1.0e-4                  # var(ds_r) = k_r |ds_r|  [m^2 per m]" in docs
+
+
+@pytest.mark.parametrize(
+    ("written", "block"),
+    [
+        ("sensors.ranges", "sensors.<stream>.sigma         float, > 0"),
+        ("sensors.landmarks", "sensors.<stream>.sigma_bearing"),
+        ("smoother", "options.<estimator>.keyframe_dt"),
+        ("options.smoother", "options.<estimator>.keyframe_dt"),
+        ("options.ekf", "options.ekf.late_window"),
+    ],
+)
+def test_6_options_blocks_answer_to_the_path_a_user_writes(written, block):
+    """Before: ``odofuse options sensors.ranges`` and ``odofuse options smoother`` failed."""
+    proc = odofuse("options", written)
+    assert proc.returncode == 0, proc.stderr
+    assert block in proc.stdout
+    err = one_line_error(odofuse("options", "sensors.nope"))
+    assert "no options block 'sensors.nope'; known: motion" in err

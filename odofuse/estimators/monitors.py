@@ -107,6 +107,14 @@ def slip_scale(
 
 
 # ----------------------------------------------------------------------------- monitor
+def nis_keys(stream: str) -> str:
+    """The config keys an innovation-band finding of ``stream`` points at."""
+    if stream == "gyro" or stream.startswith("gyro_"):
+        # the gyro's innovation covariance holds the wheels' heading noise (motion.k)
+        return f"; keys: sensors.{stream}.sigma and motion.k (k_r, k_l)"
+    return f"; keys: sensors.{stream}.sigma"
+
+
 @dataclass(frozen=True)
 class Health:
     """Live health of a streaming filter: :meth:`Localizer.health`'s answer."""
@@ -290,7 +298,7 @@ class FilterMonitor:
                     "nis",
                     f"mean NIS over {w} readings {side} its band [{_s(lo)}, {_s(hi)}] "
                     f"(expected {d}) in {len(spans)} span(s), {covered:.1f} s in all; worst "
-                    f"{_s(worst)}: {what}",
+                    f"{_s(worst)}: {what}{nis_keys(s)}",
                     sensor=s,
                     t_start=float(t[a0]),
                     t_end=float(t[min(b + w - 1, n - 1)]),
