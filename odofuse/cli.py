@@ -308,7 +308,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def _plot_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_dir", help="a run's output folder (with trajectory.csv)")
     p.add_argument(
-        "--log", help="log for ground truth and landmarks (default: the one named in metrics.json)"
+        "--log",
+        help="log for ground truth and landmarks (default: the one named in metrics.json, "
+        "relative to RUN_DIR); 'none': plot the estimate alone",
     )
     p.add_argument("-o", "--out", help="PNG to write (default RUN_DIR/trajectory.png)")
 
@@ -317,7 +319,7 @@ def _plot_args(p: argparse.ArgumentParser) -> None:
 def cmd_plot(args: argparse.Namespace) -> int:
     """Draw a run's trajectory (with ground truth and beacons when the log is known)."""
     from odofuse.io.loader import load_log
-    from odofuse.outputs import read_trajectory_csv
+    from odofuse.outputs import read_trajectory_csv, resolve_run_path
     from odofuse.plotting import plot_run
     from odofuse.trajectory import EstimateResult
 
@@ -326,8 +328,17 @@ def cmd_plot(args: argparse.Namespace) -> int:
     meta = {}
     if (run_dir / "metrics.json").exists():
         meta = json.loads((run_dir / "metrics.json").read_text(encoding="utf-8"))
-    spec = args.log or meta.get("log")
-    log = load_log(spec) if spec else None
+    spec = args.log or (resolve_run_path(meta["log"], run_dir) if meta.get("log") else None)
+    spec = None if spec == "none" else spec
+    try:
+        log = load_log(spec) if spec else None
+    except (OdofuseError, OSError) as exc:
+        if args.log:
+            raise
+        raise OdofuseError(
+            f"{one_line(exc).split(': ', 1)[-1]} (the log named in {run_dir / 'metrics.json'}); "
+            "give it with --log LOG, or plot without it: --log none"
+        ) from None
     out = plot_run(
         args.out or run_dir / "trajectory.png",
         EstimateResult(meta.get("estimator", "estimate"), traj),

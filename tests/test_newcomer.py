@@ -455,3 +455,53 @@ def test_6_options_blocks_answer_to_the_path_a_user_writes(written, block):
     assert block in proc.stdout
     err = one_line_error(odofuse("options", "sensors.nope"))
     assert "no options block 'sensors.nope'; known: motion" in err
+
+
+# ------------------------------------------------------------------------------- point 7
+def test_7_a_run_folder_is_read_from_any_folder_and_can_move_with_its_log(robot, tmp_path):
+    """Before: metrics.json kept the log path relative to where the run started, so
+    ``odofuse plot RUN_DIR`` failed from another folder, without a word about --log."""
+    work = robot / "work"
+    work.mkdir(exist_ok=True)
+    cfg = write_config(work, "relative", "../rad", out="runs/relative")
+    assert odofuse("run", "relative.yaml", cwd=work).returncode == 0  # a relative config path
+    run = work / "runs" / "relative"
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["log"] == "../../../rad" and m["config"] == "../../relative.yaml"
+    assert (run / m["log"]).resolve() == (robot / "rad").resolve()
+    assert (run / m["config"]).resolve() == cfg.resolve()
+    proc = odofuse("plot", run, "-o", tmp_path / "a.png", cwd=tmp_path)  # another folder
+    assert proc.returncode == 0, proc.stderr
+    # moved together with its log: still found; moved alone: one line naming --log
+    moved = tmp_path / "moved"
+    shutil.copytree(robot / "rad", moved / "rad")
+    shutil.copytree(run, moved / "a" / "b" / "relative")
+    ok = odofuse("plot", moved / "a" / "b" / "relative", "-o", tmp_path / "b.png", cwd=ROOT)
+    assert ok.returncode == 0, ok.stderr
+    shutil.copytree(run, tmp_path / "alone")
+    err = one_line_error(odofuse("plot", tmp_path / "alone", "-o", tmp_path / "c.png"))
+    assert "log not found" in err and "--log LOG" in err and "metrics.json" in err
+    alone = odofuse("plot", tmp_path / "alone", "--log", "none", "-o", tmp_path / "c.png")
+    assert alone.returncode == 0, alone.stderr
+
+
+def test_7_packaged_configs_and_batch_summaries_follow_the_same_rule(tmp_path):
+    """Before: the builtin run stored an absolute config path (inside site-packages) and
+    summary.csv absolute log paths."""
+    from odofuse.batch.run import write_summary
+    from odofuse.cli import default_config_path
+    from odofuse.outputs import resolve_run_path, run_path
+
+    packaged = run_path(default_config_path("ekf"), tmp_path / "run")
+    assert packaged == "odofuse:default_configs/plaza1-ekf.yaml"
+    assert Path(resolve_run_path(packaged, tmp_path)) == default_config_path("ekf").resolve()
+    assert run_path("builtin:plaza1", tmp_path) == "builtin:plaza1"
+    out = tmp_path / "nightly"
+    out.mkdir()
+    log = tmp_path / "logs" / "robot1"
+    rec = {"log": str(log), "name": "robot1", "status": "failed", "error": "x"}
+    write_summary(out, [rec])
+    row = (out / "summary.csv").read_text().splitlines()[1]
+    assert row.startswith("../logs/robot1,robot1,failed")
+    assert json.loads((out / "summary.json").read_text())[0]["log"] == "../logs/robot1"
+    assert rec["log"] == str(log)  # the records returned by run_batch keep absolute paths

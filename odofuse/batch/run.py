@@ -16,7 +16,7 @@ one failed row, never a stopped batch.
 Output layout::
 
     OUT/<name>/           trajectory.csv, trajectory.tum, trajectory.png, metrics.json
-    OUT/summary.csv       one row per log (SUMMARY_COLUMNS)
+    OUT/summary.csv       one row per log (SUMMARY_COLUMNS; log paths relative to OUT)
     OUT/summary.json      the same rows as a JSON list
     OUT/summary.png       position RMSE (or final error) per log, coloured by status
 
@@ -284,14 +284,20 @@ def summary_csv_text(records) -> str:
 
 
 def write_summary(out: Path, records) -> dict[str, Path]:
-    """Write ``summary.csv``, ``summary.json`` and ``summary.png`` into ``out`` atomically."""
-    from odofuse.io.atomic import atomic_write, atomic_write_text
-    from odofuse.outputs import json_ready
+    """Write ``summary.csv``, ``summary.json`` and ``summary.png`` into ``out`` atomically.
 
+    The files give each log relative to ``out`` (:func:`odofuse.outputs.run_path`); the
+    records returned by :func:`run_batch` keep the absolute paths.
+    """
+    from odofuse.io.atomic import atomic_write, atomic_write_text
+    from odofuse.outputs import json_ready, run_path
+
+    # the files name each log relative to OUT (outputs.run_path): relocatable with it
+    rows = [{**r, "log": run_path(r["log"], out)} for r in records]
     paths = {
-        "csv": atomic_write_text(out / "summary.csv", summary_csv_text(records)),
+        "csv": atomic_write_text(out / "summary.csv", summary_csv_text(rows)),
         "json": atomic_write_text(
-            out / "summary.json", json.dumps(json_ready(list(records)), indent=2) + "\n"
+            out / "summary.json", json.dumps(json_ready(rows), indent=2) + "\n"
         ),
     }
     paths["png"] = atomic_write(out / "summary.png", lambda tmp: plot_summary(records, tmp))
