@@ -505,3 +505,77 @@ def test_7_packaged_configs_and_batch_summaries_follow_the_same_rule(tmp_path):
     assert row.startswith("../logs/robot1,robot1,failed")
     assert json.loads((out / "summary.json").read_text())[0]["log"] == "../logs/robot1"
     assert rec["log"] == str(log)  # the records returned by run_batch keep absolute paths
+
+
+# ------------------------------------------------------------------------------- point 8
+def test_8_the_printed_runtime_shows_the_second_opinion(robot):
+    """Before: 1.2 s shown for a run that took 12.4 s (the smoother's check left out)."""
+    proc = odofuse("run", write_config(robot, "timed", "rad"))
+    assert proc.returncode == 0, proc.stderr
+    head, row = proc.stdout.splitlines()[:2]
+    assert head.split()[-4:] == ["2nd", "opinion", "[s]", "status"]
+    own, second = (float(v) for v in row.split()[3:5])
+    assert own > 0 and second > 0  # the smoother's run, timed by itself
+
+
+def test_8_print_table_adds_the_column_only_when_a_check_ran(capsys):
+    from odofuse.cli import print_table
+
+    print_table([{"estimator": "ekf", "runtime_s": 1.0, "status": "ok"}])
+    assert "2nd opinion" not in capsys.readouterr().out
+    print_table([{"estimator": "ekf", "runtime_s": 1.0, "second_opinion_s": 11.2}])
+    lines = capsys.readouterr().out.splitlines()
+    assert "2nd opinion [s]" in lines[0] and "11.200" in lines[1]
+
+
+def test_8_summary_png_legend_is_beside_the_bars(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from odofuse.batch.run import plot_summary
+
+    records = [
+        {"name": f"log{i}", "status": "ok", "ate_rmse_m": 1.0 + i, "final_error_m": 1.0}
+        for i in range(3)
+    ]
+    captured = {}
+    real_close = plt.close
+
+    def keep(fig=None):
+        captured["fig"] = fig
+        return real_close(fig)
+
+    plt.close = keep
+    try:
+        plot_summary(records, tmp_path / "summary.png")
+    finally:
+        plt.close = real_close
+    fig = captured["fig"]
+    ax = fig.axes[0]
+    fig.canvas.draw()
+    legend = ax.get_legend().get_window_extent()
+    for bar in ax.patches:
+        assert not legend.overlaps(bar.get_window_extent())
+
+
+def test_8_umbmark_says_what_the_reduction_is(tmp_path):
+    """Before: the figure's title said "reduction x31101" for a residual of 0.2 micrometres."""
+    from types import SimpleNamespace
+
+    from odofuse.teaching.demos.odometry_errors import _reduction_text
+
+    tiny = SimpleNamespace(e_max_before=0.570, e_max_after=1.83e-5, reduction=31101.0)
+    assert _reduction_text(tiny) == "E_max,syst 57 cm -> 0.00183 cm"
+    real = SimpleNamespace(e_max_before=0.82, e_max_after=0.005, reduction=164.0)
+    assert _reduction_text(real) == "E_max,syst 82 cm -> 0.5 cm (x164 smaller)"
+
+
+def test_8_the_docs_examples_say_what_the_tools_do():
+    ccw = (ROOT / "configs" / "sim-umbmark-ccw.yaml").read_text()
+    assert "odofuse simulate configs/sim-umbmark-ccw.yaml -o logs/umbmark-ccw" in ccw
+    ros2 = (ROOT / "docs" / "ros2.md").read_text()
+    # what apply_log_defaults gives on the bag of tests/rosbag_sim.py (test_ros2 asserts both)
+    assert '`{"sensors.gps.lever_arm": [0.3, 0.1], "sensors.gps.robust": ["huber",' in ros2
+    assert "sensors.compass_2.model: compass" not in ros2
