@@ -199,6 +199,42 @@ def write_metrics(path: str | Path, metrics: dict) -> Path:
     return atomic_write_text(path, text + "\n")
 
 
+#: How ``metrics.json`` names a config file that ships inside the package.
+PACKAGED_PREFIX = "odofuse:"
+
+
+def run_path(path, run_dir) -> str:
+    """``path`` as ``metrics.json`` and the batch summary record it: relative to ``run_dir``.
+
+    One rule, so that a run folder can be read from any working directory and moved
+    together with its log: a file or folder is written relative to ``run_dir`` (the run
+    folder, or a batch's OUT); ``builtin:NAME`` and ``<...>`` (no file) stay as they are; a
+    config that ships inside the package is ``odofuse:default_configs/NAME.yaml``.
+    :func:`resolve_run_path` reads it back.
+    """
+    s = str(path)
+    if s.startswith(("builtin:", "<", PACKAGED_PREFIX)) or not s:
+        return s
+    p = Path(s).expanduser().absolute()
+    package = Path(__file__).resolve().parent
+    try:
+        return PACKAGED_PREFIX + p.resolve().relative_to(package).as_posix()
+    except ValueError:
+        pass
+    return Path(os.path.relpath(p, Path(run_dir).expanduser().absolute())).as_posix()
+
+
+def resolve_run_path(value: str, run_dir) -> str:
+    """The path :func:`run_path` wrote, usable from the current working directory."""
+    s = str(value)
+    if s.startswith(("builtin:", "<")):
+        return s
+    if s.startswith(PACKAGED_PREFIX):
+        return str(Path(__file__).resolve().parent / s.removeprefix(PACKAGED_PREFIX))
+    p = Path(s).expanduser()
+    return os.path.normpath(p if p.is_absolute() else Path(run_dir) / p)
+
+
 def tum_name(estimator: str) -> str:
     """``<estimator>.tum`` with characters other than letters, digits, ``-`` and ``_`` as ``_``."""
     name = estimator.rsplit(":", 1)[-1] or "trajectory"

@@ -23,6 +23,7 @@ from odofuse.evaluation import trajectory_from_stream
 from odofuse.io.atomic import claim_folder, clean_stale, publish, temp_folder
 from odofuse.outputs import (
     evo_t_max_diff,
+    run_path,
     tum_name,
     write_landmarks_csv,
     write_metrics,
@@ -214,8 +215,8 @@ def finish_run(config, log, result, runtime: float, out_dir: Path, reference=Non
     from odofuse.outputs_ros import mcap_options
 
     m = checked_metrics(config, log, result, runtime, reference)
-    m["log"] = config.log
-    m["config"] = config.source
+    m["log"] = run_path(config.log, out_dir)  # relative to the run folder (outputs.run_path)
+    m["config"] = run_path(config.source, out_dir)
     if log.ros.get("defaults"):
         m["log_defaults"] = log.ros["defaults"]
     ros = mcap_options(config, log)

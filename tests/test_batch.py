@@ -292,3 +292,23 @@ def test_split_matches_the_unsplit_smoother_away_from_the_seams(sim, client, tmp
     assert steps[near].max() <= 1.5 * steps[~near].max()
     for s in split["seams"]:
         assert s["max_position_diff_m"] < 0.5
+
+
+def test_a_rerun_over_fewer_logs_lists_the_stale_folders(logs, client, tmp_path, capsys):
+    """Issue 30: a re-run batch rewrote summary.csv but left the folders of logs no longer
+    given, silently. They are listed (never deleted: they may be a run's only copy)."""
+    from odofuse.batch import print_summary
+
+    out = tmp_path / "out"
+    first = run_batch(logs["config"], logs["good"][1:], out, client)
+    assert [r["name"] for r in first] == ["log", "short"] and not first.stale
+    again = run_batch(logs["config"], logs["good"][2:], out, client)
+    assert [r["name"] for r in again] == ["short"] and again[0]["resumed"]
+    assert again.stale == ["log"]
+    print_summary(again, out)
+    text = capsys.readouterr().out
+    assert f"note: 1 output folder(s) in {out}/ belong to no log of this batch" in text
+    assert text.rstrip().endswith(": log")
+    assert (out / "log" / "metrics.json").exists()
+    rows = (out / "summary.csv").read_text(encoding="utf-8").splitlines()
+    assert len(rows) == 2 and ",short," in rows[1]

@@ -88,6 +88,15 @@ UNLISTED = {
     "odometry_calibration": True,
     "robust": {"ranges": ["tukey", 3.290526731491895]},
 }
+# the packaged copies of configs/ (`odofuse run --estimator NAME`) parse as their originals
+PACKAGED.update(
+    {
+        "default_" + key: value
+        for key, value in list(PACKAGED.items())
+        if key.startswith("configs/")
+        and (ROOT / "odofuse" / ("default_" + key.split(":")[0])).exists()
+    }
+)
 PACKAGED_FILES = sorted((ROOT / "configs").glob("plaza1-*.yaml")) + sorted(
     (ROOT / "odofuse" / "default_configs").glob("plaza1-*.yaml")
 )

@@ -10,6 +10,7 @@ issue and checks the one line that names the key to fix.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import re
 import shutil
@@ -310,3 +311,271 @@ def test_2_tune_keeps_its_best_config_when_interrupted(robot, monkeypatch):
 
     monkeypatch.syspath_prepend(str(robot))
     assert load_config(out).estimator == "ekf"
+
+
+# ------------------------------------------------------------------------------- point 3
+@pytest.mark.parametrize("stream", ["gps", "compass"])
+def test_3_a_configured_sensor_without_its_file_is_an_error_naming_key_and_file(robot, stream):
+    """Before: gps configured, gps.csv absent: ``ok`` at 6.5 m with ``"gps": {"used": 0}``."""
+    log = robot / f"no-{stream}"
+    if not log.exists():
+        log.mkdir()
+        for f in ("wheels.csv", "gyro.csv", "gps.csv", "groundtruth.csv"):
+            if f != f"{stream}.csv":
+                shutil.copy(robot / "rad" / f, log / f)
+    extra = "\n  compass: {sigma: 0.05}" if stream == "compass" else ""
+    cfg = write_config(robot, f"no-{stream}", log.name)
+    cfg.write_text(cfg.read_text().replace("gate: 0.999}", "gate: 0.999}" + extra))
+    err = one_line_error(odofuse("run", cfg))
+    assert f"key 'sensors.{stream}'" in err and str(cfg) in err
+    assert f"{log / (stream + '.csv')} not found" in err and "optional: true" in err
+
+
+def test_3_an_optional_sensor_without_data_warns_and_degrades_when_it_was_the_only_absolute(
+    robot,
+):
+    log = robot / "no-gps"
+    cfg = write_config(robot, "no-gps-optional", "no-gps", gps=", optional: true")
+    proc = odofuse("run", cfg)
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((robot / "out" / "no-gps-optional" / "metrics.json").read_text())
+    assert m["status"] == "degraded"
+    line = [w for w in m["warnings"] if w.startswith("[missing] gps")]
+    assert line and f"{log / 'gps.csv'} not found" in line[0]
+    assert "no other absolute sensor is left" in line[0]
+    assert "[missing] gps" in proc.stdout
+
+
+def test_3_a_stream_present_but_never_used_is_not_ok(robot):
+    """GPS on another clock (500 s late): the smoother counts it rejected, the filters
+    dropped; the rule in run_estimator: ``used: 0`` and no degrading finding is a finding."""
+    from odofuse.estimators import _unused_streams
+    from odofuse.io.log import Stream
+    from odofuse.trajectory import EstimateResult, Trajectory
+
+    traj = Trajectory(np.arange(3.0), np.zeros((3, 3)), None)
+    result = EstimateResult("x", traj, used={"gps": 0}, rejected={"gps": 0})
+    gps = Stream("gps", "gps.csv", np.array([500.0, 501.0]), ("x", "y"), np.zeros((2, 2)))
+
+    class Config:
+        sensors = {"gps": None}
+
+    out = _unused_streams(result, Config(), {"gps": gps})
+    assert [f.check for f in out.findings] == ["unused"] and out.findings[0].degrades
+
+
+# ------------------------------------------------------------------------------- point 4
+@pytest.mark.parametrize("name", ["particle", "isam2", "fixed_lag", "slam"])
+def test_4_every_packaged_config_is_the_repository_one(name):
+    """``odofuse run --estimator NAME`` reads odofuse/default_configs/plaza1-NAME.yaml: the
+    same run as configs/plaza1-NAME.yaml (the estimators are deterministic, particle seeded)."""
+    from odofuse.cli import default_config, default_config_path
+    from odofuse.config import load_config
+
+    assert default_config_path(name).exists()
+    a, b = default_config(name), load_config(ROOT / "configs" / f"plaza1-{name}.yaml")
+    fields = ("log", "robot", "motion", "estimator", "initial", "sensors", "options")
+    assert [getattr(a, f) for f in fields] == [getattr(b, f) for f in fields]
+
+
+@pytest.mark.slow
+def test_4_run_estimator_particle_without_config_uses_its_packaged_config(tmp_path):
+    """Before: the dead-reckoning defaults, 8.4 m off, ``degraded`` with 10 warnings;
+    configs/plaza1-particle.yaml gives 0.308 m (README). Now the same figure."""
+    proc = odofuse("run", "--estimator", "particle", "-o", tmp_path / "default")
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((tmp_path / "default" / "particle" / "metrics.json").read_text())
+    ref = odofuse("run", ROOT / "configs" / "plaza1-particle.yaml", "-o", tmp_path / "config")
+    assert ref.returncode == 0, ref.stderr
+    r = json.loads((tmp_path / "config" / "metrics.json").read_text())
+    assert m["ate_rmse_m"] == r["ate_rmse_m"] and m["status"] == r["status"] == "ok"
+    row = next(line for line in proc.stdout.splitlines() if line.startswith("particle "))
+    assert f"{r['ate_rmse_m']:.3f}" in row
+
+
+def test_4_the_slam_row_is_the_aligned_figure_with_a_note(capsys):
+    from odofuse.cli import _row, default_config
+
+    metrics = {"estimator": "smoother", "ate_rmse_m": 1.416, "ate_aligned_rmse_m": 0.186}
+    row = _row("slam", default_config("slam"), metrics)
+    assert row["estimator"] == "slam" and row["ate_rmse_m"] == 0.186
+    assert "after SE(2) alignment" in row["note"] and "unaligned 1.416 m" in row["note"]
+    plain = _row("smoother", default_config("smoother"), metrics)
+    assert plain["ate_rmse_m"] == 1.416 and "note" not in plain
+
+
+# ------------------------------------------------------------------------------- point 6
+def test_6_a_gyro_nis_finding_names_motion_k(robot):
+    """Before: ``[nis] gyro ... pessimistic`` with no key; what cured it was ``motion.k``."""
+    cfg = write_config(robot, "big-k", "rad")
+    cfg.write_text(cfg.read_text().replace("k_r: 1.0e-5, k_l: 1.0e-5", "k_r: 1.0e-3, k_l: 1.0e-3"))
+    proc = odofuse("run", cfg)
+    assert proc.returncode == 0, proc.stderr
+    nis = [line for line in proc.stdout.splitlines() if "[nis] gyro" in line]
+    assert nis and all("keys: sensors.gyro.sigma and motion.k" in line for line in nis)
+
+
+def test_6_a_wrong_ticks_per_rev_is_one_line_naming_the_encoder_scale(robot):
+    """Before: ``ticks_per_rev: 48`` (1024 true) gave 10 warnings, among them "heading
+    variance fell to -0.0109 rad^2", and none saying "check the encoder scale"."""
+    cfg = write_config(robot, "ticks48", "ticks", encoder=", encoder: {ticks_per_rev: 48}")
+    err = one_line_error(odofuse("run", cfg))
+    assert "a wrong encoder scale?" in err and "robot.encoder.ticks_per_rev (48 here)" in err
+    good = write_config(robot, "ticks1024", "ticks", encoder=", encoder: {ticks_per_rev: 1024}")
+    assert odofuse("run", good).returncode == 0
+
+
+def test_6_units_are_the_same_in_the_docs_and_in_odofuse_options():
+    """Before: motion.k_r was "m^2 per m" in docs/formats.md and "rad" in odofuse options."""
+    proc = odofuse("options", "motion")
+    assert proc.returncode == 0, proc.stderr
+    shown = {line.split()[0]: line for line in proc.stdout.splitlines()[1:]}
+    docs = (ROOT / "docs" / "formats.md").read_text()
+    for key in ("motion.k_r", "motion.k_l"):
+        row = next(r for r in docs.splitlines() if r.startswith(f"| `{key}` |"))
+        unit = row.split("|")[3].strip()
+        assert unit == "m^2 per m" and f"  {unit}  " in shown[key]
+    assert "k_r: 1.0e-4                  # var(ds_r) = k_r |ds_r|  [m^2 per m]" in docs
+
+
+@pytest.mark.parametrize(
+    ("written", "block"),
+    [
+        ("sensors.ranges", "sensors.<stream>.sigma         float, > 0"),
+        ("sensors.landmarks", "sensors.<stream>.sigma_bearing"),
+        ("smoother", "options.<estimator>.keyframe_dt"),
+        ("options.smoother", "options.<estimator>.keyframe_dt"),
+        ("options.ekf", "options.ekf.late_window"),
+    ],
+)
+def test_6_options_blocks_answer_to_the_path_a_user_writes(written, block):
+    """Before: ``odofuse options sensors.ranges`` and ``odofuse options smoother`` failed."""
+    proc = odofuse("options", written)
+    assert proc.returncode == 0, proc.stderr
+    assert block in proc.stdout
+    err = one_line_error(odofuse("options", "sensors.nope"))
+    assert "no options block 'sensors.nope'; known: motion" in err
+
+
+# ------------------------------------------------------------------------------- point 7
+def test_7_a_run_folder_is_read_from_any_folder_and_can_move_with_its_log(robot, tmp_path):
+    """Before: metrics.json kept the log path relative to where the run started, so
+    ``odofuse plot RUN_DIR`` failed from another folder, without a word about --log."""
+    work = robot / "work"
+    work.mkdir(exist_ok=True)
+    cfg = write_config(work, "relative", "../rad", out="runs/relative")
+    assert odofuse("run", "relative.yaml", cwd=work).returncode == 0  # a relative config path
+    run = work / "runs" / "relative"
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["log"] == "../../../rad" and m["config"] == "../../relative.yaml"
+    assert (run / m["log"]).resolve() == (robot / "rad").resolve()
+    assert (run / m["config"]).resolve() == cfg.resolve()
+    proc = odofuse("plot", run, "-o", tmp_path / "a.png", cwd=tmp_path)  # another folder
+    assert proc.returncode == 0, proc.stderr
+    # moved together with its log: still found; moved alone: one line naming --log
+    moved = tmp_path / "moved"
+    shutil.copytree(robot / "rad", moved / "rad")
+    shutil.copytree(run, moved / "a" / "b" / "relative")
+    ok = odofuse("plot", moved / "a" / "b" / "relative", "-o", tmp_path / "b.png", cwd=ROOT)
+    assert ok.returncode == 0, ok.stderr
+    shutil.copytree(run, tmp_path / "alone")
+    err = one_line_error(odofuse("plot", tmp_path / "alone", "-o", tmp_path / "c.png"))
+    assert "log not found" in err and "--log LOG" in err and "metrics.json" in err
+    alone = odofuse("plot", tmp_path / "alone", "--log", "none", "-o", tmp_path / "c.png")
+    assert alone.returncode == 0, alone.stderr
+
+
+def test_7_packaged_configs_and_batch_summaries_follow_the_same_rule(tmp_path):
+    """Before: the builtin run stored an absolute config path (inside site-packages) and
+    summary.csv absolute log paths."""
+    from odofuse.batch.run import write_summary
+    from odofuse.cli import default_config_path
+    from odofuse.outputs import resolve_run_path, run_path
+
+    packaged = run_path(default_config_path("ekf"), tmp_path / "run")
+    assert packaged == "odofuse:default_configs/plaza1-ekf.yaml"
+    assert Path(resolve_run_path(packaged, tmp_path)) == default_config_path("ekf").resolve()
+    assert run_path("builtin:plaza1", tmp_path) == "builtin:plaza1"
+    out = tmp_path / "nightly"
+    out.mkdir()
+    log = tmp_path / "logs" / "robot1"
+    rec = {"log": str(log), "name": "robot1", "status": "failed", "error": "x"}
+    write_summary(out, [rec])
+    row = (out / "summary.csv").read_text().splitlines()[1]
+    assert row.startswith("../logs/robot1,robot1,failed")
+    assert json.loads((out / "summary.json").read_text())[0]["log"] == "../logs/robot1"
+    assert rec["log"] == str(log)  # the records returned by run_batch keep absolute paths
+
+
+# ------------------------------------------------------------------------------- point 8
+def test_8_the_printed_runtime_shows_the_second_opinion(robot):
+    """Before: 1.2 s shown for a run that took 12.4 s (the smoother's check left out)."""
+    proc = odofuse("run", write_config(robot, "timed", "rad"))
+    assert proc.returncode == 0, proc.stderr
+    head, row = proc.stdout.splitlines()[:2]
+    assert head.split()[-4:] == ["2nd", "opinion", "[s]", "status"]
+    own, second = (float(v) for v in row.split()[3:5])
+    assert own > 0 and second > 0  # the smoother's run, timed by itself
+
+
+def test_8_print_table_adds_the_column_only_when_a_check_ran(capsys):
+    from odofuse.cli import print_table
+
+    print_table([{"estimator": "ekf", "runtime_s": 1.0, "status": "ok"}])
+    assert "2nd opinion" not in capsys.readouterr().out
+    print_table([{"estimator": "ekf", "runtime_s": 1.0, "second_opinion_s": 11.2}])
+    lines = capsys.readouterr().out.splitlines()
+    assert "2nd opinion [s]" in lines[0] and "11.200" in lines[1]
+
+
+def test_8_summary_png_legend_is_beside_the_bars(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from odofuse.batch.run import plot_summary
+
+    records = [
+        {"name": f"log{i}", "status": "ok", "ate_rmse_m": 1.0 + i, "final_error_m": 1.0}
+        for i in range(3)
+    ]
+    captured = {}
+    real_close = plt.close
+
+    def keep(fig=None):
+        captured["fig"] = fig
+        return real_close(fig)
+
+    plt.close = keep
+    try:
+        plot_summary(records, tmp_path / "summary.png")
+    finally:
+        plt.close = real_close
+    fig = captured["fig"]
+    ax = fig.axes[0]
+    fig.canvas.draw()
+    legend = ax.get_legend().get_window_extent()
+    for bar in ax.patches:
+        assert not legend.overlaps(bar.get_window_extent())
+
+
+def test_8_umbmark_says_what_the_reduction_is(tmp_path):
+    """Before: the figure's title said "reduction x31101" for a residual of 0.2 micrometres."""
+    from types import SimpleNamespace
+
+    from odofuse.teaching.demos.odometry_errors import _reduction_text
+
+    tiny = SimpleNamespace(e_max_before=0.570, e_max_after=1.83e-5, reduction=31101.0)
+    assert _reduction_text(tiny) == "E_max,syst 57 cm -> 0.00183 cm"
+    real = SimpleNamespace(e_max_before=0.82, e_max_after=0.005, reduction=164.0)
+    assert _reduction_text(real) == "E_max,syst 82 cm -> 0.5 cm (x164 smaller)"
+
+
+def test_8_the_docs_examples_say_what_the_tools_do():
+    ccw = (ROOT / "configs" / "sim-umbmark-ccw.yaml").read_text()
+    assert "odofuse simulate configs/sim-umbmark-ccw.yaml -o logs/umbmark-ccw" in ccw
+    ros2 = (ROOT / "docs" / "ros2.md").read_text()
+    # what apply_log_defaults gives on the bag of tests/rosbag_sim.py (test_ros2 asserts both)
+    assert '`{"sensors.gps.lever_arm": [0.3, 0.1], "sensors.gps.robust": ["huber",' in ros2
+    assert "sensors.compass_2.model: compass" not in ros2

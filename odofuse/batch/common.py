@@ -32,7 +32,12 @@ DEFAULT_RETRIES = 3
 
 # ------------------------------------------------------------------------------- the records
 class BatchSummary(list):
-    """The summary of a batch: a list of plain dict records, one per log (SUMMARY_COLUMNS)."""
+    """The summary of a batch: a list of plain dict records, one per log (SUMMARY_COLUMNS).
+
+    ``stale`` lists the complete run folders of OUT that belong to none of the batch's logs.
+    """
+
+    stale: list = []  # noqa: RUF012 - replaced per instance by run_batch, never mutated
 
     def to_pandas(self):
         """The records as a :class:`pandas.DataFrame` (needs pandas, not a dependency)."""

@@ -16,7 +16,7 @@ one failed row, never a stopped batch.
 Output layout::
 
     OUT/<name>/           trajectory.csv, trajectory.tum, trajectory.png, metrics.json
-    OUT/summary.csv       one row per log (SUMMARY_COLUMNS)
+    OUT/summary.csv       one row per log (SUMMARY_COLUMNS; log paths relative to OUT)
     OUT/summary.json      the same rows as a JSON list
     OUT/summary.png       position RMSE (or final error) per log, coloured by status
 
@@ -261,7 +261,20 @@ def run_batch(
     clean_stale(root)  # what a worker killed mid-log left behind; its log ran again elsewhere
     summary = BatchSummary(records)
     write_summary(root, summary)
+    summary.stale = stale_folders(root, names)
     return summary
+
+
+def stale_folders(root: Path, names) -> list[str]:
+    """Complete run folders in ``root`` that belong to none of this batch's logs (an earlier
+    batch over other logs): listed by :func:`print_summary`, never deleted (they may be the
+    only copy of a run)."""
+    keep = set(names)
+    return sorted(
+        p.name
+        for p in root.iterdir()
+        if p.is_dir() and not p.name.startswith(".") and p.name not in keep and is_complete(p)
+    )
 
 
 # ------------------------------------------------------------------------------ the summary
@@ -284,14 +297,20 @@ def summary_csv_text(records) -> str:
 
 
 def write_summary(out: Path, records) -> dict[str, Path]:
-    """Write ``summary.csv``, ``summary.json`` and ``summary.png`` into ``out`` atomically."""
-    from odofuse.io.atomic import atomic_write, atomic_write_text
-    from odofuse.outputs import json_ready
+    """Write ``summary.csv``, ``summary.json`` and ``summary.png`` into ``out`` atomically.
 
+    The files give each log relative to ``out`` (:func:`odofuse.outputs.run_path`); the
+    records returned by :func:`run_batch` keep the absolute paths.
+    """
+    from odofuse.io.atomic import atomic_write, atomic_write_text
+    from odofuse.outputs import json_ready, run_path
+
+    # the files name each log relative to OUT (outputs.run_path): relocatable with it
+    rows = [{**r, "log": run_path(r["log"], out)} for r in records]
     paths = {
-        "csv": atomic_write_text(out / "summary.csv", summary_csv_text(records)),
+        "csv": atomic_write_text(out / "summary.csv", summary_csv_text(rows)),
         "json": atomic_write_text(
-            out / "summary.json", json.dumps(json_ready(list(records)), indent=2) + "\n"
+            out / "summary.json", json.dumps(json_ready(rows), indent=2) + "\n"
         ),
     }
     paths["png"] = atomic_write(out / "summary.png", lambda tmp: plot_summary(records, tmp))
@@ -331,7 +350,14 @@ def plot_summary(records, path) -> None:
     ax.set_xticks(list(x), names, rotation=45, ha="right", fontsize=8)
     ax.set_ylabel(" / ".join(sorted(kinds)) + " [m]")
     ax.set_title(f"odofuse batch: {len(records)} logs")
-    ax.legend(handles=[Patch(color=c, label=s) for s, c in STATUS_COLOURS.items()], fontsize=8)
+    # beside the axes, never over a bar
+    ax.legend(
+        handles=[Patch(color=c, label=s) for s, c in STATUS_COLOURS.items()],
+        fontsize=8,
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1.0),
+        borderaxespad=0.0,
+    )
     fig.tight_layout()
     fig.savefig(path, format="png", dpi=100)
     plt.close(fig)
@@ -379,3 +405,11 @@ def print_summary(records, out: Path, file=None, started: float | None = None) -
             print(f"{r['name']}: {r['error']}", file=file)
     took = "" if started is None else f" in {time.perf_counter() - started:.1f} s"
     print(f"{len(records)} logs{took}; summary in {out}/summary.csv", file=file)
+    stale = getattr(records, "stale", None) or []
+    if stale:
+        shown = ", ".join(stale[:5]) + (f" and {len(stale) - 5} more" if len(stale) > 5 else "")
+        print(
+            f"note: {len(stale)} output folder(s) in {out}/ belong to no log of this batch "
+            f"(an earlier batch; not in summary.csv): {shown}",
+            file=file,
+        )

@@ -27,10 +27,16 @@ class MotionOptions:
         **_NONNEG,
     )
     k_r: float | None = option(
-        None, unit="rad", doc="right wheel's k (left/right drives); overrides k", **_NONNEG
+        None,
+        unit="m^2 per m",
+        doc="right wheel's k: var(ds_r) = k_r |ds_r| (left/right drives); overrides k",
+        **_NONNEG,
     )
     k_l: float | None = option(
-        None, unit="rad", doc="left wheel's k (left/right drives); overrides k", **_NONNEG
+        None,
+        unit="m^2 per m",
+        doc="left wheel's k: var(ds_l) = k_l |ds_l| (left/right drives); overrides k",
+        **_NONNEG,
     )
     var_floor: float | tuple[float, ...] = option(
         0.0,

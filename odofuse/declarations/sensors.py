@@ -41,6 +41,12 @@ class SensorOptions:
         parse=robust_loss,
         type_name="huber \\| cauchy \\| tukey \\| none or {type, k}",
     )
+    optional: bool = option(
+        False,
+        unit="-",
+        doc="a log without this stream is a warning (degraded when no other absolute sensor "
+        "is left), not an error",
+    )
 
 
 @dataclass(frozen=True)

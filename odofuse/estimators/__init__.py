@@ -77,6 +77,38 @@ def _check_finite(name: str, result) -> None:
     )
 
 
+def _unused_streams(result, config, streams):
+    """A configured stream with data that the estimator counted but never used or rejected
+    (all its readings outside the odometry's time span, say) degrades the run unless a
+    degrading finding already names it: ``used: 0`` never hides behind ``ok``."""
+    import dataclasses
+
+    from odofuse.health import Finding
+
+    notes = []
+    explained = {f.sensor for f in result.findings if f.degrades}
+    for s in getattr(config, "sensors", {}) or {}:
+        if s in explained:
+            continue
+        n = len(streams[s]) if s in streams else 0
+        if n and s in result.used and not result.used[s] and not result.rejected.get(s, 0):
+            t = streams[s].t
+            notes.append(
+                Finding(
+                    "unused",
+                    f"none of its {n} readings ({t[0]:.2f}-{t[-1]:.2f} s) was used or rejected: "
+                    "outside the odometry's time span, or another clock?",
+                    sensor=s,
+                    figure=0.0,
+                )
+            )
+    return (
+        dataclasses.replace(result, findings=tuple(result.findings) + tuple(notes))
+        if notes
+        else result
+    )
+
+
 def run_estimator(name: str, log, config, **options):
     """Run estimator ``name`` on ``log`` with ``config``; returns an ``EstimateResult``.
 
@@ -97,6 +129,7 @@ def run_estimator(name: str, log, config, **options):
 
         result = dataclasses.replace(result, findings=tuple(result.findings) + noted)
     streams = getattr(log, "streams", {}) or {}
+    result = _unused_streams(result, config, streams)
     n = len(streams["loop_closures"]) if "loop_closures" in streams else 0
     if n and "loop_closures" not in result.used:
         import dataclasses

@@ -114,6 +114,14 @@ def slip_scale(
 
 
 # ----------------------------------------------------------------------------- monitor
+def nis_keys(stream: str) -> str:
+    """The config keys an innovation-band finding of ``stream`` points at."""
+    if stream == "gyro" or stream.startswith("gyro_"):
+        # the gyro's innovation covariance holds the wheels' heading noise (motion.k)
+        return f"; keys: sensors.{stream}.sigma and motion.k (k_r, k_l)"
+    return f"; keys: sensors.{stream}.sigma"
+
+
 @dataclass(frozen=True)
 class LiveHealth:
     """Live health of a streaming filter: :meth:`Localizer.health`'s answer.
@@ -342,7 +350,8 @@ def live_findings(
                 "nis",
                 f"mean NIS over {w} readings above its band (expected {d}, bound {_s(hi)} at "
                 f"{_s(a)} per window) for >= {persist} consecutive windows, {st.episodes} "
-                f"time(s); worst {_s(st.ep_worst)}{now}: the filter is overconfident or off",
+                f"time(s); worst {_s(st.ep_worst)}{now}: the filter is overconfident or off"
+                f"{nis_keys(s)}",
                 sensor=s,
                 t_start=st.ep_t0,
                 t_end=st.ep_t1,
@@ -355,7 +364,7 @@ def live_findings(
                 "nis",
                 f"mean NIS over {w} readings below its band (expected {d}) for >= {persist} "
                 f"consecutive windows, {st.low_episodes} time(s); lowest {_s(st.low_worst)}: "
-                "the filter is pessimistic (covariance larger than the errors)",
+                f"the filter is pessimistic (covariance larger than the errors){nis_keys(s)}",
                 sensor=s,
                 t_start=st.low_t0,
                 t_end=st.low_t1,

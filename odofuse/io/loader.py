@@ -200,7 +200,71 @@ def load_log_for(config, groundtruth: bool = True) -> SensorLog:
         log = dataclasses.replace(log, streams={**log.streams, "wheels": wheels})
     from odofuse.io.plausibility import check_log
 
+    log = configured_streams(log, config)
     return check_log(log, config, **options.get("limits", {}))
+
+
+#: Model kinds that fix the pose in the world (what the run has left when one goes missing).
+ABSOLUTE_KINDS = ("gps", "compass", "range", "bearing", "range_bearing")
+
+
+def configured_streams(log: SensorLog, config) -> SensorLog:
+    """A sensor the config names is used or explained: one without data in ``log`` is an error.
+
+    The error names the key (``sensors.gps``) and what was looked for (``LOG/gps.csv``, a
+    topic, a stream of a built-in dataset). A block with ``optional: true`` makes it a
+    finding in ``log.findings`` instead, which degrades the run when no other absolute
+    sensor (:data:`ABSOLUTE_KINDS`) of the config has data.
+    """
+    from odofuse.health import Finding
+
+    missing = [s for s in config.sensors if not (log.has(s) and len(log.streams[s]))]
+    if not missing:
+        return log
+    notes = []
+    for stream in missing:
+        looked = _looked_for(log, config, stream)
+        opts = config.sensors[stream]
+        if not getattr(opts, "optional", False):
+            have = ", ".join(sorted(log.streams)) or "none"
+            raise ConfigError(
+                f"configured, but the log has no data for it: {looked} (streams in the log: "
+                f"{have}); add the data, remove the block, or mark it optional: true",
+                config.source,
+                f"sensors.{stream}",
+            )
+        left = [
+            s
+            for s, o in config.sensors.items()
+            if s not in missing and getattr(o, "kind", "") in ABSOLUTE_KINDS
+        ]
+        absolute = getattr(opts, "kind", "") in ABSOLUTE_KINDS
+        alone = absolute and not left
+        notes.append(
+            Finding(
+                "missing",
+                f"sensors.{stream} is optional and not in the log ({looked}): not used"
+                + ("; no other absolute sensor is left, the position drifts" if alone else ""),
+                sensor=stream,
+                degrades=alone,
+            )
+        )
+    old = tuple(getattr(log, "findings", ()) or ())
+    return dataclasses.replace(log, findings=old + tuple(notes))
+
+
+def _looked_for(log: SensorLog, config, stream: str) -> str:
+    """Where the data of ``stream`` would have come from, for the messages."""
+    spec = str(config.log)
+    if spec.startswith("builtin:"):
+        return f"{spec} has no stream '{stream}'"
+    path = Path(spec)
+    if path.is_dir() and log_kind(path) == "csv":
+        return f"{path / (stream + '.csv')} not found"
+    topics = (config.log_options or {}).get("topics") or {}
+    if stream in topics:
+        return f"no messages on topic {topics[stream]} in {spec}"
+    return f"no '{stream}' stream in {spec}"
 
 
 def integrate_wheel_velocities(stream: Stream, columns) -> Stream:

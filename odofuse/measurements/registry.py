@@ -29,7 +29,7 @@ MODELS: dict[str, type] = {
 
 _LANDMARK_MODELS = ("range", "bearing", "range_bearing")
 # Sensor options that are not fields of the model (read by the estimators, or aliases).
-_NOT_MODEL_FIELDS = ("model", "robust", "gyrodometry", "threshold", "sigma_range")
+_NOT_MODEL_FIELDS = ("model", "robust", "gyrodometry", "threshold", "sigma_range", "optional")
 
 
 def _accepts(cls, name: str) -> bool:
