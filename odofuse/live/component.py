@@ -2,7 +2,7 @@
 
 :class:`Component` is transport-free: :meth:`Component.handle` takes one message (topic, CDR
 bytes) and calls ``emit(output, msgtype, message)`` for what it publishes; the command
-(:mod:`odofuse.live.run`) wires ``emit`` to Zenoh publishers and the Foxglove view.
+(:mod:`odofuse.live.run`) wires ``emit`` to Zenoh publishers.
 
 * Inputs: the configured topics (:func:`input_topics`), decoded by
   :class:`odofuse.live.messages.TopicDecoder` into ``Localizer.add_odometry`` /
