@@ -380,6 +380,14 @@ def _live_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--replay", metavar="BAG", help="play a recorded bag into the component")
     p.add_argument("--rate", type=float, help="replay at R times real time (default: as fast)")
     p.add_argument("-o", "--out", help="after a replay, write the odofuse run output folder")
+    p.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="serve the Foxglove WebSocket view on 127.0.0.1 (default port 8765)",
+    )
     p.add_argument("--duration", type=float, help="live: stop after this many seconds")
 
 
@@ -390,7 +398,9 @@ def cmd_live(args: argparse.Namespace) -> int:
     from odofuse.live.run import run_live
 
     config = load_config(args.config)
-    summary = run_live(config, args.replay, args.rate, args.out, duration_s=args.duration)
+    summary = run_live(
+        config, args.replay, args.rate, args.out, args.foxglove, duration_s=args.duration
+    )
     bad = ", ".join(f"{k} {v}" for k, v in sorted(summary["bad"].items())) or "none"
     print(
         f"live: {summary['handled']} messages, {summary['steps']} odometry steps, "

@@ -140,7 +140,8 @@ class Component:
     config : RunConfig
         After :func:`odofuse.log_defaults.apply_log_defaults` when a bag supplies defaults.
     emit : callable
-        ``emit(output, msgtype, message)``, ``output`` one of :data:`OUTPUT_TYPES`.
+        ``emit(output, msgtype, message)``, ``output`` one of :data:`OUTPUT_TYPES`, or
+        ``"fix"`` with a GPS reading's row (for the Foxglove view only).
     log : SensorLog, optional
         The bag (replay, or the config's ``log:`` for defaults): landmarks, start pose,
         base frame, sensor frames and mounts.
@@ -339,6 +340,8 @@ class Component:
             else:
                 self.loc.add_measurement(r.stream, r.row)
                 self._seen(r.stream, t)
+                if "lat" in r.row:  # a raw GPS fix, for the live view (not a ROS output)
+                    self.emit("fix", "", r.row)
         except InputError as exc:
             reason = "time_backwards" if "before the filter time" in str(exc) else "invalid"
             self.count_bad(reason, str(exc))

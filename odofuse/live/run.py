@@ -1,4 +1,4 @@
-"""``odofuse live CONFIG [--replay BAG [--rate R] [-o OUT]]``.
+"""``odofuse live CONFIG [--replay BAG [--rate R] [-o OUT]] [--foxglove [PORT]]``.
 
 Live: a ROS 2 node ``odofuse`` on Zenoh (:mod:`odofuse.live.transport`) subscribes to the
 configured topics and publishes the estimate (:mod:`odofuse.live.component`) until
@@ -91,15 +91,21 @@ def replay_messages(bag, component: Component):
 class Runner:
     """The component on a Zenoh node, its inbox and its outputs."""
 
-    def __init__(self, config, log=None, keep_trajectory=False, sink=None):
+    def __init__(self, config, log=None, keep_trajectory=False, foxglove_port=None, sink=None):
         from odofuse.live.transport import Node
 
         self.inbox: queue.Queue = queue.Queue()
         self.sink = sink
+        self.view = None
         self.node = None
         self.pubs = {}
         self.component = Component(config, self.emit, log, keep_trajectory)
         live = config.live
+        if foxglove_port is not None:
+            from odofuse.live.foxglove_view import FoxgloveView
+
+            self.view = FoxgloveView(self.component, foxglove_port)
+            self.view.log_landmarks(getattr(log, "landmarks", None) or {}, live.map_frame)
         if live.transport == "zenoh":
             self.node = Node(live, config.source)
             data_qos = rmw.Qos(reliable=live.reliable, depth=live.depth)
@@ -134,6 +140,8 @@ class Runner:
         if output in self.pubs:
             data = self.component.ts.serialize_cdr(msg, msgtype)
             self.pubs[output].put(data)
+        if self.view is not None:
+            self.view.log(output, msgtype, msg, data)
         if self.sink is not None:
             self.sink(output, msgtype, msg)
 
@@ -170,6 +178,8 @@ class Runner:
             self.handled += 1
 
     def close(self) -> None:
+        if self.view is not None:
+            self.view.close()
         if self.node is not None:
             self.node.close()
 
@@ -214,6 +224,7 @@ def run_live(
     replay: str | None = None,
     rate: float | None = None,
     out: str | None = None,
+    foxglove_port: int | None = None,
     duration_s: float | None = None,
     sink=None,
 ) -> dict:
