@@ -191,6 +191,8 @@ class Component:
         self.inputs = input_topics(config, log)
         self.loc = None
         self._probe = self._new_localizer(0.0)  # the streams it uses; config errors now
+        # one step now, so that the first live step does not pay for loading the kernels
+        self._probe.add_odometry(1e-3, np.zeros(len(self._probe.motion_model.drive.input_names)))
         self.decoders = {i.topic: self._decoder(i) for i in self.inputs}
         self._early: list = []  # readings before the Localizer starts
         self._reset: tuple | None = None
