@@ -430,3 +430,24 @@ def test_replay_over_zenoh_equals_odofuse_run(tmp_path, bag):
     values = {kv.key: kv.value for kv in diag.values}
     assert values["status"] in ("ok", "degraded") and "test_ratio/gps" in values
     assert int(values["used/gps"]) + int(values["rejected/gps"]) == 9
+
+
+def test_cli_errors_are_one_line(tmp_path, bag, capsys):
+    from odofuse.cli import main
+
+    config = config_file(tmp_path, bag)
+    assert main(["live", str(config.source), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("odofuse: error:") and "-o needs --replay" in err
+    assert len(err.splitlines()) == 1
+    p = tmp_path / "nodatum.yaml"
+    p.write_text(
+        CONFIG.format(bag=str(bag), estimator="ekf").replace("gps: {datum: [45.0, 9.0]}", "gps: {}")
+        + "live: {transport: none}\n"
+    )
+    assert main(["live", str(p), "--duration", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "sensors.gps.datum" in err and "a live GPS needs a datum" in err
+    p.write_text(CONFIG.format(bag=str(bag), estimator="ekf") + "live: {topics: {sonar: /s}}\n")
+    assert main(["live", str(p), "--replay", str(bag)]) == 2
+    assert "live.topics.sonar" in capsys.readouterr().err

@@ -14,6 +14,7 @@ import os
 import socket
 import struct
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from odofuse.config import load_config  # noqa: E402
 from odofuse.live.foxglove_view import ELLIPSE_95, ellipse_points  # noqa: E402
 from odofuse.live.run import Runner, prepare, replay_messages  # noqa: E402
 
+ROOT = Path(__file__).resolve().parents[1]
 GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"  # RFC 6455 section 1.3
 
 
@@ -136,6 +138,16 @@ def test_foxglove_view_serves_the_outputs(tmp_path):
         assert {"/tf", "/tf_static", "/diagnostics", "/odofuse/covariance", "/odofuse/fix"} <= set(
             channels
         )
+        # the shipped layout shows only what the view serves (and the reset topic it publishes)
+        layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
+        used = set()
+        for cfg in layout["configById"].values():
+            used |= set(cfg.get("topics", {}))
+            used |= {p["value"].split(".")[0] for p in cfg.get("paths", [])}
+            for key in ("topicToRender", "followTopic", "topicPath"):
+                if key in cfg:
+                    used.add(cfg[key].split(".")[0])
+        assert used and used <= set(channels), used - set(channels)
         ws.send(
             json.dumps(
                 {"op": "subscribe", "subscriptions": [{"id": 7, "channelId": odo["id"]}]}

@@ -58,6 +58,11 @@ def _psd(cov, n: int, what: str) -> None:
         return
     _finite(c, what=what)
     m = c.reshape(n, n)
+    d = np.diagonal(m)
+    if np.count_nonzero(m) == np.count_nonzero(d):  # diagonal (the usual case): no eig
+        if np.any(d < 0.0):
+            raise BadMessage("covariance", f"{what}: not symmetric positive semidefinite")
+        return
     w = np.linalg.eigvalsh(0.5 * (m + m.T))
     scale = max(float(np.max(np.abs(w))), 1e-300)
     if not np.allclose(m, m.T, rtol=0.0, atol=PSD_TOL * scale) or w[0] < -PSD_TOL * scale:

@@ -39,6 +39,15 @@ def prepare(config, bag: str | None):
 
     if bag is not None:
         config = dataclasses.replace(config, log=str(bag))
+    else:  # checked before a bag's first fix could stand in for it
+        for s, block in config.sensors.items():
+            if getattr(block, "datum", "absent") is None:
+                raise ConfigError(
+                    "a live GPS needs a datum (the first fix of a live stream is not known "
+                    "in advance)",
+                    config.source,
+                    f"sensors.{s}.datum",
+                )
     try:
         log = load_log_for(config)
     except (InputError, OSError):
@@ -49,15 +58,6 @@ def prepare(config, bag: str | None):
         config, log = apply_log_defaults(config, log)
     elif log is not None:
         log = None  # a CSV folder or dataset: nothing a live node can take from it
-    if bag is None:
-        for s, block in config.sensors.items():
-            if getattr(block, "datum", "absent") is None:
-                raise ConfigError(
-                    "a live GPS needs a datum (the first fix of a live stream is not known "
-                    "in advance)",
-                    config.source,
-                    f"sensors.{s}.datum",
-                )
     return config, log
 
 
