@@ -78,6 +78,9 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         "-o", "--out", help=f"output folder (default: the config's output or '{DEFAULT_OUT}')"
     )
     p.add_argument("--estimator", help="override the config's estimator")
+    p.add_argument(
+        "--rerun", action="store_true", help="also write trajectory.rrd (a Rerun recording)"
+    )
 
 
 def _fmt(v) -> str:
@@ -123,6 +126,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         log = load_log_for(config)
         out = Path(args.out or config.output or DEFAULT_OUT)
         m = run_one(config, log, out)
+        if args.rerun:  # issue 27: the run viewable after the fact (odofuse.live.rerun_log)
+            from odofuse.live.rerun_log import write_rerun
+            from odofuse.outputs import read_trajectory_csv
+
+            traj = read_trajectory_csv(out / "trajectory.csv")
+            write_rerun(out / "trajectory.rrd", traj, config, log, m)
         print_table([m])
         print(f"outputs in {out}/")
         return 0
