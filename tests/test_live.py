@@ -451,3 +451,47 @@ def test_cli_errors_are_one_line(tmp_path, bag, capsys):
     p.write_text(CONFIG.format(bag=str(bag), estimator="ekf") + "live: {topics: {sonar: /s}}\n")
     assert main(["live", str(p), "--replay", str(bag)]) == 2
     assert "live.topics.sonar" in capsys.readouterr().err
+
+
+def test_live_mode_takes_messages_from_a_ros_publisher(tmp_path, bag):
+    """``odofuse live`` without --replay: a publisher node (as a ROS 2 driver would be)
+    sends the bag's JointState and Imu messages; the component steps and publishes."""
+    import threading
+
+    from odofuse.live.transport import Node, wait_matched
+
+    port = free_port()
+    live = f"{{listen: [tcp/127.0.0.1:{port}], connect: [], multicast_scouting: false}}"
+    config = config_file(tmp_path, bag, live)
+    comp, msgs, _ = collect(config, bag)
+    result = {}
+    th = threading.Thread(
+        target=lambda: result.update(run_live(config, duration_s=8.0)), daemon=True
+    )
+    th.start()
+    deadline = time.monotonic() + 30.0  # until the component listens (bounded)
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            break
+        except OSError:
+            time.sleep(0.1)
+    node = Node(
+        LiveOptions(connect=(f"tcp/127.0.0.1:{port}",), listen=(), multicast_scouting=False),
+        name="driver",
+    )
+    try:
+        types = {i.topic: i.msgtype for i in comp.inputs}
+        pubs = {t: node.publisher(t, ty, rmw.Qos()) for t, ty in types.items()}
+        wait_matched(list(pubs.values()), 5.0)
+        sent = 0
+        for topic, _, payload, _ in msgs[:600]:
+            pubs[topic].put(payload)
+            sent += 1
+        th.join(timeout=30.0)
+    finally:
+        node.close()
+    assert not th.is_alive()
+    steps = sum(1 for topic, *_ in msgs[:600] if topic == "/joint_states") - 1
+    assert result["handled"] == sent and result["steps"] == steps
+    assert result["published"] == steps and result["bad"] == {}

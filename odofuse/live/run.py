@@ -266,6 +266,8 @@ def run_live(
             end = None if duration_s is None else time.monotonic() + duration_s
             while end is None or time.monotonic() < end:
                 runner.step(0.1)
+            for _ in range(runner.inbox.qsize()):  # what had arrived by the end
+                runner.step(0.0)
         if comp.loc is not None:
             comp.publish_diagnostics(comp.t_now if comp.t_now is not None else 0.0)
         runtime = time.perf_counter() - t0
