@@ -464,10 +464,13 @@ def test_live_mode_takes_messages_from_a_ros_publisher(tmp_path, bag):
     live = f"{{listen: [tcp/127.0.0.1:{port}], connect: [], multicast_scouting: false}}"
     config = config_file(tmp_path, bag, live)
     comp, msgs, _ = collect(config, bag)
-    result = {}
-    th = threading.Thread(
-        target=lambda: result.update(run_live(config, duration_s=8.0)), daemon=True
-    )
+    result, outputs, stop = {}, [], threading.Event()
+
+    def run():
+        sink = lambda o, ty, m: outputs.append(o)  # noqa: E731
+        result.update(run_live(config, duration_s=120.0, sink=sink, stop=stop))
+
+    th = threading.Thread(target=run, daemon=True)
     th.start()
     deadline = time.monotonic() + 30.0  # until the component listens (bounded)
     while time.monotonic() < deadline:
@@ -488,10 +491,14 @@ def test_live_mode_takes_messages_from_a_ros_publisher(tmp_path, bag):
         for topic, _, payload, _ in msgs[:600]:
             pubs[topic].put(payload)
             sent += 1
+        steps = sum(1 for topic, *_ in msgs[:600] if topic == "/joint_states") - 1
+        deadline = time.monotonic() + 60.0
+        while outputs.count("odometry") < steps and time.monotonic() < deadline:
+            time.sleep(0.05)
+        stop.set()
         th.join(timeout=30.0)
     finally:
         node.close()
     assert not th.is_alive()
-    steps = sum(1 for topic, *_ in msgs[:600] if topic == "/joint_states") - 1
     assert result["handled"] == sent and result["steps"] == steps
     assert result["published"] == steps and result["bad"] == {}

@@ -227,8 +227,12 @@ def run_live(
     foxglove_port: int | None = None,
     duration_s: float | None = None,
     sink=None,
+    stop=None,
 ) -> dict:
-    """The ``odofuse live`` command; returns a summary (and writes ``out`` after a replay)."""
+    """The ``odofuse live`` command; returns a summary (and writes ``out`` after a replay).
+
+    A live run ends after ``duration_s`` or when ``stop`` (a ``threading.Event``) is set;
+    ``sink(output, msgtype, message)`` sees every output (an embedding program's hook)."""
     from odofuse.io.atomic import claim_folder
 
     if out is not None and replay is None:
@@ -264,7 +268,7 @@ def run_live(
                 runner.flush()
         else:
             end = None if duration_s is None else time.monotonic() + duration_s
-            while end is None or time.monotonic() < end:
+            while (end is None or time.monotonic() < end) and not (stop and stop.is_set()):
                 runner.step(0.1)
             for _ in range(runner.inbox.qsize()):  # what had arrived by the end
                 runner.step(0.0)
