@@ -486,7 +486,7 @@ def test_live_mode_takes_messages_from_a_ros_publisher(tmp_path, bag):
     try:
         types = {i.topic: i.msgtype for i in comp.inputs}
         pubs = {t: node.publisher(t, ty, rmw.Qos()) for t, ty in types.items()}
-        wait_matched(list(pubs.values()), 5.0)
+        assert wait_matched(list(pubs.values()), 30.0)
         sent = 0
         for topic, _, payload, _ in msgs[:600]:
             pubs[topic].put(payload)
@@ -500,5 +500,5 @@ def test_live_mode_takes_messages_from_a_ros_publisher(tmp_path, bag):
     finally:
         node.close()
     assert not th.is_alive()
-    assert result["handled"] == sent and result["steps"] == steps
+    assert result["handled"] == sent and result["steps"] == steps, (result, sent, steps)
     assert result["published"] == steps and result["bad"] == {}
