@@ -78,6 +78,9 @@ def _run_args(p: argparse.ArgumentParser) -> None:
         "-o", "--out", help=f"output folder (default: the config's output or '{DEFAULT_OUT}')"
     )
     p.add_argument("--estimator", help="override the config's estimator")
+    p.add_argument(
+        "--rerun", action="store_true", help="also write trajectory.rrd (a Rerun recording)"
+    )
 
 
 def _fmt(v) -> str:
@@ -134,7 +137,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         out = Path(args.out or config.output or DEFAULT_OUT)
         # the smoother reuses its own run; any other estimator's second opinion is timed
         reference = smoother_reference(config, log) if config.estimator != "smoother" else None
-        row = _row(config.estimator, config, run_one(config, log, out, reference))
+        m = run_one(config, log, out, reference)
+        if args.rerun:  # issue 27: the run viewable after the fact (odofuse.live.rerun_log)
+            from odofuse.live.rerun_log import write_rerun
+            from odofuse.outputs import read_trajectory_csv
+
+            traj = read_trajectory_csv(out / "trajectory.csv")
+            write_rerun(out / "trajectory.rrd", traj, config, log, m)
+        row = _row(config.estimator, config, m)
         _second_opinion([row], reference)
         print_table([row])
         if row.get("note"):
@@ -462,6 +472,44 @@ def _register_plugins() -> None:
             raise
         return
     mod.register(COMMANDS)
+
+
+# --------------------------------------------------------------------------- live (issue 27)
+def _live_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", help="run config (YAML); its live: block, if any, names the topics")
+    p.add_argument("--replay", metavar="BAG", help="play a recorded bag into the component")
+    p.add_argument("--rate", type=float, help="replay at R times real time (default: as fast)")
+    p.add_argument("-o", "--out", help="after a replay, write the odofuse run output folder")
+    p.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="serve the Foxglove WebSocket view on 127.0.0.1 (default port 8765)",
+    )
+    p.add_argument("--duration", type=float, help="live: stop after this many seconds")
+
+
+@command("live", _live_args)
+def cmd_live(args: argparse.Namespace) -> int:
+    """The streaming estimator as a ROS 2 component over Zenoh (rmw_zenoh's wire format)."""
+    from odofuse.config import load_config
+    from odofuse.live.run import run_live
+
+    config = load_config(args.config)
+    summary = run_live(
+        config, args.replay, args.rate, args.out, args.foxglove, duration_s=args.duration
+    )
+    bad = ", ".join(f"{k} {v}" for k, v in sorted(summary["bad"].items())) or "none"
+    print(
+        f"live: {summary['handled']} messages, {summary['steps']} odometry steps, "
+        f"{summary['published']} estimates published, status {summary['status']}, "
+        f"skipped messages: {bad}"
+    )
+    if args.out:
+        print(f"wrote {args.out}")
+    return 0
 
 
 def _exit_on_sigterm() -> None:

@@ -63,6 +63,8 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
     ),
     ("run folder", False, ("odofuse.rundir", "odofuse.cross_check", "odofuse.tune")),
     ("fleet", False, ("odofuse.batch",)),
+    # odofuse live (issue 27): rmw (wire format), transport, messages, component, run.
+    ("live", False, ("odofuse.live",)),
     ("command line", False, ("odofuse.cli", "odofuse.__main__")),
     # May import anything; imported only by itself and by odofuse.cli (see TEACHING_USERS).
     ("teaching", False, ("odofuse.teaching",)),

@@ -5,7 +5,7 @@ its type, unit, default and meaning (:func:`odofuse.options.option`); :mod:`odof
 validates the YAML blocks into these classes, the estimators and models read the instances, and
 the docs tables and ``odofuse options`` are generated from them. The registries:
 
-- :data:`BLOCK_OPTIONS`: ``motion``, ``initial``, ``robot.encoder``, ``log``;
+- :data:`BLOCK_OPTIONS`: ``motion``, ``initial``, ``robot.encoder``, ``log``, ``live``;
 - :data:`SENSOR_OPTIONS`: measurement-model kind (a sensor block's ``model``, by default
   :data:`STREAM_DEFAULTS` of its stream name) -> options class;
 - :data:`ESTIMATOR_OPTIONS`: estimator name -> options class.
@@ -135,7 +135,13 @@ __all__ = [
 
 
 #: The docs files whose ``<!-- options:NAME -->`` tables are generated.
-DOC_FILES = ("docs/filters.md", "docs/formats.md", "docs/graph.md", "docs/trust.md")
+DOC_FILES = (
+    "docs/filters.md",
+    "docs/formats.md",
+    "docs/graph.md",
+    "docs/trust.md",
+    "docs/ros2.md",
+)
 
 
 def catalogue() -> dict[str, tuple[type, str]]:

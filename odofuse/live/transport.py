@@ -78,7 +78,7 @@ class Node:
         return pub
 
     def subscribe(self, topic: str, msgtype: str, qos: rmw.Qos, callback):
-        """Call ``callback(topic, payload: bytes, arrival_ns)`` for every sample."""
+        """Call ``callback(topic, payload: bytes, arrival_ns, attachment: bytes | None)``."""
         import zenoh
         import zenoh.ext as zext
 
@@ -87,7 +87,9 @@ class Node:
         key = self.keyexpr(topic, msgtype)
 
         def on_sample(sample):
-            callback(topic, sample.payload.to_bytes(), time.monotonic_ns())
+            att = sample.attachment
+            att = att.to_bytes() if att is not None else None
+            callback(topic, sample.payload.to_bytes(), time.monotonic_ns(), att)
 
         if qos.transient_local:
             history = zext.HistoryConfig(detect_late_publishers=True, max_samples=qos.depth)
