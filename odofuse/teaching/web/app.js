@@ -50,7 +50,8 @@
       const raw = Number(input.value);
       const v = spec.log ? Math.pow(10, raw) : raw;
       params[panel][key] = v;
-      out.textContent = fmt(v, spec.log ? 2 : undefined) + (spec.unit ? " " + spec.unit : "");
+      const text = spec.log ? v.toExponential(2) : fmt(v, spec.step >= 1 ? 0 : undefined);
+      out.textContent = text + (spec.unit ? " " + spec.unit : "");
     };
     read();
     input.addEventListener("input", () => { read(); onChange(); });
@@ -178,6 +179,9 @@
   function legend(ctx, items, x, y) {
     ctx.save();
     ctx.font = "12px sans-serif";
+    const wmax = Math.max(...items.map(([, text]) => ctx.measureText(text).width));
+    ctx.fillStyle = "rgba(255, 255, 255, 0.85)";
+    ctx.fillRect(x - 4, y - 9, wmax + 38, 16 * items.length + 2);
     items.forEach(([color, text, dash], i) => {
       ctx.strokeStyle = color;
       ctx.setLineDash(dash ?? []);
@@ -480,7 +484,7 @@
     const drives = {};
     for (const spec of CFG.drives.zoo) {
       let why = null;
-      if (!spec.holonomic && tw[2] !== 0) why = "v_y must be 0 (no side slip)";
+      if (!spec.holonomic && tw[2] !== 0) why = "needs v_y = 0";
       else if (!spec.spot_turn && tw[1] === 0 && tw[0] !== 0) why = "cannot turn on the spot";
       const u = why ? null : M.driveInverse(spec.kind === "linear" ? spec : { ...spec, inputs: spec.inputs_map }, tw);
       drives[spec.name] = {
