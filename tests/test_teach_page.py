@@ -45,14 +45,6 @@ ARGS = [
 PANELS = ("growth", "umbmark", "drives", "fusion")
 REL = 1e-9
 
-sync_api = pytest.importorskip(
-    "playwright.sync_api", reason="the playwright package is not installed (pip install playwright)"
-)
-if not (Path(CHROMIUM).exists() or shutil.which("chromium")):
-    pytest.skip(
-        f"no chromium at {CHROMIUM} (Debian: apt-get install chromium)", allow_module_level=True
-    )
-
 
 def close(a, b, rel: float = REL) -> None:
     """``max |a - b| <= rel * max |b|`` (relative to the quantity's scale)."""
@@ -96,8 +88,14 @@ def page_file(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def browser():
+    sync_api = pytest.importorskip(
+        "playwright.sync_api",
+        reason="the playwright package is not installed (pip install playwright)",
+    )
+    exe = CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium")
+    if exe is None:
+        pytest.skip(f"no chromium at {CHROMIUM} (Debian: apt-get install chromium)")
     with sync_api.sync_playwright() as pw:
-        exe = CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium")
         b = pw.chromium.launch(executable_path=exe, args=ARGS)
         yield b
         b.close()
@@ -241,6 +239,42 @@ def test_page_is_one_small_self_contained_file(page_file):
     for needle in ("http://", "https://", "<link", " src="):
         assert needle not in html, f"the page references {needle!r}"
     assert "default-src 'none'" in html  # the page's CSP forbids any fetch
+
+
+def test_teach_into_a_file_is_a_one_line_error(tmp_path):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("x")
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.run(
+        [sys.executable, "-m", "odofuse", "teach", "-o", str(blocker)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=root,
+    )
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(blocker) in lines[0], proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_page_config_comes_from_the_library():
+    from odofuse.drives import make_drive
+    from odofuse.teaching.demos.drive_zoo import _ZOO
+    from odofuse.teaching.simulate import Scenario
+    from odofuse.teaching.web import page_config
+
+    cfg = page_config()
+    geom = dict(Scenario().geometry)
+    assert cfg["umbmark"]["geometry"] == geom
+    assert cfg["growth"]["wheel_radius"]["value"] == geom["wheel_radius"]
+    zoo = {d["name"]: d for d in cfg["drives"]["zoo"]}
+    assert list(zoo) == [name for name, _, _ in _ZOO]
+    for name, geometry, _ in _ZOO:
+        drive = make_drive(name, **geometry)
+        if zoo[name]["kind"] == "linear":
+            close(zoo[name]["pinv"], np.linalg.pinv(drive.matrix()))
 
 
 def test_error_growth_equals_the_library_for_every_slider(page):
@@ -512,7 +546,8 @@ def test_panels_render_and_a_slider_move_is_fast(page):
     set_slider(page, "growth", "samples", 500)
     for path, step in (("straight", 0.05), ("figure_eight", 0.05), ("figure_eight", 0.01)):
         page.select_option("#growth-path", path)
-        set_slider(page, "growth", "step", step)
+        set_slider(page, "growth", "step", step)  # new steps: the page draws new normals
+        first = state(page)["timing"]["growth_ms"]
         times = []
         for value in (2e-6, 3e-6, 4e-6, 5e-6, 6e-6, 7e-6, 8e-6):
             set_slider(page, "growth", "k_r", value)
@@ -522,5 +557,6 @@ def test_panels_render_and_a_slider_move_is_fast(page):
         print(
             f"\n[teach] error-growth slider move, 500 samples, {path}, step {step} m, "
             f"{state(page)['growth']['n_steps']} steps: median {ms:.1f} ms "
-            f"(compute {compute:.1f} ms + draw), load average {os.getloadavg()[0]:.1f}"
+            f"(compute {compute:.1f} ms + draw) for a k_r move, {first:.1f} ms for the step "
+            f"move that changed the path; load average {os.getloadavg()[0]:.1f}"
         )
