@@ -277,6 +277,19 @@ def test_page_config_comes_from_the_library():
             close(zoo[name]["pinv"], np.linalg.pinv(drive.matrix()))
 
 
+def test_the_harness_sees_a_fetch_attempt(browser, page_file):
+    """Negative control of the ``page`` fixture's checks: a request the page's own code might
+    make is refused by its Content-Security-Policy and reported on the console."""
+    context = browser.new_context()
+    pg = context.new_page()
+    pg.goto(page_file.as_uri())
+    with pg.expect_console_message(lambda m: m.type == "error", timeout=30_000) as msg:
+        pg.evaluate("fetch('https://example.invalid/x.json').catch(() => null)")
+    text = msg.value.text
+    context.close()
+    assert "Content Security Policy" in text, text
+
+
 def test_error_growth_equals_the_library_for_every_slider(page):
     cfg = page.evaluate("window.odofuseTeach.config()")["growth"]
     check_growth(state(page), cfg)
