@@ -50,7 +50,8 @@
       const raw = Number(input.value);
       const v = spec.log ? Math.pow(10, raw) : raw;
       params[panel][key] = v;
-      out.textContent = fmt(v, spec.log ? 2 : undefined) + (spec.unit ? " " + spec.unit : "");
+      const text = spec.log ? v.toExponential(2) : fmt(v, spec.step >= 1 ? 0 : undefined);
+      out.textContent = text + (spec.unit ? " " + spec.unit : "");
     };
     read();
     input.addEventListener("input", () => { read(); onChange(); });
@@ -178,6 +179,9 @@
   function legend(ctx, items, x, y) {
     ctx.save();
     ctx.font = "12px sans-serif";
+    const wmax = Math.max(...items.map(([, text]) => ctx.measureText(text).width));
+    ctx.fillStyle = "rgba(255, 255, 255, 0.85)";
+    ctx.fillRect(x - 4, y - 9, wmax + 38, 16 * items.length + 2);
     items.forEach(([color, text, dash], i) => {
       ctx.strokeStyle = color;
       ctx.setLineDash(dash ?? []);
@@ -220,6 +224,23 @@
     return { geom, twists, U, model, trueGeom };
   }
 
+  /** The Monte Carlo's standard normal draws, run r's in draws(r) (left, right per step):
+   * the same seeded sequence on every update, kept while the number of runs and steps stay
+   * (a move of k, E_d, E_b, r or b then only rescales them; up to 4e6 draws, 32 MB). */
+  let drawCache = { key: null, z: null };
+  const MAX_CACHED_DRAWS = 4e6;
+  function standardNormals(seed, runs, perRun) {
+    const key = `${seed}:${runs}:${perRun}`;
+    if (drawCache.key !== key && runs * perRun <= MAX_CACHED_DRAWS) {
+      const rng = M.makeRng(seed), z = new Float64Array(runs * perRun);
+      for (let i = 0; i < z.length; i++) z[i] = rng.normal();
+      drawCache = { key, z };
+    }
+    if (drawCache.key === key) return (r) => drawCache.z.subarray(r * perRun, (r + 1) * perRun);
+    const rng = M.makeRng(seed), buf = new Float64Array(perRun); // too many to keep: stream
+    return () => { for (let i = 0; i < perRun; i++) buf[i] = rng.normal(); return buf; };
+  }
+
   function computeGrowth() {
     const p = { ...params.growth, path: params.growth.path, integrator: params.growth.integrator };
     const { geom, twists, U, model, trueGeom } = growthSetup(p);
@@ -233,7 +254,7 @@
     idx.forEach((k, j) => { at[k] = j; });
     // Monte Carlo: the true robot, noisy wheels through the true geometry (simulate.simulate)
     const n = Math.round(p.samples);
-    const rng = M.makeRng(CFG.growth.seed);
+    const draws = standardNormals(CFG.growth.seed, n, 2 * N);
     const F = M.diffMatrix(trueGeom);
     const rl = geom.wheel_radius, rr = geom.wheel_radius;
     const cloud = idx.map(() => []);
@@ -242,12 +263,13 @@
     const sdr = U.map((u) => Math.sqrt(p.k_r * Math.abs(u[1] * rr)) / rr);
     const [F00, F01, F10, F11] = [F[0][0], F[0][1], F[1][0], F[1][1]];
     for (let r = 0; r < n; r++) {
+      const z = draws(r);
       // the exact step (se2.exp) in half-angle form; the heading's cos and sin are carried
       // by rotation (cos w = 1 - 2 sin^2(w/2), sin w = 2 sin(w/2) cos(w/2))
       let x = 0, y = 0, h = 0, c = 1, s = 0;
       for (let k = 0; k < N; k++) {
-        const ul = U[k][0] + rng.normal() * sdl[k];
-        const ur = U[k][1] + rng.normal() * sdr[k];
+        const ul = U[k][0] + z[2 * k] * sdl[k];
+        const ur = U[k][1] + z[2 * k + 1] * sdr[k];
         const w = F00 * ul + F01 * ur, vx = F10 * ul + F11 * ur;
         const half = 0.5 * w, sh = Math.sin(half), ch = Math.cos(half);
         const sinc = w === 0 ? 1 : sh / half;
@@ -412,7 +434,6 @@
     const sq = [[0, 0], [L, 0], [L, L], [0, L], [0, 0]], sqcw = sq.map((q) => [q[0], -q[1]]);
     const allp = [...sq, ...sqcw, ...R._draw.before.cw, ...R._draw.before.ccw];
     const v = view(half, bounds(allp), 30);
-    v.box = [v.box[0], v.box[1], v.box[2], v.box[3]];
     ctx.save();
     ctx.beginPath(); ctx.rect(0, 0, half.width, half.height); ctx.clip();
     grid(ctx, v, "m");
@@ -480,7 +501,7 @@
     const drives = {};
     for (const spec of CFG.drives.zoo) {
       let why = null;
-      if (!spec.holonomic && tw[2] !== 0) why = "v_y must be 0 (no side slip)";
+      if (!spec.holonomic && tw[2] !== 0) why = "needs v_y = 0";
       else if (!spec.spot_turn && tw[1] === 0 && tw[0] !== 0) why = "cannot turn on the spot";
       const u = why ? null : M.driveInverse(spec.kind === "linear" ? spec : { ...spec, inputs: spec.inputs_map }, tw);
       drives[spec.name] = {

@@ -331,7 +331,7 @@
 
   /** filterpy ExtendedKalmanFilter.update: K = P H^T S^-1, x += K y, Joseph-form P. */
   function ekfUpdate(st, z, hx, H, R) {
-    const n = st.x.length, m = z.length;
+    const n = st.x.length;
     const PHt = matmul(st.P, transpose(H));
     const S = matmul(H, PHt).map((row, i) => row.map((v, j) => v + R[i][j]));
     const SI = inv(S);
@@ -344,7 +344,6 @@
     const P = A.map((row, i) => row.map((v, j) => v + KRKt[i][j]));
     x[2] = wrap(x[2]);
     const nis = y.reduce((acc, yi, i) => acc + yi * SI[i].reduce((a2, s, j) => a2 + s * y[j], 0), 0);
-    void m;
     return { x, P, nis };
   }
 
