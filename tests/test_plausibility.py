@@ -268,6 +268,28 @@ def test_gyro_in_degrees_per_second_is_an_error(tmp_path):
     assert exc.column == "wz"
 
 
+def test_a_noisy_biased_gyro_beside_straight_wheels_is_no_unit_error(tmp_path):
+    # A robot driving straight for 600 s (the wheels' yaw rate is 0 to rounding) with a cheap
+    # gyro: bias 0.01 rad/s, white noise 0.25 rad/s per 100 Hz sample. The unit check once
+    # compared samples (then 1 s windows at a fixed 0.05 rad/s) and called these wheels
+    # "1.96e+299 times" too slow; nothing here says the wheels' units are wrong.
+    rng = np.random.default_rng(11)
+    folder = tmp_path / "log"
+    folder.mkdir()
+    t = 1.0 + DT * np.arange(30000)
+    phi = V * (t - t[0]) / R
+    (folder / "wheels.csv").write_text(
+        "t,left,right\n" + "\n".join(f"{a:.17g},{b:.17g},{b:.17g}" for a, b in zip(t, phi)) + "\n"
+    )
+    tg = np.arange(t[0], t[-1], 0.01)
+    wz = 0.01 + rng.normal(0.0, 0.25, tg.size)
+    (folder / "gyro.csv").write_text(
+        "t,wz\n" + "\n".join(f"{a:.17g},{b:.17g}" for a, b in zip(tg, wz)) + "\n"
+    )
+    log = _load(tmp_path, encoder=None)
+    assert len(log.streams["gyro"]) == tg.size
+
+
 # ------------------------------------------------------------------- streams mostly unused
 def test_a_stream_mostly_dropped_as_late_degrades_the_run():
     # Issue 16: gps.csv in ns had 94 of 95 fixes dropped as late, and the run said ok.

@@ -361,7 +361,28 @@ def _start_pose(log, config) -> np.ndarray:
     return np.zeros(3) if pose is None else np.asarray(pose, dtype=float)
 
 
+#: s, the windows over which :func:`_gyro_units` compares the gyro's heading change with the
+#: wheels': long enough that a gyro's white noise averages out (1 s of a 100 Hz gyro with
+#: sigma 0.25 rad/s per sample leaves 0.025 rad/s), short enough to follow a turn.
+UNITS_WINDOW = 1.0
+
+
+def _windowed(t_mid, dt, *rates):
+    """Each rate averaged over :data:`UNITS_WINDOW` windows of the steps (weighted by ``dt``)."""
+    width = max(UNITS_WINDOW, 5.0 * float(np.median(dt)))
+    k = np.floor((t_mid - t_mid[0]) / width).astype(np.int64)
+    span = np.bincount(k, weights=dt)
+    keep = span > 0.5 * width
+    return [np.bincount(k, weights=r * dt)[keep] / span[keep] for r in rates]
+
+
 def _gyro_units(gyro, rates, odo=None, config=None) -> None:
+    """Raise when the gyro's yaw rate is not the wheels' in the configured units.
+
+    The two are compared over :data:`UNITS_WINDOW` windows (white noise averages out); where the
+    wheels hardly turn, the gyro's median rate (its bias, on a log that mostly drives straight)
+    is taken off first, so that a biased gyro beside straight wheels is not read as turning.
+    """
     if "wz" not in gyro.columns or len(gyro) < 2:
         return
     t_end, dt, omega, _, _ = rates
@@ -369,18 +390,24 @@ def _gyro_units(gyro, rates, odo=None, config=None) -> None:
     inside = (t_mid >= gyro.t[0]) & (t_mid <= gyro.t[-1])
     if inside.sum() < 20:
         return
-    g = np.interp(t_mid[inside], gyro.t, gyro["wz"])
-    w = omega[inside]  # |omega|: the fit compares magnitudes
+    g_step = np.interp(t_mid[inside], gyro.t, gyro["wz"])
+    dt_in = dt[inside]
+    g, w = (np.abs(r) for r in _windowed(t_mid[inside], dt_in, g_step, omega[inside]))
     turning = w > 0.05
     if turning.sum() >= 20:
-        scale = float(np.sum(np.abs(g[turning]) * w[turning]) / np.sum(w[turning] ** 2))
+        scale = float(np.sum(g[turning] * w[turning]) / np.sum(w[turning] ** 2))
     else:  # wheels that hardly turn: are they too small for a gyro that does?
-        turning = np.abs(g) > 0.05
+        centred = g_step - np.median(g_step)
+        g = np.abs(_windowed(t_mid[inside], dt_in, centred)[0])
+        # a window's white noise: the step-to-step spread over the steps a window averages
+        per_window = max(1.0, g_step.size / max(g.size, 1))
+        noise = float(np.std(np.diff(g_step))) / np.sqrt(2.0 * per_window)
+        # the gyro turns beyond its noise, and the wheels turn too (only too little): wheels
+        # that read straight beside a turning gyro are no unit mistake
+        turning = (g > max(0.05, 5.0 * noise)) & (w > 1e-3)
         if turning.sum() < 20:
             return
-        scale = float(
-            np.sum(np.abs(g[turning]) ** 2) / max(np.sum(np.abs(g[turning]) * w[turning]), 1e-300)
-        )
+        scale = float(np.sum(g[turning] ** 2) / max(np.sum(g[turning] * w[turning]), 1e-300))
     if 45.0 <= scale <= 70.0:
         raise InputError(
             f"wz is {scale:.3g} times the wheels' yaw rate ({DEG_PER_RAD:.1f} = degrees per "
