@@ -153,7 +153,11 @@ def test_foxglove_view_serves_the_outputs(tmp_path):
                 {"op": "subscribe", "subscriptions": [{"id": 7, "channelId": odo["id"]}]}
             ).encode()
         )
-        time.sleep(0.3)  # the server registers the subscription
+        # the server registers the subscription: the channel then has a sink (bounded wait)
+        sub_deadline = time.monotonic() + 10.0
+        while not runner.view.channels["odometry"].has_sinks():
+            assert time.monotonic() < sub_deadline, "the subscription was not registered"
+            time.sleep(0.005)
         comp = runner.component
         msgs = replay_messages(str(bag), comp)
         for topic, _, payload, _ in msgs:

@@ -48,9 +48,10 @@ def _config(estimator, **options):
     sensors = {**cfg.sensors, "gps": {"sigma": GPS_SIGMA}}
     opts = {"particles": 300, "seed": 5} if estimator == "particle" else {}
     opts.update(options)
-    return dataclasses.replace(
-        cfg, sensors=sensors, options={**cfg.options, estimator: opts} if opts else cfg.options
-    )
+    # on top of sim_config's typed options for the estimator (odometry_calibration: false, the
+    # simulated odometry being exact), not instead of them
+    typed = dataclasses.replace(cfg.options[estimator], **opts)
+    return dataclasses.replace(cfg, sensors=sensors, options={**cfg.options, estimator: typed})
 
 
 def _live(log, cfg, estimator, every_step=None):

@@ -130,7 +130,11 @@ class Localizer:
         self.t = float(t0)
         self.t_start = float(t0)
         self._seq = 0
-        self._pending: list[tuple[float, int, str, dict]] = []
+        # Readings of equal time are applied in the config's stream order (as an offline run's
+        # events are), then in arrival order: a reading that arrives late takes the place it
+        # would have had on time, whatever else arrived at its stamp meanwhile.
+        self._rank = {s: k for k, s in enumerate(self.models)}
+        self._pending: list[tuple[float, tuple[int, int], str, dict]] = []
         self._steps = Steps(self.late_window)
         self._book = None  # bookkeeping snapshot, shared by the steps while it holds
         self.used = {s: 0 for s in self.models}
@@ -270,7 +274,7 @@ class Localizer:
         elif z.shape == span[0].shape:
             np.minimum(span[0], z, out=span[0])
             np.maximum(span[1], z, out=span[1])
-        item = (t, self._seq, stream, row)
+        item = (t, (self._rank[stream], self._seq), stream, row)
         self._seq += 1
         if t > self.t:
             bisect.insort(self._pending, item)

@@ -147,7 +147,9 @@ class Publisher:
     @property
     def matched(self) -> bool:
         """Whether a subscription matches (False when the transport cannot tell)."""
-        return bool(getattr(self._pub, "matching_status", False))
+        # zenoh's MatchingStatus object is always truthy: its ``matching`` field is the answer
+        status = getattr(self._pub, "matching_status", None)
+        return bool(getattr(status, "matching", False))
 
     def put(self, payload: bytes) -> None:
         self._seq += 1
