@@ -279,12 +279,14 @@ def test_a_noisy_biased_gyro_beside_straight_wheels_is_no_unit_error(tmp_path):
     t = 1.0 + DT * np.arange(30000)
     phi = V * (t - t[0]) / R
     (folder / "wheels.csv").write_text(
-        "t,left,right\n" + "\n".join(f"{a:.17g},{b:.17g},{b:.17g}" for a, b in zip(t, phi)) + "\n"
+        "t,left,right\n"
+        + "\n".join(f"{a:.17g},{b:.17g},{b:.17g}" for a, b in zip(t, phi, strict=True))
+        + "\n"
     )
     tg = np.arange(t[0], t[-1], 0.01)
     wz = 0.01 + rng.normal(0.0, 0.25, tg.size)
     (folder / "gyro.csv").write_text(
-        "t,wz\n" + "\n".join(f"{a:.17g},{b:.17g}" for a, b in zip(tg, wz)) + "\n"
+        "t,wz\n" + "\n".join(f"{a:.17g},{b:.17g}" for a, b in zip(tg, wz, strict=True)) + "\n"
     )
     log = _load(tmp_path, encoder=None)
     assert len(log.streams["gyro"]) == tg.size
