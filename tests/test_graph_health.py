@@ -149,10 +149,17 @@ def test_keyframe_jumps_are_reported():
         streams = {**log.streams, "gps": Stream("gps", gps.source, gps.t, gps.columns, vals)}
         return dataclasses.replace(log, streams=streams)
 
-    _, m = _run(edit=teleport, options={"robust": {"wheels": "cauchy"}})
+    # the GPS trusted (no loss; the plaza2 failure): the estimate follows it across the jump
+    _, m = _run(edit=teleport, options={"robust": {"wheels": "cauchy", "gps": "none"}})
     assert m["status"] == "degraded"
     jumps = [f for f in m["findings"] if f["check"] == "jumps"]
     assert jumps and jumps[0]["sensor"] == "wheels" and jumps[0]["figure"] > 5.0
+    # the default gate loss (Tukey) gives the readings on one side of the jump no influence
+    # instead: the run is degraded by GPS outliers, not by keyframe jumps
+    _, m = _run(edit=teleport, options={"robust": {"wheels": "cauchy"}})
+    assert m["status"] == "degraded"
+    assert any(w.startswith("[outliers] gps") for w in m["warnings"]), m["warnings"]
+    assert not [f for f in m["findings"] if f["check"] == "jumps"]
 
 
 def test_isam2_update_failure_is_a_finding(monkeypatch):

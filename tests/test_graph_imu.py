@@ -87,9 +87,23 @@ def test_gyro_increment_factor_jacobians_and_linear_form_agree():
     assert [lin.keys()[i] for i in range(3)] == keys
 
 
+def _odometry_python_factors(res, odometry_calibration) -> int:
+    """The Python factors of a run's odometry: one per keyframe interval when it is
+    calibrated (``auto``, the default, with the GPS), none otherwise."""
+    assert ("wheel_radius_ratio" in res.extra["calibration"]) == (odometry_calibration == "auto")
+    return res.extra["keyframes"] - 1 if odometry_calibration == "auto" else 0
+
+
+@pytest.mark.parametrize("odometry_calibration", [False, "auto"])
 @pytest.mark.parametrize("estimator", ["smoother", "isam2", "fixed_lag"])
-def test_keyframes_follow_the_policy_not_the_gyro_rate(estimator):
-    log, cfg = simulated_run(SCENARIO, 9, estimator, sensors={"gyro": {"calibrate": True}})
+def test_keyframes_follow_the_policy_not_the_gyro_rate(estimator, odometry_calibration):
+    log, cfg = simulated_run(
+        SCENARIO,
+        9,
+        estimator,
+        options={"odometry_calibration": odometry_calibration},
+        sensors={"gyro": {"calibrate": True}},
+    )
     res = run_estimator(estimator, log, cfg)
     m = metrics(res, log)
     gyro = log.streams["gyro"]
@@ -97,7 +111,8 @@ def test_keyframes_follow_the_policy_not_the_gyro_rate(estimator):
     # 1 s keyframes plus the GPS times and the gyro stream's two ends
     assert res.extra["keyframes"] <= span + len(log.streams["gps"]) + 4
     assert len(gyro) > 80 * res.extra["keyframes"]  # 100 Hz against ~1 Hz
-    assert res.extra["python_factors"] == 0  # built-in factors only
+    # the gyro's factors are built in (a calibrated odometry's are Python)
+    assert res.extra["python_factors"] == _odometry_python_factors(res, odometry_calibration)
     assert res.used["gyro"] == len(gyro) - 1 and res.rejected["gyro"] == 1
     assert abs(res.extra["calibration"]["gyro_bias"] - 0.01) < 1e-3
     assert m["ate_rmse_m"] < 0.15
@@ -107,16 +122,18 @@ def test_keyframes_follow_the_policy_not_the_gyro_rate(estimator):
         assert res.extra["residuals"]["gyro"]["median_ratio"] < 4.0
 
 
-def test_robust_gyro_with_bias_uses_the_python_factor():
+@pytest.mark.parametrize("odometry_calibration", [False, "auto"])
+def test_robust_gyro_with_bias_uses_the_python_factor(odometry_calibration):
     log, cfg = simulated_run(
         SCENARIO,
         9,
         "smoother",
-        options={"robust": {"gyro": "huber"}},
+        options={"robust": {"gyro": "huber"}, "odometry_calibration": odometry_calibration},
         sensors={"gyro": {"calibrate": True}},
     )
     res = run_estimator("smoother", log, cfg)
-    assert 0 < res.extra["python_factors"] < res.extra["keyframes"] + 5
+    gyro = res.extra["python_factors"] - _odometry_python_factors(res, odometry_calibration)
+    assert 0 < gyro < res.extra["keyframes"] + 5
     assert abs(res.extra["calibration"]["gyro_bias"] - 0.01) < 1e-3
 
 
@@ -176,15 +193,17 @@ def _two_gyros(bias2=-0.015, sigma2=0.004):
     return dataclasses.replace(log, streams=streams)
 
 
+@pytest.mark.parametrize("odometry_calibration", [False, "auto"])
 @pytest.mark.parametrize("estimator", ["smoother", "isam2", "fixed_lag"])
-def test_two_gyros_each_with_its_own_bias(estimator):
+def test_two_gyros_each_with_its_own_bias(estimator, odometry_calibration):
     """Two IMUs (gyro, gyro_2): each pre-integrated, each with its bias variable."""
     log = _two_gyros()
     sensors = {
         "gyro": {"sigma": 0.005, "calibrate": True},
         "gyro_2": {"model": "gyro", "sigma": 0.004, "calibrate": True},
     }
-    _, cfg = simulated_run(SCENARIO, 9, estimator, sensors=sensors)
+    options = {"odometry_calibration": odometry_calibration}
+    _, cfg = simulated_run(SCENARIO, 9, estimator, options=options, sensors=sensors)
     res = run_estimator(estimator, log, cfg)
     cal = res.extra["calibration"]
     assert set(cal) >= {"gyro_bias", "gyro_bias:gyro_2"}
@@ -192,7 +211,7 @@ def test_two_gyros_each_with_its_own_bias(estimator):
     assert abs(cal["gyro_bias:gyro_2"] + 0.015) < 1e-3
     assert res.used["gyro"] == len(log.streams["gyro"]) - 1
     assert res.used["gyro_2"] == len(log.streams["gyro_2"]) - 1
-    assert res.extra["python_factors"] == 0
+    assert res.extra["python_factors"] == _odometry_python_factors(res, odometry_calibration)
     gyro = log.streams["gyro"]
     assert len(gyro) > 80 * res.extra["keyframes"]  # both pre-integrated: 1 s keyframes
 

@@ -125,15 +125,24 @@ class Factors:
         odometry_robust: bool = True,
         odometry_fixed=None,
         odometry_weights=None,
+        final_robust=None,
     ) -> None:
         """``odometry_robust=False`` drops the odometry stream's robust loss;
         ``odometry_fixed`` (m,) holds the odometry calibration at these values (no variable);
         ``odometry_weights`` (K-1,) are frozen robust weights: each odometry factor is
         Gaussian with its covariance divided by its weight (no loss). The stages of
-        :func:`odofuse.estimators.graph.solvers.run_smoother`."""
+        :func:`odofuse.estimators.graph.solvers.run_smoother`.
+
+        ``final_robust`` (stream -> (kind, k)): :attr:`final` collects every factor that
+        :meth:`static` and :meth:`keyframe` make, a sensor row's with the loss given here for
+        its stream instead of ``problem.robust``'s (:meth:`with_loss`): iSAM2 is updated
+        online with convex losses and solves :attr:`final`, the configured ones, at the end
+        (:func:`odofuse.estimators.graph.solvers.convex_problem`)."""
         import gtsam
 
         self.p = problem
+        self.final_robust = dict(final_robust) if final_robust is not None else None
+        self.final = gtsam.NonlinearFactorGraph() if final_robust is not None else None
         self.odometry_robust = odometry_robust and odometry_weights is None
         self.odometry_fixed = None if odometry_fixed is None else np.asarray(odometry_fixed)
         self.odometry_weights = odometry_weights
@@ -238,6 +247,8 @@ class Factors:
                         gtsam.noiseModel.Isotropic.Sigma(2, p.options.known_landmark_sigma),
                     )
                 )
+        if self.final is not None:  # no sensor rows here
+            self.final.push_back(g)
         return g, v
 
     def odometry(self, i: int):
@@ -273,13 +284,18 @@ class Factors:
             X(loop.i), X(loop.j), self.gtsam.Pose2(*loop.delta), nm
         )
 
-    def measurement(self, meas: Measurement):
-        """The factor of one sensor row (robust loss of its stream applied)."""
+    def measurement(self, meas: Measurement, loss: tuple[str, float] | None = None):
+        """The factor of one sensor row (robust loss of its stream applied).
+
+        ``loss`` (kind, k) replaces the stream's loss: a twin for another graph
+        (:meth:`with_loss`), not counted in :attr:`python_factors`.
+        """
         gtsam = self.gtsam
         m = self.p.models[meas.stream]
         kind = model_kind(m)
         calib = self.model_calib(m)
-        loss, k = self.p.robust.get(meas.stream, ("none", 0.0))
+        count = int(loss is None)  # python_factors counts the factors of this graph only
+        loss, k = loss or self.p.robust.get(meas.stream, ("none", 0.0))
         key = X(meas.keyframe)
         if kind == "LandmarkRangeBearing" and meas.landmark in self.landmark_keys:
             # GTSAM's BearingRange measurement is ordered (bearing, range).
@@ -297,7 +313,7 @@ class Factors:
         if kind == "BeaconRange" and meas.landmark in self.landmark_keys:
             lkey = self.landmark_keys[meas.landmark]
             if calib:
-                self.python_factors += 1
+                self.python_factors += count
                 return range_landmark_factor(
                     key,
                     lkey,
@@ -310,15 +326,30 @@ class Factors:
         if kind == "LandmarkBearing" and meas.landmark in self.landmark_keys:
             return m.factor(key, meas.row, None, nm, landmark_key=self.landmark_keys[meas.landmark])
         if calib and all(s in self.frozen for s in calib) and kind == "BeaconRange":
+            if not count:  # a twin: with_loss clones the built-in factor (same private beacon)
+                raise ValueError("a frozen beacon range's twin is a clone (Factors.with_loss)")
             return self._frozen_beacon_range(m, meas, loss, k)
         if calib and all(s in self.frozen for s in calib):
-            self.python_factors += 1
+            self.python_factors += count
             consts = {s: self.frozen[s] for s in calib}
             return frozen_calibration_factor(m, key, meas.row, consts, nm)
         f = m.factor(key, meas.row, calib, nm)
         if isinstance(f, gtsam.CustomFactor):
-            self.python_factors += 1
+            self.python_factors += count
         return f
+
+    def with_loss(self, meas: Measurement, f, loss: tuple[str, float]):
+        """The factor ``f`` that :meth:`measurement` made of ``meas`` (with the calibration
+        frozen or not as it was then), with the robust ``loss`` (kind, k) on the same Gaussian
+        noise instead of its stream's: a built-in factor is cloned with the new noise model, a
+        Python factor (which GTSAM cannot clone) is made again. Not counted in
+        :attr:`python_factors`.
+        """
+        if isinstance(f, self.gtsam.CustomFactor):
+            return self.measurement(meas, loss)
+        nm = f.noiseModel()
+        base = nm.noise() if hasattr(nm, "robust") else nm
+        return f.cloneWithNewNoiseModel(robust_noise(base, *loss))
 
     def gyro(self, stream: str, n: int, i: int):
         """The heading-increment factor of the ``n``-th gyro increment, keyframes ``i-1, i``.
@@ -419,6 +450,8 @@ class Factors:
         gtsam = self.gtsam
         if g is None:
             g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        first = g.size()  # this keyframe's factors are g's from here on
+        twins: dict[int, object] = {}  # position in g -> the factor for self.final
         self._theta_guess[i] = float(values_guess.theta())
         if i > 0:
             f = self.odometry(i)
@@ -439,6 +472,9 @@ class Factors:
             self.used[STREAM] += 1
         for meas in self.by_kf.get(i, ()):
             f = self.measurement(meas)
+            final = (self.final_robust or {}).get(meas.stream)
+            if final is not None and final != self.p.robust.get(meas.stream):
+                twins[g.size()] = self.with_loss(meas, f, final)
             g.add(f)
             self.created.append((meas, f))
             self.used[meas.stream] = self.used.get(meas.stream, 0) + meas.rows
@@ -447,4 +483,7 @@ class Factors:
             v.insert(bkey, pos)
             g.add(gtsam.PriorFactorPoint2(bkey, pos, pin))
         self._pending.clear()
+        if self.final is not None:
+            for j in range(first, g.size()):
+                self.final.add(twins[j] if j in twins else g.at(j))
         return g, v

@@ -21,6 +21,7 @@ factors use GTSAM's own LM.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -386,26 +387,45 @@ def _solve(graph, values, fac, opts) -> LMOutcome:
     )
 
 
-def _convex_start(problem: GraphProblem, opts):
-    """Initial values for a graph whose sensor streams have a redescending (Tukey) loss, or
-    None (dead reckoning) when none has.
+def convex_problem(problem: GraphProblem) -> GraphProblem | None:
+    """``problem`` with Huber's loss in place of every sensor stream's Tukey loss, at the same
+    thresholds, or None when no sensor stream has Tukey's.
 
     Tukey's loss gives a reading beyond its threshold no pull at all, which is what rejects a
-    gross reading (the filters' gate, ``declarations.graph.gate_loss``); but from a
-    dead-reckoned start that has drifted past the threshold it would ignore the very readings
-    that correct the drift. The graph is therefore first solved with Cauchy losses of the same
-    thresholds (their influence decays but never vanishes), and the Tukey solve starts there:
-    graduated non-convexity in two steps.
+    gross reading (the filters' gate, ``declarations.graph.gate_loss``); but from a start that
+    has drifted past the threshold (dead reckoning, or an incremental solver's prediction
+    after an outage) it ignores the very readings that correct the drift, for good. Huber's
+    loss is convex: its influence is bounded but never vanishes, so a reading far from the
+    start still pulls the estimate towards it. The graph solvers therefore solve the Huber
+    problem first and the Tukey problem from there (graduated non-convexity in two steps):
+    the batch smoother (:func:`_convex_start`), iSAM2 (online with Huber; its final pass is
+    the Tukey solve) and the fixed-lag smoother (Huber throughout: it has no final pass;
+    :mod:`odofuse.estimators.graph.isam2`).
     """
     tukey = {
         s: k for s, (kind, k) in problem.robust.items() if kind == "tukey" and s in problem.models
     }
     if not tukey:
         return None
-    soft = dataclasses.replace(
-        problem, robust={**problem.robust, **{s: ("cauchy", k) for s, k in tukey.items()}}
+    return dataclasses.replace(
+        problem, robust={**problem.robust, **{s: ("huber", k) for s, k in tukey.items()}}
     )
-    fac, graph, values = build_graph(soft)
+
+
+def _convex_start(problem: GraphProblem, opts, factors=Factors, initial=None):
+    """Initial values for a graph whose sensor streams have a redescending (Tukey) loss: the
+    optimum of its :func:`convex_problem` (Huber at the same thresholds) from ``initial``
+    (None: dead reckoning), with the factors ``factors(problem)`` (e.g. stage 1's Gaussian
+    odometry); ``initial`` itself when no stream has Tukey's loss.
+
+    Starting the Tukey solve from the Huber optimum keeps it from ignoring the readings that
+    correct a dead-reckoned drift: a test scenario went 0.05 m -> 0.135 m RMSE from dead
+    reckoning with a Cauchy first step (whose influence also decays) and 0.0465 m with Huber.
+    """
+    soft = convex_problem(problem)
+    if soft is None:
+        return initial
+    fac, graph, values = build_graph(soft, factors(soft), initial)
     return _solve(graph, values, fac, opts).values
 
 
@@ -431,6 +451,9 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
     drove keyframes tens of metres apart; frozen weights cannot, while stage 3 still removes
     stage 1's contamination by the outlier steps. ``extra["stages"]`` gives each stage's
     iterations and error and how many odometry factors stage 2 down-weighted below 0.5.
+    A sensor stream with Tukey's loss is solved with Huber's first (:func:`_convex_start`;
+    with odometry calibration, stage 1 is), except with loop closures or an incremental
+    SLAM start.
 
     Parameters
     ----------
@@ -467,7 +490,10 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
     )
     t0 = time.perf_counter()
     if _staged(problem):
-        fac1, graph, values = build_graph(problem, Factors(problem, odometry_robust=False))
+        stage1 = functools.partial(Factors, odometry_robust=False)
+        # stage 1 also starts from its Huber optimum when a sensor has Tukey's loss
+        start = None if incremental or problem.loops else _convex_start(problem, opts, stage1)
+        fac1, graph, values = build_graph(problem, stage1(problem), start)
         if incremental:
             values, init = incremental_initial_values(problem, values)
             extra.update(init)
