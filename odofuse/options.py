@@ -196,6 +196,9 @@ def _value(tp, v, meta: Mapping, key: str, src: str):
         _check_bounds(float(v), meta, key, src)
         return float(v)
     if tp is str:
+        choices = meta.get("choices") or ()
+        if isinstance(v, bool) and {"on", "off"} <= set(choices):
+            v = "on" if v else "off"  # YAML 1.1 reads an unquoted on/off as a boolean
         if not isinstance(v, str) or not v.strip():
             raise ConfigError(f"must be a non-empty string, got {v!r}", src, key)
         if meta.get("choices") and v not in meta["choices"]:

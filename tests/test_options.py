@@ -252,3 +252,18 @@ def test_cli_lists_the_options(capsys):
     assert "sensors.<stream>.threshold" in out and "rad" in out
     assert main(["options"]) == 0
     assert "particle" in capsys.readouterr().out
+
+
+def test_unquoted_on_off_in_yaml_select_the_on_off_choices(tmp_path):
+    # README and docs/batch.md write `options: {cross_check: {smoother: off}}`; YAML 1.1 reads
+    # an unquoted off as false, which was "must be a non-empty string, got False"
+    from odofuse.config import load_config
+
+    path = tmp_path / "run.yaml"
+    path.write_text(
+        "log: builtin:plaza1\nrobot: {drive: increments}\nestimator: ekf\n"
+        "options: {cross_check: {smoother: off}, ekf: {compiled: on}}\n"
+    )
+    options = load_config(path).options
+    assert options["cross_check"].smoother == "off"
+    assert options["ekf"].compiled == "on"
