@@ -598,21 +598,33 @@ def tune_config(path, out=None, keys=None, **kw) -> tuple[TuneResult, Path]:
         get_value(raw, key)  # a bad key fails before the log is read
     log = load_log_for(config, groundtruth=False)
     out = Path(out) if out is not None else path.with_name(f"{path.stem}-tuned.yaml")
-    saved: list = []
+    saved: list = []  # the header lines of the checkpoint in ``out``
+    writing: list = []  # those of the checkpoint being written
 
     def checkpoint(best_raw: dict, lines: list) -> None:
+        writing[:] = lines
         write_config_file(best_raw, out, path, config.log, lines)
         saved[:] = lines
 
     try:
         res = tune(config, raw, log, keys, checkpoint=checkpoint, **kw)
     except BaseException as exc:  # a crash, Ctrl-C or SIGTERM: say where the best so far is
+        if writing != saved and _holds_checkpoint(out, writing):
+            saved[:] = writing  # stopped between the file's rename and the note above
         if saved:
             why = "interrupted" if isinstance(exc, KeyboardInterrupt | SystemExit) else "stopped"
             sys.stderr.write(f"\ntune: {why}; the best config so far is in {out} ({saved[0]})\n")
         raise
     write_tuned(res, out, path, config.log)
     return res, out
+
+
+def _holds_checkpoint(out: Path, lines: list) -> bool:
+    """Whether ``out`` is the checkpoint whose header holds ``lines`` (its rename done)."""
+    try:
+        return bool(lines) and f"# {lines[0]}\n" in out.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return False
 
 
 def report_lines(res: TuneResult) -> list[str]:
