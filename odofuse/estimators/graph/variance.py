@@ -116,6 +116,40 @@ def _whitened_system(graph, values):
     return A, cat(bs), cat(owner), cols
 
 
+def _model_factor(graph, values, b, owner, n: int):
+    """``(sigma0^2, redundancy)``: the global variance factor of the noise models at the
+    optimum, ``sum e^T e / (m' - n)``, for the chi-square test of :mod:`odofuse.cross_check`.
+
+    A robust factor enters with its base model's whitened error ``e``, not with the IRLS
+    weight it has in ``b`` (the normal equations'): ``sum w(e) e^T e`` has no chi-square law
+    (Tukey's weights, below 1 for every residual, make it about 0.55 of the Gaussian sum on
+    consistent 2-D readings at the 0.999 gate, so an optimistic sigma no longer shows). A
+    factor the loss rejects (weight 0: beyond Tukey's threshold, the filters' gate) is left
+    out with its dimensions (``m'``): at a 0.999 gate that truncates the law by 0.1 %.
+    Returns ``(None, m' - n)`` when ``m' <= n``.
+    """
+    import gtsam
+
+    size = graph.size()
+    sq = np.bincount(owner, weights=b * b, minlength=size)
+    dims = np.bincount(owner, minlength=size)
+    total, kept = float(b @ b), int(dims.sum())  # a graph without a robust loss: b^T b
+    for j in np.flatnonzero(dims):
+        f = graph.at(int(j))
+        model = f.noiseModel() if hasattr(f, "noiseModel") else None
+        if not isinstance(model, gtsam.noiseModel.Robust):
+            continue
+        e = np.atleast_1d(np.asarray(model.noise().whiten(f.unwhitenedError(values)), float))
+        dist = float(np.linalg.norm(e))
+        total -= float(sq[j])
+        if model.robust().weight(dist) > 0.0:
+            total += dist * dist
+        else:
+            kept -= int(dims[j])
+    red = kept - n
+    return (total / red if red > 0 else None), red
+
+
 def _factor(N):
     """Sparse LU of the symmetric positive-definite ``N`` with a symmetric fill-reducing
     ordering and diagonal pivots (a Cholesky in effect: no pivoting that destroys sparsity)."""
@@ -236,13 +270,14 @@ def variance_components(
     A, b, owner, cols = _whitened_system(graph, values)
     m, n = A.shape
     redundancy = m - n
-    sigma0 = float(b @ b / redundancy) if redundancy > 0 else None
+    weighted = float(b @ b / redundancy) if redundancy > 0 else None
+    sigma0, model_redundancy = _model_factor(graph, values, b, owner, n)
     if n > MAX_VCE_DIMS:  # the global factor: no solve (the covariance scales as one)
-        c0 = sigma0 if sigma0 is not None and sigma0 > 0 else 1.0
+        c0 = weighted if weighted is not None and weighted > 0 else 1.0
         out = {
             "method": "global",
             "variance_factor": sigma0,
-            "redundancy": int(redundancy),
+            "redundancy": int(model_redundancy),
             "converged": True,  # one closed-form factor, no iteration
             "position_variance_scale": c0,
         }
@@ -308,7 +343,7 @@ def variance_components(
     out = {
         "method": "per-stream",
         "variance_factor": sigma0,
-        "redundancy": int(redundancy),
+        "redundancy": int(model_redundancy),
         "iterations": passes,
         "converged": converged,
         "groups": out_groups,
