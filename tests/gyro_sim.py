@@ -9,7 +9,9 @@ import numpy as np
 from odofuse.config import config_from_dict
 
 
-def gyro_localizer(backend_cls, steps, particles=20, shrink_at=None, seed=1, name="f"):
+def gyro_localizer(
+    backend_cls, steps, particles=20, shrink_at=None, seed=1, name="f", compiled="auto"
+):
     """A :class:`~odofuse.estimators.localizer.Localizer` on ``backend_cls`` after ``steps``.
 
     A differential robot (r 0.04 m, track 0.235 m, ``k_r = k_l = 1e-5``) at 0.2 rad of wheel
@@ -17,7 +19,8 @@ def gyro_localizer(backend_cls, steps, particles=20, shrink_at=None, seed=1, nam
     bias 0.002 rad/s, estimated from a zero prior) reads it at every step, drawn from
     ``numpy.random.default_rng(seed)``. ``particles`` is passed to a
     :class:`~odofuse.estimators.particle.ParticleBackend`; at step ``shrink_at`` its cloud is
-    shrunk 1000-fold about its mean (a collapse, seen from the next pose on).
+    shrunk 1000-fold about its mean (a collapse, seen from the next pose on); ``compiled`` is
+    its ``options.particle.compiled`` (``auto``: numpy, as for any live Localizer).
     """
     from odofuse.estimators.common import augmented_prior, state_layout
     from odofuse.estimators.localizer import Localizer
@@ -37,7 +40,9 @@ def gyro_localizer(backend_cls, steps, particles=20, shrink_at=None, seed=1, nam
     names, index = state_layout({"gyro": gyro})
     gyro = gyro.bind(index)
     x0, P0, walk = augmented_prior({"gyro": gyro}, names, np.zeros(3), np.eye(3) * 1e-4)
-    opts = {"particles": particles} if backend_cls is ParticleBackend else None
+    opts = (
+        {"particles": particles, "compiled": compiled} if backend_cls is ParticleBackend else None
+    )
     args = (motion, {"gyro": gyro}, x0, P0, walk) + ((opts,) if opts else ())
     backend = backend_cls(*args)
     loc = Localizer(backend, {"gyro": gyro}, 0.0, late_window=0.0, name=name)
