@@ -307,6 +307,10 @@ def test_2_tune_keeps_its_best_config_when_interrupted(robot, monkeypatch):
         stderr=subprocess.PIPE,
         text=True,
         env=tune_env(robot),
+        # a process started with SIGINT ignored (a shell's background job, e.g. a suite run
+        # under nohup ... &) passes that on, and Python then installs no KeyboardInterrupt
+        # handler: Ctrl-C as a terminal delivers it needs the default disposition
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         deadline = time.monotonic() + 300
