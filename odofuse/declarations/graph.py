@@ -113,6 +113,10 @@ def _odometry_calibration(value, key: str, source: str):
     )
 
 
+#: Sensor kinds whose readings observe landmarks: with ``slam`` they are unknowns.
+SLAM_KINDS = ("range", "bearing", "range_bearing")
+
+
 def gate_loss(gate: float, dim: int) -> tuple[str, float]:
     """The graph's default loss of an absolute sensor with chi-square gate ``gate``: Tukey's
     biweight at ``k = sqrt(chi2_dim(gate))``, whose influence is zero from the distance the
@@ -276,6 +280,8 @@ class GraphOptions:
             s: gate_loss(sensors[s].gate, dim)
             for s, dim in absolute_streams(sensors).items()
             if getattr(sensors[s], "gate", None) is not None
+            # with slam the landmarks are unknowns, not references: no gate against them
+            and not (self.slam and sensors[s].kind in SLAM_KINDS)
         }
         odo_cal = self.odometry_calibration
         if odo_cal == "auto":
@@ -286,4 +292,6 @@ class GraphOptions:
             odometry_calibration=odo_cal,
         )
         object.__setattr__(resolved, "_explicit", explicit(self))
+        # the streams whose loss is the default gate loss (a pose-graph file drops it)
+        object.__setattr__(resolved, "gate_defaults", frozenset(gated) - set(own) - set(losses))
         return resolved

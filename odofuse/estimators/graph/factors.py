@@ -137,7 +137,7 @@ class Factors:
         :meth:`static` and :meth:`keyframe` make, a sensor row's with the loss given here for
         its stream instead of ``problem.robust``'s (:meth:`with_loss`): iSAM2 is updated
         online with convex losses and solves :attr:`final`, the configured ones, at the end
-        (:func:`odofuse.estimators.graph.solvers.convex_problem`)."""
+        (:func:`odofuse.estimators.graph.problem.convex_problem`)."""
         import gtsam
 
         self.p = problem

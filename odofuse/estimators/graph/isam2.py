@@ -20,13 +20,11 @@ from odofuse.declarations import GraphOptions
 from odofuse.errors import ConfigError
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.health import solver_findings
-from odofuse.estimators.graph.isam2_slam import incremental_slam
+from odofuse.estimators.graph.isam2_slam import cholesky_suits, incremental_slam
 from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, model_kind
-from odofuse.estimators.graph.loops import oldest_referenced
-from odofuse.estimators.graph.problem import GraphProblem, build_problem
+from odofuse.estimators.graph.problem import GraphProblem, build_problem, convex_problem
 from odofuse.estimators.graph.solvers import (
-    convex_problem,
     finish,
     landmark_covariances,
     polish_isam2,
@@ -160,13 +158,14 @@ def _polish(isam, params, fac, options, graph=None, values=None):
     (``graph`` / ``values``: the whole graph and a start when iSAM2 no longer holds them).
 
     Returns ``(isam, values, extra, findings)``: the iSAM2 at the optimum of its own final
-    graph, that optimum, ``{"final_iterations", "final_error", "final_s"}`` and the
-    ``solver`` findings of the final LM (its iteration cap, no decrease).
+    graph, that optimum, ``{"final_iterations", "final_gauss_newton", "final_error",
+    "final_s"}`` and the ``solver`` findings of the final LM (its iteration cap, no decrease).
     """
     t0 = time.perf_counter()
     isam, out = polish_isam2(isam, params, fac, options, graph, values)
     extra = {
         "final_iterations": int(out.iterations),
+        "final_gauss_newton": int(out.gauss_newton),  # steps after the LM (polish_isam2)
         "final_error": float(out.error),
         "final_s": time.perf_counter() - t0,
     }
@@ -178,18 +177,19 @@ def _polish(isam, params, fac, options, graph=None, values=None):
     )
 
 
-def _isam2_params(options: GraphOptions):
+def _isam2_params(options: GraphOptions, factorization: str = "QR"):
     """iSAM2 parameters. Relinearisation is kept coarse (0.1 m / rad every 10 updates by
     default) because a calibration variable touches every range factor: relinearising it
-    re-runs all their Python callbacks."""
+    re-runs all their Python callbacks. ``factorization`` QR by default: pinned landmarks
+    (sigma 1e-6 m) and 0.1 mm odometry floors make the normal equations too ill-conditioned
+    for iSAM2's Cholesky (``"CHOLESKY"`` where
+    :func:`~odofuse.estimators.graph.isam2_slam.cholesky_suits` says it may be tried)."""
     import gtsam
 
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(options.relinearize_threshold)
     params.relinearizeSkip = options.relinearize_skip
-    # QR: pinned landmarks (sigma 1e-6 m) and 0.1 mm odometry floors make the normal
-    # equations too ill-conditioned for iSAM2's Cholesky.
-    params.setFactorization("QR")
+    params.setFactorization(factorization)
     return params
 
 
@@ -297,8 +297,9 @@ def run_isam2(log, config) -> EstimateResult:
     The trajectory is the optimum of iSAM2's final graph: after ``final_relinearizations``
     forced relinearising updates, batch LM from iSAM2's estimate
     (:func:`~odofuse.estimators.graph.solvers.polish_isam2`, as on the SLAM path;
-    ``extra["final_iterations"]``, ``final_error``, ``final_s``, and a ``solver`` finding if it
-    stops at ``max_iterations``), with the covariances of a fresh iSAM2 there. iSAM2 itself
+    ``extra["final_iterations"]``, ``final_gauss_newton``, ``final_error``, ``final_s``, and a
+    ``solver`` finding if it stops at ``max_iterations``), with the covariances of a fresh
+    iSAM2 there. iSAM2 itself
     relinearises a variable only once its update exceeds ``relinearize_threshold``, so its
     own last estimate is that of a graph linearised at stale points (on Plaza2 0.257 m
     against 0.232 m at the optimum of the same graph). ``extra["latency"]`` summarises the
@@ -307,11 +308,12 @@ def run_isam2(log, config) -> EstimateResult:
     p99 / max and per quarter of the log, ms. Keyframes older than the last
     :data:`~odofuse.estimators.graph.isam2_window.KEEP` leave iSAM2's tree online in batches
     (:class:`~odofuse.estimators.graph.isam2_window.KeyframeWindow`, bounded update cost;
-    ``extra["marginalised_keyframes"]``); the final pass still solves the whole graph.
+    ``extra["marginalised_keyframes"]``), unless a loop closure reaches further back than that
+    (then every keyframe stays); the final pass still solves the whole graph.
     A stream with Tukey's loss (the default gate loss of an absolute sensor) is updated
     online with Huber's at the same threshold, and the final pass solves the same factors
     with Tukey's from there, as the smoother does
-    (:func:`~odofuse.estimators.graph.solvers.convex_problem`): with Tukey's online, a
+    (:func:`~odofuse.estimators.graph.problem.convex_problem`): with Tukey's online, a
     prediction that drifted past the threshold (an outage) ignored the returning readings
     for good (4.1 m RMSE after a 120 s GPS outage in simulation, the smoother 0.31 m).
 
@@ -333,32 +335,63 @@ def run_isam2(log, config) -> EstimateResult:
     calibrated between factors. ``extra["calibration_freeze"]`` gives, per
     frozen state, the constant, its sigma, the keyframe index and time of the freeze (and,
     for the ``rel_change`` form, ``sigma_window_ago``: its sigma one window earlier).
+
+    iSAM2 factorises by Cholesky where
+    :func:`~odofuse.estimators.graph.isam2_slam.cholesky_suits` allows it (a pose graph of
+    poses and unknown landmarks); a run that meets an indeterminate system there is run again
+    with QR, the factorisation of every other run.
     """
+    problem = build_problem(log, config, "isam2")
+    if cholesky_suits(problem):
+        try:
+            return _run_isam2(problem, config, "CHOLESKY")
+        except _CholeskyFailed:  # the whole run again with QR, on a fresh problem
+            problem = build_problem(log, config, "isam2")
+    return _run_isam2(problem, config, "QR")
+
+
+class _CholeskyFailed(Exception):
+    """An iSAM2 run with Cholesky met an indeterminate system (``run_isam2`` retries with QR)."""
+
+
+def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateResult:
+    """:func:`run_isam2` of a built ``problem`` with iSAM2's ``factorization``; with
+    ``"CHOLESKY"`` a failed update raises :class:`_CholeskyFailed` instead of a finding."""
     import gtsam
 
-    problem = build_problem(log, config, "isam2")
+    cholesky = factorization == "CHOLESKY"
     if problem.options.slam:  # unknown landmarks: odofuse.estimators.graph.isam2_slam
-        params = _isam2_params(problem.options)
+        params = _isam2_params(problem.options, factorization)
         source = getattr(config, "source", "<config>")
-        isam, fac, window, lat = incremental_slam(problem, params, source)
-        isam, _, polished, bad = _polish(
-            isam, params, fac, problem.options, window.graph, window.estimate(isam)
-        )
-        extra = {"latency": _latency_summary(lat[0]), "latency_step": _latency_summary(lat[1])}
-        extra["marginalised_keyframes"] = window.marginalised  # left iSAM2's tree online
-        extra.update(polished)
-        return _slam_result(problem, isam, fac, extra, bad)
+        try:
+            isam, fac, window, lat = incremental_slam(problem, params, source)
+            # with the configured losses (fac.final) when iSAM2 had convex ones online
+            final_graph = window.graph if fac.final is None else fac.final
+            isam, _, polished, bad = _polish(
+                isam, params, fac, problem.options, final_graph, window.estimate(isam)
+            )
+            extra = {
+                "latency": _latency_summary(lat[0]),
+                "latency_step": _latency_summary(lat[1]),
+                "marginalised_keyframes": window.marginalised,  # left iSAM2's tree online
+                **polished,
+            }
+            return _slam_result(problem, isam, fac, extra, bad)
+        except RuntimeError as exc:
+            if cholesky:
+                raise _CholeskyFailed from exc
+            raise
     # A stream with Tukey's loss is updated online with Huber's at the same threshold (a
     # prediction that drifted past it, e.g. after an outage, would otherwise ignore the
     # readings that correct it for good); the final pass solves the graph with Tukey's from
-    # there, as the smoother does (solvers.convex_problem)
+    # there, as the smoother does (problem.convex_problem)
     soft = convex_problem(problem)
     fac = _PrivateBeaconFactors(
         soft or problem, final_robust=None if soft is None else problem.robust
     )
     groups = _freeze_groups(problem, fac, getattr(config, "source", "<config>"))
     spec = problem.options.calibration_freeze or {}
-    params = _isam2_params(problem.options)
+    params = _isam2_params(problem.options, factorization)
     isam = gtsam.ISAM2(params)
     graph, values = fac.static()
     # Calibration states touch every factor of their sensor: relinearising them online would
@@ -388,8 +421,9 @@ def run_isam2(log, config) -> EstimateResult:
         return float(isam.calculateEstimateVector(key)[j])
 
     window = KeyframeWindow()
-    # a loop closure is added with its later keyframe: its earlier one stays in the tree
-    hold = oldest_referenced((lp.later, min(lp.i, lp.j)) for lp in problem.loops)
+    # a loop closure is added with its later keyframe: if its earlier one could have left
+    # the tree by then, every keyframe stays (no window; KeyframeWindow.loops_reach_back)
+    window.hold = 0 if KeyframeWindow.loops_reach_back(problem.loops) else None
     current = gtsam.Pose2(*problem.pose0)
     online = np.empty((len(problem.kt), 3))  # each keyframe's estimate right after its update
     findings: list[Finding] = []
@@ -401,7 +435,6 @@ def run_isam2(log, config) -> EstimateResult:
         graph.push_back(g)
         values.insert(v)
         window.add(graph, values)
-        window.hold = hold(i)
         t0 = _clock()
         try:
             window.update(isam, i, graph, values, frozen)  # old keyframes may leave
@@ -409,6 +442,8 @@ def run_isam2(log, config) -> EstimateResult:
             if i > 0:  # the root clique's marginal can be indeterminate too (a diverged run)
                 current = _newest_estimate(isam, X(i), current)
         except RuntimeError as exc:  # indeterminate system: report, never a traceback
+            if cholesky:
+                raise _CholeskyFailed from exc
             findings.append(_failure("iSAM2", problem, i, exc))
             break
         for meas in fac.by_kf.get(i, ()):
@@ -466,6 +501,8 @@ def run_isam2(log, config) -> EstimateResult:
                 poses = pose_array(result, len(problem.kt))
                 covs = world_covs(problem, poses, isam.marginalCovariance)
         except RuntimeError as exc:
+            if cholesky:
+                raise _CholeskyFailed from exc
             findings.append(_failure("iSAM2 (final relinearisation)", problem, len(online), exc))
             covs, result = None, _with_poses(window.estimate(isam), online, fac.dims)
     else:
@@ -545,7 +582,7 @@ def run_fixed_lag(log, config) -> EstimateResult:
     (:func:`_fixed_lag_params`) so that it is the marginal at that estimate. Keyframes still
     in the window at the end get the final estimate (less than ``lag`` s of future data).
     A stream with Tukey's loss (the default gate loss) gets Huber's at the same threshold
-    (:func:`~odofuse.estimators.graph.solvers.convex_problem`): a window whose prediction
+    (:func:`~odofuse.estimators.graph.problem.convex_problem`): a window whose prediction
     drifted past the threshold would ignore the returning readings for good, and there is no
     final pass to solve with Tukey's from a convex start.
     """

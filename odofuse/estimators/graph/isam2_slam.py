@@ -15,9 +15,11 @@ poses rather than from dead reckoning:
 Pose keyframes older than the last :data:`~odofuse.estimators.graph.isam2_window.KEEP` leave
 iSAM2's tree in batches (:class:`~odofuse.estimators.graph.isam2_window.KeyframeWindow`, as on
 the localisation path: bounded update cost); landmarks stay, and so does every keyframe from
-the oldest one a later loop closure refers to, a landmark seen again after ``KEEP`` keyframes
-out of sight counting as a loop closure to its previous sighting (:func:`resighting_loops`).
-Not with range-only landmarks: there the marginal factors fix the linearisation of landmarks
+the oldest one a later factor refers to: a landmark seen again after ``KEEP`` keyframes out of
+sight counts as a loop closure to its previous sighting (:func:`resighting_loops`). A loop
+closure reaching further back than ``KEEP`` keyframes keeps every keyframe in iSAM2 (as on the
+localisation path: :meth:`~odofuse.estimators.graph.isam2_window.KeyframeWindow.loops_reach_back`),
+and so does a range-only landmark: there the marginal factors fix the linearisation of landmarks
 multilaterated from early, poor poses, and on Plaza1's first 400 s the final LM then stopped at
 its cap at graph error 20,610 instead of 595.8 (unwindowed); so a problem with any range-only
 landmark keeps every keyframe in iSAM2 (as before issue 17).
@@ -41,7 +43,7 @@ from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, model_kind
 from odofuse.estimators.graph.landmarks import from_sighting, multilaterate
 from odofuse.estimators.graph.loops import oldest_referenced
-from odofuse.estimators.graph.problem import GraphProblem
+from odofuse.estimators.graph.problem import GraphProblem, convex_problem
 
 #: Ranges a landmark needs before it is multilaterated into the graph.
 MIN_RANGES = 5
@@ -52,6 +54,27 @@ _clock = time.perf_counter
 #: Keyframes between two reads of the current pose estimate, which the next keyframes are
 #: dead-reckoned from (a read makes iSAM2 back-substitute; new landmarks always read it).
 ESTIMATE_EVERY = 10
+
+
+def cholesky_suits(problem: GraphProblem) -> bool:
+    """Whether iSAM2 first tries GTSAM's default Cholesky factorisation on ``problem``.
+
+    odofuse's iSAM2 runs factorise by QR because pinned landmarks (sigma
+    ``known_landmark_sigma``, 1e-6 m), the floored covariances of drive odometry and
+    calibration variables make the normal equations too ill-conditioned for Cholesky. A pose
+    graph whose variables are its poses and unknown (SLAM) landmarks has none of them (its
+    edges carry the file's covariances, unfloored), and there Cholesky is several times faster
+    (``w10000.graph``: the iSAM2 pass 52 s against 219 s with QR; Victoria Park's SLAM pass
+    22 s). Cholesky can still meet an indeterminate system on a badly conditioned graph
+    (``w20000.txt`` at keyframe 1195, as plain GTSAM's default iSAM2 does): the caller then
+    runs the pass again with QR.
+    """
+    return (
+        problem.pose_graph
+        and not problem.calib
+        and problem.odometry_calibration is None
+        and (problem.options.slam or all(m.landmark is None for m in problem.measurements))
+    )
 
 
 def resighting_loops(landmark_rows: dict[int, list], keep: int) -> list[tuple[int, int]]:
@@ -102,7 +125,9 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
         marginalised keyframes).
     fac : Factors
         The factors added (``fac.created``, ``fac.used``; held-back ranges are in
-        ``problem.rejected``).
+        ``problem.rejected``). A stream with Tukey's loss was given to iSAM2 with Huber's at
+        the same threshold; ``fac.final`` then holds every factor with the configured loss
+        (the graph of the final pass), else it is None.
     window : KeyframeWindow
         Every factor of the run and the estimates of the keys marginalised online.
     latency : tuple of two lists of float
@@ -115,7 +140,12 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
         raise ConfigError(
             "calibration_freeze is not available with slam", source, "options.isam2.slam"
         )
-    fac = Factors(problem)
+
+    # a stream with Tukey's loss is updated with Huber's (convex_problem): a landmark whose
+    # sightings all lie beyond Tukey's threshold would have no information left (example.graph
+    # stopped at an indeterminate l110); fac.final holds the factors with the configured losses
+    soft = convex_problem(problem)
+    fac = Factors(soft or problem, final_robust=None if soft is None else problem.robust)
     graph, values = fac.static()
     for key in fac.landmark_keys.values():  # landmarks enter with their first fix
         values.erase(key)
@@ -136,17 +166,21 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
         for ms in landmark_rows.values()
         for m in ms
     )
-    # loop closures are added with their later keyframe: keep their earlier one in the tree;
-    # so is a landmark seen again after its first sighting's keyframe could have left
-    pairs = [(lp.later, min(lp.i, lp.j)) for lp in problem.loops]
-    pairs += resighting_loops(landmark_rows, isam2_window.KEEP)
-    hold = oldest_referenced(pairs)
+    # a landmark seen again after its previous sighting's keyframe could have left keeps
+    # that keyframe in the tree; a loop closure reaching back that far keeps every keyframe
+    # (KeyframeWindow.loops_reach_back), as does a range-only landmark
+    hold = oldest_referenced(resighting_loops(landmark_rows, isam2_window.KEEP))
+    unwindowed = range_only or KeyframeWindow.loops_reach_back(problem.loops)
     window = KeyframeWindow()
     latency, step = [], []
 
     def add(meas) -> None:
         f = fac.measurement(meas)
         graph.add(f)
+        if fac.final is not None:  # the factor with the configured loss, for the final pass
+            loss = fac.final_robust.get(meas.stream)
+            twin = loss is not None and loss != fac.p.robust.get(meas.stream)
+            fac.final.add(fac.with_loss(meas, f, loss) if twin else f)
         fac.created.append((meas, f))
         fac.used[meas.stream] = fac.used.get(meas.stream, 0) + 1
 
@@ -192,7 +226,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
             else:
                 held.setdefault(lid, []).append(meas)
         window.add(graph, values)
-        window.hold = 0 if range_only else hold(i)
+        window.hold = 0 if unwindowed else hold(i)
         t0 = _clock()
         window.update(isam, i, graph, values, frozen)  # old keyframes may leave
         latency.append(_clock() - t0)

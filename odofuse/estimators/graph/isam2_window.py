@@ -19,8 +19,9 @@ graph (:attr:`KeyframeWindow.graph`), started from :meth:`KeyframeWindow.estimat
 The SLAM path (:func:`~odofuse.estimators.graph.isam2_slam.incremental_slam`) uses the same
 window: landmarks stay in iSAM2 (a landmark whose observing poses left keeps their marginal
 factor), and :attr:`KeyframeWindow.hold` keeps in the tree every keyframe from the oldest
-one that a factor still to come (a later loop closure) refers to; with range-only landmarks
-the caller holds every keyframe (no window).
+one that a factor still to come (a landmark seen again after leaving the window) refers to;
+with range-only landmarks the caller holds every keyframe (no window). So do both paths when
+a loop closure reaches further back than the window (:meth:`KeyframeWindow.loops_reach_back`).
 """
 
 from __future__ import annotations
@@ -67,6 +68,23 @@ class KeyframeWindow:
         self.first = 0
         self.marginalised = 0
         self.hold: int | None = None
+
+    @staticmethod
+    def loops_reach_back(loops) -> bool:
+        """Whether a loop closure (``graph.loops.Loop``) reaches further back than the window:
+        its earlier keyframe would have left iSAM2's tree by the time it is added.
+
+        The caller then keeps every keyframe (``hold = 0``, no window). Holding just the
+        keyframes such loops refer to was measured slower than no window on every graph with
+        them (2-core machine, load 2-3): ``w10000.graph`` iSAM2 345 s against 219 s (QR; 59 s
+        against 52 s with Cholesky), ``w20000.txt`` over 400 s against 281 s (QR: Cholesky
+        meets an indeterminate system there). Their loop closures reach back thousands of
+        keyframes, so the hold kept most of the run in the tree and released it a few
+        keyframes at a time, each release re-eliminating the whole held tree (up to 18.8 s
+        for one update), and the keyframes that left handed their loop closures to a
+        marginal factor on the keyframes that stayed.
+        """
+        return any(lp.later - min(lp.i, lp.j) >= KEEP for lp in loops)
 
     def _cut(self, i: int) -> int:
         """The first keyframe that stays after the update of keyframe ``i``."""

@@ -10,6 +10,7 @@ odometry and the dead-reckoned initial guess. The factors themselves are made by
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -334,6 +335,11 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         config.source,
     )
     G = None
+    # a pose-graph file is a whole (Gaussian) problem of relative poses: odometry_calibration
+    # auto and the default gate loss do not apply to it (GTSAM's optimum of the file is its
+    # answer); an explicit odometry_calibration is an error
+    if pose_graph and "odometry_calibration" not in getattr(options, "_explicit", ()):
+        odo_cal = None
     if pose_graph and odo_cal is not None:
         raise ConfigError(
             "a pose-graph log has relative poses, not drive inputs, to calibrate",
@@ -367,7 +373,10 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
             if state == "gyro_bias" and stream in gyro and walk > 0 and kt.size > 2:
                 walks[name] = walk
 
-    robust = {s: options.robust.get(s, ("none", 0.0)) for s in models}
+    dropped = getattr(options, "gate_defaults", frozenset()) if pose_graph else frozenset()
+    robust = {
+        s: ("none", 0.0) if s in dropped else options.robust.get(s, ("none", 0.0)) for s in models
+    }
     robust[odometry_stream_name(model)] = options.robust.get(
         odometry_stream_name(model), ("none", 0.0)
     )
@@ -402,3 +411,29 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
             problem.measurements, problem.models, problem.dead_reckoning(), options.slam_grid
         )
     return problem
+
+
+def convex_problem(problem: GraphProblem) -> GraphProblem | None:
+    """``problem`` with Huber's loss in place of every sensor stream's Tukey loss, at the same
+    thresholds, or None when no sensor stream has Tukey's.
+
+    Tukey's loss gives a reading beyond its threshold no pull at all, which is what rejects a
+    gross reading (the filters' gate, ``declarations.graph.gate_loss``); but from a start that
+    has drifted past the threshold (dead reckoning, or an incremental solver's prediction
+    after an outage) it ignores the very readings that correct the drift, for good. Huber's
+    loss is convex: its influence is bounded but never vanishes, so a reading far from the
+    start still pulls the estimate towards it. The graph solvers therefore solve the Huber
+    problem first and the Tukey problem from there (graduated non-convexity in two steps):
+    the batch smoother (:func:`~odofuse.estimators.graph.solvers._convex_start`), iSAM2
+    (online with Huber; its final pass is
+    the Tukey solve) and the fixed-lag smoother (Huber throughout: it has no final pass;
+    :mod:`odofuse.estimators.graph.isam2`).
+    """
+    tukey = {
+        s: k for s, (kind, k) in problem.robust.items() if kind == "tukey" and s in problem.models
+    }
+    if not tukey:
+        return None
+    return dataclasses.replace(
+        problem, robust={**problem.robust, **{s: ("huber", k) for s, k in tukey.items()}}
+    )
