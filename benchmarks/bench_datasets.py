@@ -118,6 +118,7 @@ def table(names) -> None:
                     continue
                 e = float(m["extra"]["final_error"])
                 cols = {"best": "-", "rel": "-", "rms": "-", "g2o": "-", "gt": "-", "r": "-"}
+                t_g = None
                 if reader is not None:
                     _, _, k = ref.load_file(name)
                     ours = ref.run_values(Path(tmp) / "out", k)
@@ -133,13 +134,13 @@ def table(names) -> None:
                     if times:  # not GOATS: GTSAM's LM from odofuse's solution is no run
                         which = "lm" if est == "smoother" and kind == "posegraph" else "isam2"
                         t_g = times[which][1]
-                        cols["gt"] = f"{t_g:.2f}"
-                        cols["r"] = f"{m['runtime_s'] / t_g:.2f}"
+                        cols["gt"] = f"{t_g:.3g}"
+                        cols["r"] = f"{m['runtime_s'] / t_g:.2f}" if t_g > 0 else "-"
                 solve = m["extra"].get("solve_s")
                 solve_txt = f"{solve:.2f}" if solve is not None else "-"
                 solve_ratio = "-"
-                if solve is not None and cols["gt"] != "-":
-                    solve_ratio = f"{solve / float(cols['gt']):.2f}"
+                if solve is not None and t_g:  # a timer that read 0 gives no ratio
+                    solve_ratio = f"{solve / t_g:.2f}"
                 print(
                     f"{name:30s} {est:9s} {e:16.6f} {cols['best']:>16s} {cols['rel']:>9s} "
                     f"{cols['rms']:>8s} {cols['g2o']:>27s} {m['status']:8s} "

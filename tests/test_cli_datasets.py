@@ -51,8 +51,9 @@ DEGRADED = {
     # range residuals 2.5-2.7x the file's 0.75 m sigma, with either map (docs/graph.md, GOATS)
     "goats_15.pyfg": "residuals",
     "goats_16.pyfg": "residuals",
-    # the minimal config's default range sigma is too optimistic for Plaza's ranges
-    "Plaza1_.mat": "residuals",
+    # the minimal config's default range sigma is too optimistic for Plaza's ranges; under the
+    # default gate loss (issue 25) Plaza1's shows as 19 % of the ranges beyond the gate
+    "Plaza1_.mat": "outliers",
     "Plaza2_.mat": "residuals",
     # the smoother's own check of odometry residual windows (graph.health; iSAM2 does not run
     # it): 56 windows of 2747-3456 s above their chi-square bound at GTSAM's optimum
