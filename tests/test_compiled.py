@@ -281,6 +281,7 @@ def _close(a, b, where=""):
         assert a == b and type(a) is type(b), where
 
 
+@pytest.mark.slow  # two odofuse run subprocesses on Plaza1 (compiled on and off): 17 s
 def test_plaza1_metrics_json_unchanged_to_the_printed_digit(tmp_path):
     """Counts, findings and status identical; every figure the run prints identical (the
     summary table without its runtime column); metrics.json floats to 1e-9 relative."""

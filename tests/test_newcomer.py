@@ -267,6 +267,7 @@ def tune_env(robot):
     return {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(robot)])}
 
 
+@pytest.mark.slow  # odofuse tune runs for its 20 s time bound
 def test_2_tune_skips_failing_candidates_and_reports_them(robot, monkeypatch):
     """Before: the filter's error ended `odofuse tune` after 70 runs; no config written."""
     cfg = picky_tune_config(robot, "picky")
@@ -294,6 +295,7 @@ def test_2_tune_skips_failing_candidates_and_reports_them(robot, monkeypatch):
     assert "failed and were skipped" in out.read_text()
 
 
+@pytest.mark.slow  # an odofuse tune subprocess until its first checkpoint: 12-29 s
 def test_2_tune_keeps_its_best_config_when_interrupted(robot, monkeypatch):
     """A checkpoint is written whenever the best improves; Ctrl-C says where it is."""
     import signal

@@ -52,6 +52,7 @@ def test_covariance_of_a_rank_deficient_cloud_has_no_negative_eigenvalue():
     assert np.array_equal(weighted_cov(D, np.eye(20)[3]), np.zeros((3, 3)))  # one particle
 
 
+@pytest.mark.slow  # three filters over the same simulated log with a gyro: 9-11 s
 def test_pose_variance_grows_with_wheels_and_a_gyro_like_the_ekfs():
     from odofuse.estimators.ekf import EkfBackend
 
