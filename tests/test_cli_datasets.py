@@ -45,6 +45,8 @@ SLOW = {
     "Plaza1_.mat",
     "Plaza2_.mat",
 }
+#: The longest runs, s measured in the suite (2026-12-03): collected first (tests/conftest.py).
+LONGEST = {("w20000.txt", "isam2"): 195.0, ("w10000.graph", "isam2"): 57.0}
 #: The runs that judge themselves ``degraded`` (every other one says ``ok``), by (file,
 #: estimator) or file, and the check that says so; no ground truth is involved in either.
 DEGRADED = {
@@ -85,7 +87,8 @@ def tmp_root(tmp_path_factory):
 def _cases():
     for name in ref.FILES:
         for estimator in ESTIMATORS:
-            marks = [pytest.mark.slow] if name in SLOW else []
+            seconds = LONGEST.get((name, estimator), 0.0)
+            marks = [pytest.mark.slow(seconds=seconds)] if name in SLOW else []
             yield pytest.param(name, estimator, marks=marks, id=f"{name}-{estimator}")
 
 
