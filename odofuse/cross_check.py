@@ -401,21 +401,22 @@ def alpha_budget(config, log) -> dict:
     at most the sum).
 
     The in-run statistical checks keep their declared probabilities: the filters' NIS window
-    test per fused stream (``nis_alpha``), dead reckoning's gyro-vs-wheels test
-    (``heading_alpha``), the batch smoother's residual windows per odometry and gyro stream
-    (``WINDOW_ALPHA``). What is left of ``alpha_run`` goes to the second opinion when it
-    applies, half to its consistency test (``cross_check_nees``) and half to the sanity of
-    its reference (the smoother's variance factor above its chi-square band); an estimator
-    whose skipped check degrades (not in :data:`DRIFT_EVIDENCE`) also carries the smoother's
-    residual windows (``reference_status``: a degraded smoother skips the check). The other
-    checks (a covariance not positive definite, a solver that did not converge, a stream
-    mostly rejected or silent, a calibration 5 prior sigmas out, ...) cannot fire on a
+    test and run NIS test per fused stream (``nis_alpha`` each), dead reckoning's
+    gyro-vs-wheels test (``heading_alpha``), the batch smoother's residual windows per
+    odometry and gyro stream (``WINDOW_ALPHA``). What is left of ``alpha_run`` goes to the
+    second opinion when it applies, half to its consistency test (``cross_check_nees``) and
+    half to the sanity of its reference (the smoother's variance factor above its chi-square
+    band); an estimator whose skipped check degrades (not in :data:`DRIFT_EVIDENCE`) also
+    carries the smoother's residual windows (``reference_status``: a degraded smoother skips
+    the check). The other checks (a covariance not positive definite, a solver that did not
+    converge, a stream mostly rejected or silent, a calibration 5 prior sigmas out, a slip
+    run, ...) cannot fire on a
     matching log, or with a probability below 1e-5 (docs/trust.md); they are not counted.
 
     Returns
     -------
     dict
-        ``alpha_run``; ``checks``: check (``nis:<stream>``, ``gyro_wheels``,
+        ``alpha_run``; ``checks``: check (``nis:<stream>``, ``nis_run:<stream>``, ``gyro_wheels``,
         ``residual_windows:<stream>``, ``cross_check_nees``, ``reference_variance``) ->
         false-alarm probability per run; ``total`` (their sum, at most ``alpha_run``
         unless ``overspent``); ``overspent`` (the in-run checks alone exceed it).
@@ -430,6 +431,7 @@ def alpha_budget(config, log) -> dict:
     if est in DRIFT_EVIDENCE:
         nis = float(config.estimator_options(est).nis_alpha)
         checks.update({f"nis:{n}": nis for n in sorted(fused)})
+        checks.update({f"nis_run:{n}": nis for n in sorted(fused)})
     elif est == "dead_reckoning" and "gyro" in streams and len(streams["gyro"]):
         checks["gyro_wheels"] = float(config.estimator_options(est).heading_alpha)
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)

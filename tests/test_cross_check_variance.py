@@ -86,7 +86,7 @@ def test_the_position_scale_is_the_sandwich_covariance_over_the_models():
     expected = np.trace(sandwich[np.ix_(pos, pos)]) / np.trace(ninv[np.ix_(pos, pos)])
     assert vc["position_variance_scale"] == pytest.approx(expected, rel=1e-9)
     # the redundancies: 1 - diag of the hat matrix A (A^T W A)^-1 A^T W at the converged
-    # weights W = 1 / c_g (converged to 0.1 %: the reported r_g are of the last pass)
+    # weights W = 1 / c_g (converged to 2 % of their sd: the reported r_g are of the last pass)
     wrow = np.array([1.0 / vc["groups"][name]["variance_factor"] for name in label])
     hat = wrow * np.einsum("ij,jk,ik->i", a, np.linalg.inv(a.T @ (wrow[:, None] * a)), a)
     for name in set(groups):

@@ -84,7 +84,7 @@ def test_learning_check_fires_when_the_heading_rests_on_a_bias_still_being_learn
     rec = _learning_record(np.arange(0.0, 100.0, 0.02), cov_at)
     assert list(rec[0]) == [0.0, 70.0]  # one entry per change, not one per step
     (f,) = pose_checks.learning_findings("gyro_bias", "gyro", rec, 0.0, 100.0, 1e-6)
-    assert (f.check, f.sensor, f.t_start, f.degrades) == ("learning", "gyro", 0.0, True)
+    assert (f.check, f.sensor, f.t_start, f.degrades) == ("learning", "gyro", 0.0, False)
     assert f.t_end == pytest.approx(70.0) and f.figure == pytest.approx(0.7)
     assert "up to 10x" in f.line()
     pose_checks.record_learning(rec, 50.0, cov_at(50.0), 3)  # a replay from 50 s

@@ -18,6 +18,9 @@ import numpy as np
 from odofuse import se2
 from odofuse.declarations import GraphOptions
 
+#: Keyframe times closer than this (s) are merged (:func:`keyframe_times`).
+MERGE_TOLERANCE = 1e-9
+
 
 def keyframe_times(t_odo, U, model, sensor_times, options: GraphOptions) -> np.ndarray:
     """Keyframe times: the odometry span's ends, sensor times and the dt/ds/dtheta triggers.
@@ -36,7 +39,12 @@ def keyframe_times(t_odo, U, model, sensor_times, options: GraphOptions) -> np.n
     Returns
     -------
     ndarray (K,)
-        Strictly increasing keyframe times (s).
+        Strictly increasing keyframe times (s). Times closer than :data:`MERGE_TOLERANCE`
+        (or 16 floating-point spacings of their magnitude) are one keyframe, the latest of
+        them, so that ``searchsorted(kt, t)`` of any of them finds it: a ``keyframe_dt``
+        grid from ``t0 = 4e-16`` put 1.0000000000000004 beside a GPS fix at 1.0, and the
+        4e-16 s interval between them (odometry and gyro variances ~0) left the smoother's
+        Levenberg-Marquardt at its iteration cap on every such log.
     """
     t0, t1 = float(t_odo[0]), float(t_odo[-1])
     parts = [np.array([t0, t1]), np.asarray(sensor_times, dtype=float)]
@@ -53,7 +61,9 @@ def keyframe_times(t_odo, U, model, sensor_times, options: GraphOptions) -> np.n
             cum = np.concatenate([[0.0], np.cumsum(inc)])
             bucket = np.floor(cum / step)
             parts.append(t_odo[1:][np.diff(bucket) > 0])
-    return np.unique(np.concatenate(parts))
+    kt = np.unique(np.concatenate(parts))
+    tol = np.maximum(MERGE_TOLERANCE, 16.0 * np.spacing(np.abs(kt[1:])))
+    return kt[np.append(np.diff(kt) > tol, True)]
 
 
 def preintegrate(t_odo, U, model, kt, odometry_calibration=None):
