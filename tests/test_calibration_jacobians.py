@@ -2,7 +2,7 @@
 
 The calibration parameters mean a change of the drive's geometry (``E_d``: right / left radius
 ratio with the mean kept; ``E_b``: the track, for the skid steer the ICR coordinates
-``y_l, y_r``, scaled). Checked against central differences of the drive model with that
+``y_l, y_r``, scaled; ``E_s``: both radii scaled, UMBmark's scale error). Checked against central differences of the drive model with that
 geometry perturbed, for every two-sided drive of the calibration table and ``wheels_per_side``
 1, 2, 3, with unequal radii and offset ICRs:
 
@@ -54,11 +54,13 @@ CASES = [
 
 
 def _perturbed(drive, p):
-    """``drive`` with the geometry that the calibration parameters ``p = (E_d, E_b)`` mean."""
-    E, Eb = p
+    """``drive`` with the geometry that the calibration parameters ``p = (E_d, E_b[, E_s])``
+    mean."""
+    E, Eb = p[0], p[1]
+    Es = p[2] if len(p) > 2 else 1.0
     g = {
-        "wheel_radius_left": drive.wheel_radius_left * 2.0 / (1.0 + E),
-        "wheel_radius_right": drive.wheel_radius_right * 2.0 * E / (1.0 + E),
+        "wheel_radius_left": drive.wheel_radius_left * Es * 2.0 / (1.0 + E),
+        "wheel_radius_right": drive.wheel_radius_right * Es * 2.0 * E / (1.0 + E),
         "track_width": drive.track_width * Eb,
     }
     if drive.name == "skid_steer":
@@ -87,7 +89,7 @@ def test_input_jacobian_is_the_perturbed_drives_twist(name, geometry, n):
     rng = np.random.default_rng(7)
     u = _inputs(rng, n, 5)
     D = cal.input_jacobian(u, np.full(len(u), 0.1))
-    assert D.shape == (5, 2 * n, 2)
+    assert D.shape == (5, 2 * n, 3) and cal.names[2] == "wheel_radius_scale"
     for row, Dk in zip(u, D, strict=True):
         num = numerical_jacobian(lambda p, row=row: _perturbed(drive, p).twist(row), cal.nominal)
         np.testing.assert_allclose(drive.J_twist_u(row) @ Dk, num, rtol=1e-6, atol=1e-9)
@@ -117,11 +119,11 @@ def test_preintegrated_sensitivity_matches_central_differences(name, geometry, n
 def test_filter_calibrated_input_is_the_perturbed_drive(name, geometry, n):
     drive, _, base = _setup(name, geometry, n)
     cal = FilterOdometryCalibration(
-        base.drive, base.names, base.nominal, base.sigma, (0.0, 0.0), (), n, base.track
+        base.drive, base.names, base.nominal, base.sigma, (0.0, 0.0, 0.0), (), n, base.track
     )
     rng = np.random.default_rng(3)
     u = _inputs(rng, n, 4)
-    for p in ([1.0, 1.0], [1.03, 0.96], [0.95, 1.07]):
+    for p in ([1.0, 1.0, 1.0], [1.03, 0.96, 1.02], [0.95, 1.07, 0.97]):
         p = np.array(p)
         np.testing.assert_allclose(
             drive.twist(cal.apply(u, p, 0.1)), _perturbed(drive, p).twist(u), atol=1e-12
@@ -140,14 +142,15 @@ def test_filter_calibrated_input_is_the_perturbed_drive(name, geometry, n):
 
 
 def test_one_symmetric_wheel_a_side_keeps_borensteins_half_difference():
-    """Equal radii, ``y_l = -y_r``: ``D`` is the half difference ``h = (R - L)/2`` as before."""
+    """Equal radii, ``y_l = -y_r``: ``D`` is the half difference ``h = (R - L)/2`` as before
+    (and the scale's column the inputs themselves)."""
     for name, geometry in (("differential", GEOMETRIES["differential"][0]),) + (
         ("skid_steer", GEOMETRIES["skid_steer"][0]),
     ):
         _, _, cal = _setup(name, geometry, 1)
         u = np.array([[1.3, 2.1]])
         D = cal.input_jacobian(u, [0.1])[0]
-        np.testing.assert_allclose(D, [[-0.65, 0.4], [1.05, -0.4]], atol=1e-14)
+        np.testing.assert_allclose(D, [[-0.65, 0.4, 1.3], [1.05, -0.4, 2.1]], atol=1e-14)
 
 
 @pytest.mark.parametrize(
@@ -177,3 +180,14 @@ def test_compiled_ekf_covers_only_the_symmetric_calibration(robot, covered):
     options = {"odometry_calibration": True, "slip": False, "compiled": "on"}
     log, cfg = simulated_run(scenario, 1, "ekf", options)
     assert (compiled_ekf.run(log, cfg) is not None) is covered
+
+
+def test_two_prior_sigmas_calibrate_e_d_and_e_b_alone():
+    """A config's two sigmas keep the two-parameter calibration (the scale taken as exact)."""
+    drive = make_drive("differential", wheel_radius=0.1, track_width=0.5)
+    model = MotionModel(drive, error_model_from_config(drive, {"k": 1e-4}))
+    cal = odometry_calibration_for(model, [0.02, 0.03], "k", "test.yaml")
+    assert cal.names == ("wheel_radius_ratio", "track_width_scale") and cal.sigma == (0.02, 0.03)
+    assert cal.input_jacobian(np.array([[1.3, 2.1]]), [0.1]).shape == (1, 2, 2)
+    with pytest.raises(Exception, match="3 prior sigmas"):
+        odometry_calibration_for(model, [0.02], "k", "test.yaml")

@@ -171,13 +171,18 @@ def test_plaza2_with_the_plaza1_default_prior():
     from odofuse.io.loader import load_log
 
     base = load_config(PACKAGE / "default_configs" / "plaza1-dead_reckoning.yaml")
+    # the prior off explicitly (since issue 25 the default auto turns it on: ranges are fused)
+    base = dataclasses.replace(base, options={"dead_reckoning": {"odometry_calibration": False}})
     cal = dataclasses.replace(base, options={"dead_reckoning": {"odometry_calibration": True}})
+    auto = load_config(PACKAGE / "default_configs" / "plaza1-dead_reckoning.yaml")
     out = {}
     for name in ("builtin:plaza1", "builtin:plaza2"):
         log = load_log(name)
         m0 = metrics(run_estimator("dead_reckoning", log, dataclasses.replace(base, log=name)), log)
         m1 = metrics(run_estimator("dead_reckoning", log, dataclasses.replace(cal, log=name)), log)
+        m2 = metrics(run_estimator("dead_reckoning", log, dataclasses.replace(auto, log=name)), log)
         assert m1["ate_rmse_m"] == m0["ate_rmse_m"]
+        assert m2["nees_position_mean"] == m1["nees_position_mean"]  # the default is the prior
         out[name] = m0["nees_position_mean"], m1["nees_position_mean"]
     assert out["builtin:plaza2"][0] > 30.0  # 38.6: the heading bias the white noise misses
     assert 1.0 <= out["builtin:plaza2"][1] <= 4.0  # 1.59 with the prior

@@ -26,8 +26,15 @@ from odofuse.testing import numerical_jacobian
 INC = FilterOdometryCalibration(
     "increments", ("ds_scale", "dtheta_scale", "dtheta_bias"), (1, 1, 0), (0.05,) * 3, (0,) * 3
 )
-DIFF = FilterOdometryCalibration(
+DIFF2 = FilterOdometryCalibration(
     "differential", ("wheel_radius_ratio", "track_width_scale"), (1, 1), (0.05,) * 2, (0,) * 2
+)
+DIFF = FilterOdometryCalibration(
+    "differential",
+    ("wheel_radius_ratio", "track_width_scale", "wheel_radius_scale"),
+    (1, 1, 1),
+    (0.05,) * 3,
+    (0,) * 3,
 )
 
 
@@ -35,8 +42,10 @@ DIFF = FilterOdometryCalibration(
     "cal, u, p",
     [
         (INC, [0.31, -0.07], [1.03, 0.98, 0.004]),
-        (DIFF, [2.1, 2.7], [1.04, 0.97]),
-        (DIFF, [-1.3, 0.4], [0.95, 1.08]),
+        (DIFF2, [2.1, 2.7], [1.04, 0.97]),
+        (DIFF2, [-1.3, 0.4], [0.95, 1.08]),
+        (DIFF, [2.1, 2.7], [1.04, 0.97, 1.03]),
+        (DIFF, [-1.3, 0.4], [0.95, 1.08, 0.98]),
     ],
 )
 def test_calibrated_input_jacobian_matches_central_differences(cal, u, p):
@@ -55,7 +64,8 @@ def test_nominal_jacobian_is_the_graphs():
         graph.input_jacobian(u[None], [0.1])[0],
         atol=1e-15,
     )
-    np.testing.assert_allclose(DIFF.apply(u, np.array([1.0, 1.0]), 0.1), u)
+    np.testing.assert_allclose(DIFF.apply(u, np.array([1.0, 1.0, 1.0]), 0.1), u)
+    np.testing.assert_allclose(DIFF.apply(u, np.array([1.0, 1.0, 1.03]), 0.1), 1.03 * u)
 
 
 @pytest.mark.parametrize(

@@ -129,12 +129,13 @@ def test_staged_solve_keeps_calibration_out_of_the_robust_loss():
 
 def test_isam2_freezes_the_odometry_calibration():
     # generous absolute thresholds: frozen at an early check, later odometry factors built-in
-    freeze = {"sigma": {"wheel_radius_ratio": 0.05, "track_width_scale": 0.05}, "check_every": 5}
+    names = ("wheel_radius_ratio", "track_width_scale", "wheel_radius_scale")
+    freeze = {"sigma": dict.fromkeys(names, 0.05), "check_every": 5}
     options = {"odometry_calibration": True, "calibration_freeze": freeze}
     log, cfg = simulated_run(SCENARIO, 2, "isam2", options, {"gyro": {"calibrate": True}})
     res = run_estimator("isam2", log, cfg)
     info = res.extra["calibration_freeze"]
-    assert set(info) == {"wheel_radius_ratio", "track_width_scale"}
+    assert set(info) == set(names)
     k = info["wheel_radius_ratio"]["keyframe"]
     assert res.extra["python_factors"] == k  # calibrated (Python) odometry factors up to it
     assert metrics(res, log)["ate_rmse_m"] < 0.5

@@ -53,13 +53,16 @@ class DeadReckoningOptions:
         0.01, unit="rad/s", doc="prior sigma of an unmodelled gyro bias in that test", **_NONNEG
     )
     compiled: str = _compiled_option()
-    odometry_calibration: bool = option(
-        False,
+    odometry_calibration: bool | str = option(
+        "auto",
         unit="-",
         doc=(
             "widen the covariance by the prior of the odometry's systematic errors, "
-            "unobserved (as options.ekf.odometry_calibration; docs/filters.md)"
+            "unobserved (as options.ekf.odometry_calibration; docs/filters.md); auto: when "
+            "the config has an absolute sensor (the filters then estimate those errors)"
         ),
+        parse=lambda v, key, src: odometry_calibration_mode(v, key, src),
+        type_name="auto, true or false",
     )
     odometry_calibration_sigma: tuple[float, ...] | None = option(
         None,
@@ -67,6 +70,10 @@ class DeadReckoningOptions:
         doc="prior sigmas of those errors; null: the graph's defaults (docs/filters.md)",
         **_POSITIVE,
     )
+
+    def for_run(self, estimator: str, sensors, source: str, drive: str | None = None):
+        """``odometry_calibration: auto`` resolved as the filters' (``FilterOptions.for_run``)."""
+        return FilterOptions.for_run(self, estimator, sensors, source, drive)
 
 
 def odometry_calibration_mode(v, key: str, src: str):

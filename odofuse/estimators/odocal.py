@@ -15,7 +15,8 @@ but evaluated exactly at the current estimate instead of to first order at the n
   (``C``: :func:`odofuse.estimators.graph.calibration.track_matrix`), which makes the drive
   exactly the one with its track (skid steer: ICR coordinates ``y_l, y_r``) scaled by ``E_b``.
   With one wheel a side, equal radii and ``y_l = -y_r``: ``m = (R + L)/2``,
-  ``h = (R - L)/(2 E_b)``, ``u' = (m - h, m + h)``.
+  ``h = (R - L)/(2 E_b)``, ``u' = (m - h, m + h)``. With a third state ``E_s``
+  (``wheel_radius_scale``, the default) every angle of that ``u'`` is times ``E_s``.
 
 The calibration states are laid out by :func:`odofuse.estimators.localizer.state_layout` like a
 measurement model's (``calib_states``, ``calib_prior``, ``calib_walk``); the backends read
@@ -39,7 +40,12 @@ DEFAULT_WALK = {
     "dtheta_bias": 1e-5,
     "wheel_radius_ratio": 1e-4,
     "track_width_scale": 1e-4,
+    "wheel_radius_scale": 1e-4,
 }
+
+
+#: Two-sided drives whose particle filter calibrates ``E_d, E_b`` alone by default.
+TWO_STATE_PARTICLE = ("differential", "skid_steer")
 
 
 @dataclass(frozen=True)
@@ -98,7 +104,8 @@ class FilterOdometryCalibration:
         E, Eb = p[..., 0:1], p[..., 1:2]
         us = _split_radii(u, E, n)
         shift = (1.0 - 1.0 / Eb) * (side_means(us, n) @ C.T)
-        return us + np.repeat(shift, n, axis=-1)
+        out = us + np.repeat(shift, n, axis=-1)
+        return out * p[..., 2:3] if len(self.names) > 2 else out
 
     def jacobian(self, u, p, dt: float) -> np.ndarray:
         """``du'/dp`` ``(n, m)`` at one input ``u`` ``(n,)`` and parameters ``p`` ``(m,)``."""
@@ -108,12 +115,16 @@ class FilterOdometryCalibration:
         from odofuse.estimators.graph.calibration import side_means
 
         n, C = self.wheels_per_side, np.asarray(self.track)
-        E, Eb = p
+        E, Eb = p[0], p[1]
         us = _split_radii(u, E, n)
         dus = u * np.where(np.arange(2 * n) >= n, 2.0, -2.0) / (1.0 + E) ** 2  # d u_s / dE
         dE = dus + np.repeat((1.0 - 1.0 / Eb) * (C @ side_means(dus, n)), n)
         dEb = np.repeat(C @ side_means(us, n) / Eb**2, n)
-        return np.stack([dE, dEb], -1)
+        if len(self.names) == 2:
+            return np.stack([dE, dEb], -1)
+        Es = p[2]
+        f = us + np.repeat((1.0 - 1.0 / Eb) * (C @ side_means(us, n)), n)
+        return np.stack([Es * dE, Es * dEb, f], -1)
 
 
 def _split_radii(u, E, n: int) -> np.ndarray:
@@ -135,6 +146,13 @@ def filter_odometry_calibration(model, options, key: str, source: str):
     from odofuse.estimators.graph.calibration import odometry_calibration_for
 
     sig = options.odometry_calibration_sigma
+    if sig is None and key == "options.particle" and model.drive.name in TWO_STATE_PARTICLE:
+        # the particle filter's default leaves the wheel radius scale out: sampled with a 5 %
+        # prior it spread 200-1000 particles along the track until precise ranges left one
+        # (a skid steer's nominal log: NEES 609, degraded; bench_status.py seed 3010)
+        from odofuse.estimators.graph.calibration import _ODO_CAL
+
+        sig = _ODO_CAL[model.drive.name][2][:2]
     base = odometry_calibration_for(
         model, True if sig is None else list(sig), f"{key}.odometry_calibration_sigma", source
     )

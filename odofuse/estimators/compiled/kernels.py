@@ -346,6 +346,8 @@ def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, w
         L = up[0] * 2.0 / (1.0 + E)
         mm, hh = 0.5 * (R + L), 0.5 * (R - L) / Eb
         uc[0], uc[1] = mm - hh, mm + hh
+        if cidx.shape[0] > 2:  # wheel_radius_scale E_s: every angle times E_s
+            uc[0], uc[1] = x[cidx[2]] * uc[0], x[cidx[2]] * uc[1]
     w = vx = vy = 0.0
     for j in range(m):
         w += M[0, j] * uc[j]
@@ -397,6 +399,12 @@ def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, w
             dh_b = -0.5 * (R - L) / Eb**2
             Jc[0, 0], Jc[0, 1] = dm - dh, -dh_b
             Jc[1, 0], Jc[1, 1] = dm + dh, dh_b
+            if nc > 2:  # u' = E_s f: the E_d, E_b columns times E_s, the E_s column f
+                Es = x[cidx[2]]
+                mm, hh = 0.5 * (R + L), 0.5 * (R - L) / Eb
+                for j in range(2):
+                    Jc[j, 0], Jc[j, 1] = Es * Jc[j, 0], Es * Jc[j, 1]
+                Jc[0, 2], Jc[1, 2] = mm - hh, mm + hh
         for i in range(n):
             for j in range(n):
                 F[i, j] = 1.0 if i == j else 0.0
@@ -727,7 +735,8 @@ def pf_predict(X, u, var, Z, integ, M, cal, C, cidx, dt, Zth, sd_th, dtheta, e, 
     ``u`` (m,) is the step's input and ``var`` (m,) its variances (noise scale included);
     ``Z`` (N, m) the standard normals of the inputs, drawn by the backend's generator.
     ``cal``: 0 none, 1 increments (``cidx`` the ds scale, dtheta scale, heading bias columns),
-    2 two wheels (``cidx`` ``E_d``, ``E_b``; ``C`` (2, 2) the track matrix); each particle's
+    2 two wheels (``cidx`` ``E_d``, ``E_b`` and, when given, ``E_s``; ``C`` (2, 2) the track
+    matrix); each particle's
     own calibration is read before it moves. ``Zth`` (N,) with ``sd_th >= 0``: a gyro heading
     change ``dtheta + Zth sd_th`` replaces the twist's (``Zth`` empty: none). ``e`` (N,), when
     not empty, receives each particle's heading noise of the step (the gyro's, or the twist's
@@ -756,10 +765,11 @@ def pf_predict(X, u, var, Z, integ, M, cal, C, cidx, dt, Zth, sd_th, dtheta, e, 
         elif cal == 2:
             E, Eb = X[i, cidx[0]], X[i, cidx[1]]
             fl, fr, k = 2.0 / (1.0 + E), 2.0 * E / (1.0 + E), 1.0 - 1.0 / Eb
+            Es = X[i, cidx[2]] if cidx.shape[0] > 2 else 1.0  # wheel_radius_scale
             for v in (ui, u0):
                 L, R = v[0] * fl, v[1] * fr
-                v[0] = L + k * (C[0, 0] * L + C[0, 1] * R)
-                v[1] = R + k * (C[1, 0] * L + C[1, 1] * R)
+                v[0] = Es * (L + k * (C[0, 0] * L + C[0, 1] * R))
+                v[1] = Es * (R + k * (C[1, 0] * L + C[1, 1] * R))
         w = vx = vy = 0.0
         for j in range(m):
             w += M[0, j] * ui[j]

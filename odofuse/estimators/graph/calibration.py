@@ -32,6 +32,10 @@ class OdometryCalibration:
       wheel of a side alike), ``C = F2^-1 diag(-1, 0) F2`` with ``F2`` the ``omega, v_x`` rows
       of the drive's one-wheel-per-side matrix (:func:`track_matrix`); with equal radii and
       ``y_l = -y_r`` that is Borenstein's half difference ``h = (R - L) / 2`` divided by ``E_b``.
+      A third parameter ``wheel_radius_scale E_s`` (the mean radius over the configured one,
+      UMBmark's scale error; issue 25: a wheel radius 3 % off is what real robots have) then
+      scales every wheel's angle: ``u' = E_s f(u; E_d, E_b)``. The default has all three;
+      two prior sigmas in the config give ``E_d, E_b`` alone (the scale exact).
 
     Inputs are ``left1 .. leftn, right1 .. rightn`` (``wheels_per_side = n``,
     :mod:`odofuse.drives.differential`). The graph uses the first-order Jacobian
@@ -58,6 +62,8 @@ class OdometryCalibration:
             n = self.wheels_per_side
             D[:, :n, 0], D[:, n:, 0] = -0.5 * pieces[:, :n], 0.5 * pieces[:, n:]
             D[:, :, 1] = np.repeat(side_means(pieces, n) @ np.asarray(self.track).T, n, axis=1)
+            if len(self.names) > 2:  # wheel_radius_scale: every angle times E_s
+                D[:, :, 2] = pieces
         return D
 
 
@@ -85,8 +91,16 @@ _ODO_CAL = {
         (1.0, 1.0, 0.0),
         (0.05, 0.05, 0.01),
     ),
-    "differential": (("wheel_radius_ratio", "track_width_scale"), (1.0, 1.0), (0.05, 0.05)),
-    "skid_steer": (("wheel_radius_ratio", "track_width_scale"), (1.0, 1.0), (0.05, 0.05)),
+    "differential": (
+        ("wheel_radius_ratio", "track_width_scale", "wheel_radius_scale"),
+        (1.0, 1.0, 1.0),
+        (0.05, 0.05, 0.05),
+    ),
+    "skid_steer": (
+        ("wheel_radius_ratio", "track_width_scale", "wheel_radius_scale"),
+        (1.0, 1.0, 1.0),
+        (0.05, 0.05, 0.05),
+    ),
 }
 
 
@@ -107,6 +121,9 @@ def odometry_calibration_for(model, value, key, source) -> OdometryCalibration |
         )
     names, nominal, sigma = _ODO_CAL[name]
     if value is not True:
+        # a two-sided drive also takes E_d, E_b alone (two sigmas: the scale taken as exact)
+        if name != "increments" and isinstance(value, list | tuple) and len(value) == 2:
+            names, nominal = names[:2], nominal[:2]
         if not isinstance(value, list | tuple) or len(value) != len(names):
             raise ConfigError(
                 f"expected true or {len(names)} prior sigmas for {', '.join(names)}",
