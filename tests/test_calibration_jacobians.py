@@ -2,9 +2,9 @@
 
 The calibration parameters mean a change of the drive's geometry (``E_d``: right / left radius
 ratio with the mean kept; ``E_b``: the track, for the skid steer the ICR coordinates
-``y_l, y_r``, scaled; ``E_s``: both radii scaled, UMBmark's scale error). Checked against central differences of the drive model with that
-geometry perturbed, for every two-sided drive of the calibration table and ``wheels_per_side``
-1, 2, 3, with unequal radii and offset ICRs:
+``y_l, y_r``, scaled; ``E_s``: both radii scaled, UMBmark's scale error). Checked against
+central differences of the drive model with that geometry perturbed, for every two-sided drive
+of the calibration table and ``wheels_per_side`` 1, 2, 3, with unequal radii and offset ICRs:
 
 * the graph's input Jacobian ``D`` (``F0 D = d twist / dp``),
 * the graph's preintegrated pose-increment sensitivity ``G`` (``preintegrate``),

@@ -432,10 +432,10 @@ def test_calibration_sensitivity_matches_perturbed_preintegration(robot):
         if robot["drive"] == "increments":
             Up = np.column_stack([p[0] * U[:, 0], p[1] * U[:, 1] + p[2] * dt[:, 0]])
         else:
-            E, B = p
+            E, B, S = p  # E_d, E_b, E_s (every wheel angle times E_s)
             left, right = U[:, 0] * 2 / (1 + E), U[:, 1] * 2 * E / (1 + E)
             mean, half = 0.5 * (left + right), 0.5 * (right - left) / B
-            Up = np.column_stack([mean - half, mean + half])
+            Up = S * np.column_stack([mean - half, mean + half])
         dp, _ = graph.preintegrate(t_odo, Up, model, kt)
         for i in range(len(kt) - 1):
             xi = gtsam.Pose2.Logmap(gtsam.Pose2(*deltas[i]).between(gtsam.Pose2(*dp[i])))
