@@ -178,3 +178,24 @@ def test_isam2_update_failure_is_a_finding(monkeypatch):
     assert m["status"] == "degraded"
     assert any("iSAM2 update failed at keyframe 19" in w for w in m["warnings"])
     assert np.isfinite(res.trajectory.poses).all() and res.trajectory.covariances is None
+
+
+def test_a_slip_run_of_keyframe_intervals_longer_than_a_second_degrades():
+    """The graph's form of the filters' ``slip_run``: two or more consecutive slipping
+    keyframe intervals spanning more than ``SLIP_RUN_S``; one interval, or a shorter run, is
+    the note alone."""
+    from types import SimpleNamespace
+
+    from odofuse.estimators.graph.health import slip_findings
+
+    problem = SimpleNamespace(
+        kt=np.arange(0.0, 10.5, 0.5), models={"gyro": None}, gyro={"gyro": None}
+    )
+    scales = np.ones(20)
+    scales[[3, 4]] = 5.0  # 1.5-2.5 s: 1 s, not more
+    scales[[8]] = 9.0  # one interval
+    assert [f.check for f in slip_findings(problem, scales)] == ["slip"]
+    scales[[12, 13, 14]] = 7.0  # 6.0-7.5 s
+    found = {f.check: f for f in slip_findings(problem, scales)}
+    run = found["slip_run"]
+    assert run.degrades and (run.t_start, run.t_end) == (6.0, 7.5) and not found["slip"].degrades
