@@ -433,7 +433,6 @@ def alpha_budget(config, log) -> dict:
         unless ``overspent``); ``overspent`` (the in-run checks alone exceed it).
     """
     from odofuse.estimators.graph.health import WINDOW_ALPHA
-    from odofuse.estimators.graph.solvers import GLOBAL_TEST_ALPHA
 
     a = float(config.estimator_options("status").alpha_run)
     est = config.estimator
@@ -449,7 +448,6 @@ def alpha_budget(config, log) -> dict:
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
     gyros = [n for n in fused if n == "gyro" or n.startswith("gyro")]
     windows = {f"residual_windows:{n}": WINDOW_ALPHA for n in [odo, *gyros] if n}
-    windows["global_test"] = GLOBAL_TEST_ALPHA  # the smoother's own (its variance factor)
     if est == "smoother":
         checks.update(windows)
     applies = skip_reason(config, log) is None

@@ -281,19 +281,15 @@ def test_case_1_a_filter_says_the_skip_and_rests_on_its_own_checks(outage_log, t
 
 def test_case_2_an_absurd_reference_is_unable_to_judge(tmp_path):
     """Issue 31, "absurd reference, no warning": a config whose GPS sigma (0.7 m) is below
-    the simulated 1 m gives the smoother a variance factor above its chi-square band. Since
-    issue 25 the smoother's own global test says so (its status is degraded), and the
-    comparison is skipped for that reason, degrading dead reckoning."""
+    the simulated 1 m gives the smoother a variance factor above its chi-square band while its
+    own residual checks (median 4x) pass: the comparison is "unable to judge"."""
     cfg = _simulated_log(tmp_path / "log", sigma=0.7)
     m = _run(cfg, "dead_reckoning", tmp_path / "out")
-    assert m["cross_check"]["smoother_status"] == "degraded"
-    assert m["cross_check"]["skipped"] == "the batch smoother's own status is degraded"
+    assert m["cross_check"]["smoother_status"] == "ok"
+    assert m["cross_check"]["skipped"].startswith("unable to judge: the smoother's variance factor")
     (line,) = [w for w in m["warnings"] if w.startswith("[cross_check_skipped]")]
-    assert "own status is degraded" in line and m["status"] == "degraded"
+    assert "above its chi-square band" in line and m["status"] == "degraded"
     assert m["alpha"]["checks"]["reference_variance"] > 0
-    sm = _run(cfg, "smoother", tmp_path / "smoother")
-    (g,) = [w for w in sm["warnings"] if w.startswith("[global_test]")]
-    assert "above its chi-square band" in g and sm["status"] == "degraded"
 
 
 def test_case_3_the_variance_estimation_converges_or_says_so(tmp_path):

@@ -456,38 +456,6 @@ def _staged(problem: GraphProblem) -> bool:
     return problem.odometry_calibration is not None and loss != "none"
 
 
-#: False-alarm probability of the smoother's global test (:func:`global_test_findings`).
-GLOBAL_TEST_ALPHA = 1e-3
-
-
-def global_test_findings(vc) -> list:
-    """The global test of a least-squares adjustment (Koch 1999, 4.3): the variance factor
-    ``v^T v / (m - n)`` at the optimum above the ``1 - GLOBAL_TEST_ALPHA`` quantile of
-    ``chi2(m - n) / (m - n)`` says the residuals are larger than the noise model allows: a
-    fault the solution absorbed (range timestamps 0.5 s late left the smoother at NEES 900,
-    ``ok``, on bench_status.py's logs; a gyro bias step at NEES 100). Below the band is the
-    pessimistic side, not a fault."""
-    from odofuse import chi2
-    from odofuse.health import Finding
-
-    f, r = vc.get("variance_factor"), vc.get("redundancy")
-    if f is None or not r or r <= 0 or not math.isfinite(f):
-        return []
-    hi = float(chi2.ppf(1.0 - GLOBAL_TEST_ALPHA, r)) / r
-    if f <= hi:
-        return []
-    return [
-        Finding(
-            "global_test",
-            f"variance factor v^T v / (m - n) = {f:.3g} above its chi-square band ({hi:.3g} at "
-            f"{r} degrees of freedom, false alarm {GLOBAL_TEST_ALPHA:g}): the residuals are "
-            "larger than the noise model allows (a fault the solution absorbed, or sigmas "
-            "too small)",
-            figure=float(f),
-        )
-    ]
-
-
 def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
     """Batch Levenberg-Marquardt over the whole log (``estimator: smoother``).
 
@@ -610,8 +578,6 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
             if error_samples > 0:
                 vc, extra["_error_samples"] = vc
             extra["variance_components"] = vc
-            if not problem.pose_graph:  # a file's covariances: not measured there (yet)
-                findings += global_test_findings(vc)
         except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
             extra["variance_components"] = {"skipped": one_line(exc)}
     return finish(problem, fac, result, covs, "smoother", extra, findings)
