@@ -708,22 +708,27 @@ def slip_note(loc) -> list:
             degrades=False,
         )
     ]
-    a, b = loc._slip_longest
-    if b - a > SLIP_RUN_S:
-        out.append(
-            Finding(
-                "slip_run",
-                f"gyro and wheels disagreed on every odometry step for {b - a:.2f} s (more "
-                f"than {SLIP_RUN_S:g} s): a wheel spinning free or dragged, or a stuck "
-                "encoder; the widened wheel noise covers the heading, not the distance "
-                "that wheel reports",
-                sensor=loc._slip_stream,
-                t_start=a,
-                t_end=b,
-                figure=b - a,
-            )
+    return out + slip_run_findings(loc._slip_stream, *loc._slip_longest, "odometry step")
+
+
+def slip_run_findings(stream, a: float, b: float, unit: str) -> list:
+    """The ``slip_run`` finding of a run of slipping ``unit``s from ``a`` to ``b`` (s) when it
+    lasted more than :data:`SLIP_RUN_S` (the filters' steps, the graph's keyframe
+    intervals)."""
+    if not b - a > SLIP_RUN_S:
+        return []
+    return [
+        Finding(
+            "slip_run",
+            f"gyro and wheels disagreed on every {unit} for {b - a:.2f} s (more than "
+            f"{SLIP_RUN_S:g} s): a wheel spinning free or dragged, or a stuck encoder; the "
+            "widened wheel noise covers the heading, not the distance that wheel reports",
+            sensor=stream,
+            t_start=a,
+            t_end=b,
+            figure=b - a,
         )
-    return out
+    ]
 
 
 def mde_of(loc) -> dict:

@@ -111,6 +111,11 @@ _ODO_CAL = {
 }
 
 
+def default_sigmas(drive: str) -> tuple[float, ...]:
+    """The default prior sigmas of ``drive``'s calibration states (``_ODO_CAL``)."""
+    return _ODO_CAL[drive][2]
+
+
 def odometry_calibration_for(model, value, key, source) -> OdometryCalibration | None:
     """The :class:`OdometryCalibration` of ``options.<est>.odometry_calibration``.
 

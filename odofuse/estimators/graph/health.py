@@ -317,10 +317,10 @@ def outage_findings(problem) -> list[Finding]:
 
 def slip_findings(problem, scales) -> list[Finding]:
     """The (non-degrading) note of the keyframe intervals whose odometry noise was widened,
-    and the filters' ``slip_run`` (:data:`odofuse.estimators.monitors.SLIP_RUN_S`): two or
+    and the filters' ``slip_run`` (:func:`odofuse.estimators.monitors.slip_run_findings`): two or
     more consecutive slipping intervals spanning more than it (a wheel spinning free, dragged
     or with its encoder stuck; 1e-6 on a matching log)."""
-    from odofuse.estimators.monitors import SLIP_RUN_S
+    from odofuse.estimators.monitors import slip_run_findings
 
     n = int(np.count_nonzero(scales > 1.0))
     if not n:
@@ -330,22 +330,7 @@ def slip_findings(problem, scales) -> list[Finding]:
     runs = np.split(j, np.flatnonzero(np.diff(j) > 1) + 1)
     spans = [(float(problem.kt[r[0]]), float(problem.kt[r[-1] + 1])) for r in runs if r.size > 1]
     longest = max(spans, key=lambda ab: ab[1] - ab[0], default=(0.0, 0.0))
-    out = []
-    if longest[1] - longest[0] > SLIP_RUN_S:
-        a, b = longest
-        out.append(
-            Finding(
-                "slip_run",
-                f"gyro and wheels disagreed on every keyframe interval for {b - a:.2f} s (more "
-                f"than {SLIP_RUN_S:g} s): a wheel spinning free or dragged, or a stuck "
-                "encoder; the widened odometry noise covers the heading, not the distance "
-                "that wheel reports",
-                sensor=stream,
-                t_start=a,
-                t_end=b,
-                figure=b - a,
-            )
-        )
+    out = slip_run_findings(stream, *longest, "keyframe interval")
     return out + [
         Finding(
             "slip",
