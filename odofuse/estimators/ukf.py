@@ -27,18 +27,33 @@ from odofuse.measurements import gate_threshold
 from odofuse.options import coerce
 from odofuse.se2 import wrap
 
+#: :func:`_psd_sqrt`: a Cholesky pivot ``U_jj^2`` at or below this fraction of its diagonal
+#: entry ``A_jj`` is a singular direction (a state that equals another, as a heading clone
+#: right after cloning, or one of zero variance), not a genuine one.
+SINGULAR_PIVOT = 1e-12
+
 
 def _psd_sqrt(A: np.ndarray) -> np.ndarray:
     """Matrix ``U`` with ``U^T U = A`` for the sigma points: Cholesky, or for a singular ``A``
     (a heading clone right after cloning equals theta exactly) the symmetric square root
-    from the eigen-decomposition with negative round-off eigenvalues clipped to zero."""
+    from the eigen-decomposition with negative round-off eigenvalues clipped to zero.
+
+    Singular means a pivot at or below :data:`SINGULAR_PIVOT` of its diagonal entry, not only
+    the one LAPACK refuses: on an exact clone the last pivot is round-off of either sign, and
+    taking LAPACK's Cholesky when it happened to come out positive (a fifth of the clones)
+    made the run depend on the last bit of ``P`` (one ulp of ``A`` moved a figure-eight's
+    poses by 2.6e-6 m; with this rule, by 1e-13 m).
+    """
     import scipy.linalg
 
     try:
-        return scipy.linalg.cholesky(A)
+        U = scipy.linalg.cholesky(A)
+        if np.all(np.square(np.diag(U)) > SINGULAR_PIVOT * np.diag(A)):
+            return U
     except np.linalg.LinAlgError:
-        vals, vecs = np.linalg.eigh(0.5 * (A + A.T))
-        return (vecs * np.sqrt(np.clip(vals, 0.0, None))) @ vecs.T
+        pass
+    vals, vecs = np.linalg.eigh(0.5 * (A + A.T))
+    return (vecs * np.sqrt(np.clip(vals, 0.0, None))) @ vecs.T
 
 
 class UkfBackend:
