@@ -226,6 +226,7 @@ class UkfOptions(FilterOptions):
     alpha: float = option(0.5, unit="-", doc="spread of the sigma points", **_POSITIVE)
     beta: float = option(2.0, unit="-", doc="prior knowledge of the distribution (2: Gaussian)")
     kappa: float = option(0.0, unit="-", doc="secondary scaling")
+    compiled: str = _compiled_option()
 
 
 @dataclass(frozen=True)

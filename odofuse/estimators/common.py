@@ -215,3 +215,21 @@ def calibration_of(models, odo_cal, x, P) -> dict[str, dict[str, float]]:
         for s, i in index.items()
         if s not in clones
     }
+
+
+#: The UKF's square root (``ukf._psd_sqrt`` and the compiled kernel's): a Cholesky pivot
+#: ``U_jj^2`` at or below this fraction of its diagonal entry ``A_jj`` is a singular direction
+#: (a state that equals another, as a heading clone right after cloning, or one of zero
+#: variance), not a genuine one.
+SINGULAR_PIVOT = 1e-12
+
+
+def angle_states(models) -> np.ndarray:
+    """Indices of the circular states: theta and the heading clones of ``models``."""
+    angles = [2]
+    for m in models.values():
+        idx = getattr(m, "calib_index", {})
+        for s in m.clones() if hasattr(m, "clones") else {}:
+            if s in idx:
+                angles.append(idx[s])
+    return np.array(sorted(set(angles)))

@@ -22,15 +22,11 @@ import numpy as np
 
 from odofuse.declarations import UkfOptions
 from odofuse.estimators.assembly import run_with
+from odofuse.estimators.common import SINGULAR_PIVOT, angle_states
 from odofuse.estimators.ekf import FastIncrement
 from odofuse.measurements import gate_threshold
 from odofuse.options import coerce
 from odofuse.se2 import wrap
-
-#: :func:`_psd_sqrt`: a Cholesky pivot ``U_jj^2`` at or below this fraction of its diagonal
-#: entry ``A_jj`` is a singular direction (a state that equals another, as a heading clone
-#: right after cloning, or one of zero variance), not a genuine one.
-SINGULAR_PIVOT = 1e-12
 
 
 def _psd_sqrt(A: np.ndarray) -> np.ndarray:
@@ -83,13 +79,7 @@ class UkfBackend:
         self.model = model
         self.n = n
         self.walk = np.asarray(walk, dtype=float)
-        angles = [2]
-        for m in models.values():
-            idx = getattr(m, "calib_index", {})
-            for s in m.clones() if hasattr(m, "clones") else {}:
-                if s in idx:
-                    angles.append(idx[s])
-        self.angles = np.array(sorted(set(angles)))
+        self.angles = angle_states(models)
         points = MerweScaledSigmaPoints(
             n,
             alpha=options.alpha,
@@ -264,5 +254,10 @@ def make_backend(model, models, x0, P0, walk, options) -> UkfBackend:
 
 
 def run(log, config):
-    """UKF over a whole log: a thin wrapper feeding the log to a streaming Localizer."""
-    return run_with(log, config, "ukf", make_backend)
+    """UKF over a whole log: the compiled core when it covers the run (``options.ukf.compiled``,
+    :mod:`odofuse.estimators.compiled.ukf`), else a thin wrapper feeding the log to a
+    streaming Localizer."""
+    from odofuse.estimators.compiled import ukf as compiled_ukf
+
+    result = compiled_ukf.run(log, config)  # numba core, None when not covered or off
+    return result if result is not None else run_with(log, config, "ukf", make_backend)

@@ -1,10 +1,11 @@
 """The compiled offline core: numba kernels beside the pure-Python reference paths.
 
-``options.ekf.compiled`` / ``options.dead_reckoning.compiled`` / ``options.particle.compiled``
-(``auto``, ``on``, ``off``) choose it; ``auto`` uses numba when it can be imported (dead
-reckoning and the particle filter only on runs long enough to pay for loading it). This
-package owns that choice (:func:`enabled`), the dead-reckoning dispatch (:mod:`.dead_reckoning`),
-the offline EKF over a log's event array (:mod:`.ekf`), the particle filter's propagation,
+``options.ekf.compiled`` / ``options.ukf.compiled`` / ``options.dead_reckoning.compiled`` /
+``options.particle.compiled`` (``auto``, ``on``, ``off``) choose it; ``auto`` uses numba when
+it can be imported (dead reckoning and the particle filter only on runs long enough to pay for
+loading it). This package owns that choice (:func:`enabled`), the dead-reckoning dispatch
+(:mod:`.dead_reckoning`), the offline EKF over a log's event array (:mod:`.ekf`), the offline
+UKF on the same arrays and coverage (:mod:`.ukf`), the particle filter's propagation,
 weighting and cloud moments (:mod:`.particle`) and the kernels themselves (:mod:`.kernels`, the
 only module that imports numba). The pure-Python paths stay the reference, the streaming path
 and the fallback for everything the kernels do not cover (``docs/filters.md``, "Compiled

@@ -212,19 +212,20 @@ def _motion_args(model, cal) -> tuple:
     return INTEGRATORS.index(model.integrator), M, K, floor, rate, code, cidx
 
 
-def prepare(log, config):
-    """``(kernels, loc, streams, args)`` of the compiled offline EKF, or None when the run
-    is not covered: ``args`` are the arguments of :func:`~.kernels.ekf_offline` by name (in
-    its order), the Localizer ``loc`` receives the outcome. Also used by :mod:`odofuse.tune`,
-    which adds rejected probe readings to the measurement arrays to read each update's
-    innovation covariance."""
+def prepare(log, config, estimator: str = "ekf"):
+    """``(kernels, loc, streams, args)`` of the compiled offline EKF (or UKF, ``estimator``,
+    :mod:`.ukf`), or None when the run is not covered: ``args`` are the arguments of
+    :func:`~.kernels.ekf_offline` by name (in its order), the Localizer ``loc`` receives the
+    outcome (:func:`finish`). Also used by :mod:`odofuse.tune`, which adds rejected probe
+    readings to the measurement arrays to read each update's innovation covariance."""
     from odofuse.estimators.assembly import build
 
-    opts = config.estimator_options("ekf")
-    kern = compiled.enabled(getattr(opts, "compiled", "auto"), "options.ekf.compiled")
+    opts = config.estimator_options(estimator)
+    key = f"options.{estimator}.compiled"
+    kern = compiled.enabled(getattr(opts, "compiled", "auto"), key)
     if kern is None:
         return None
-    loc, t, U = build(config, log, "ekf", _State)
+    loc, t, U = build(config, log, estimator, _State)
     streams = [s for s in config.sensors if s in log.streams]
     t = np.asarray(t, dtype=float)
     U = np.ascontiguousarray(U, dtype=float)
@@ -272,6 +273,14 @@ def run(log, config):
         return None
     kern, loc, streams, args = prep
     kern.ekf_offline(*args.values())
+    return finish(loc, log, streams, args)
+
+
+def finish(loc, log, streams, args):
+    """The Localizer ``loc`` of :func:`prepare` handed the kernel's outcome ``args``: the
+    monitor's record, counts, readings, final state, trajectory and odometry pose; its
+    result, or None when a recovery would have re-opened the filter (the Python path then
+    runs)."""
     t, mt, ms, acc, nis = (args[k] for k in ("tt", "mt", "ms", "acc", "nis"))
     for si, s in enumerate(streams):
         mine = ms == si

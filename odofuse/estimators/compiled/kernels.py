@@ -9,6 +9,10 @@ against it to 1e-9 (``tests/test_compiled.py``):
   :class:`~odofuse.estimators.ekf.EkfBackend` (odometry prediction, optionally with the
   odometry-calibration states, step splitting at measurement times, filterpy's Joseph-form
   update and the chi-square gate) for range-to-beacon, GPS, compass and gyro-rate sensors;
+* :func:`ukf_offline`: the same event loop with :class:`~odofuse.estimators.ukf.UkfBackend`
+  (filterpy's Merwe sigma points and weights, ``ukf._psd_sqrt``, the circular mean in theta
+  and the heading clones, the sigma points regenerated before each update), on the EKF's
+  measurement functions (:func:`_measure`) and calibrated inputs (``tests/test_compiled_ukf.py``);
 * :func:`pf_predict`, :func:`pf_moments`, :func:`pf_reweight`, :func:`pf_mean`,
   :func:`pf_gram`: the :class:`~odofuse.estimators.particle.ParticleBackend`'s propagation,
   innovation moments and reweighting, and cloud mean and covariance, on the random numbers the
@@ -18,9 +22,10 @@ Integrator codes: 0 ``euler``, 1 ``rk2``, 2 ``exact``, 3 ``euler_end``. Compiled
 ``cache=True``: the first run on a machine compiles and stores the machine code next to this
 file (``__pycache__``); later runs load it.
 
-It is nearly 900 lines on purpose: it is the only module that imports numba, so a run
-that does not compile never pays numba's import, and the kernels that call each other are
-compiled together.
+It is over 1,200 lines on purpose: it is the only module that imports numba, so a run
+that does not compile never pays numba's import, and the kernels that call each other (the
+EKF and the UKF share the event loop, the motion and the measurement functions) are compiled
+together.
 """
 
 from __future__ import annotations
@@ -325,17 +330,11 @@ def _work(n, m):
     )
 
 
-@njit(cache=True)
-def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work):
-    """``EkfBackend.predict`` (``cal == 0``) or ``_predict_calibrated`` (1: increments,
-    2: differential / skid-steer) of the fraction ``part`` of a step (input ``u * part``)."""
-    Jt, Fu, var, uc, v, F, FP = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
-    Jc = work[12]
-    n = x.shape[0]
-    m = u.shape[0]
-    up = work[13]  # the step's input part, u * part (as the Localizer passes it)
-    for j in range(m):
-        up[j] = u[j] * part
+@njit(cache=True, inline="always")
+def _calibrated_input(x, up, dt, cal, cidx, uc):
+    """``uc`` (m,): the input ``up`` through the odometry calibration of state ``x``
+    (``OdometryCalibration.apply``; ``cal`` 0 none, 1 increments, 2 two symmetric wheels)."""
+    for j in range(up.shape[0]):
         uc[j] = up[j]
     if cal == 1:
         uc[0] = x[cidx[0]] * up[0]
@@ -348,11 +347,26 @@ def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, w
         uc[0], uc[1] = mm - hh, mm + hh
         if cidx.shape[0] > 2:  # wheel_radius_scale E_s: every angle times E_s
             uc[0], uc[1] = x[cidx[2]] * uc[0], x[cidx[2]] * uc[1]
+
+
+@njit(cache=True, inline="always")
+def _twist(M, uc):
+    """``(w, vx, vy) = M uc``."""
     w = vx = vy = 0.0
-    for j in range(m):
+    for j in range(uc.shape[0]):
         w += M[0, j] * uc[j]
         vx += M[1, j] * uc[j]
         vy += M[2, j] * uc[j]
+    return w, vx, vy
+
+
+@njit(cache=True)
+def _input_noise(integ, M, K, floor, rate, uc, dt, th, Jt, Fu, var):
+    """Body increment ``(d0, d1, d2)`` of input ``uc`` over ``dt`` s; fills ``var`` (m,) with
+    the input variances (``K |uc| + floor + rate dt``) and ``Fu`` (3, m) with the world-frame
+    ``J_b(th) J_delta_u``, so that ``F_u diag(var) F_u^T`` is the step's process noise."""
+    m = uc.shape[0]
+    w, vx, vy = _twist(M, uc)
     d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
     for j in range(m):
         acc = floor[j] + rate[j] * dt
@@ -361,14 +375,31 @@ def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, w
         var[j] = acc
         for r in range(3):
             Fu[r, j] = Jt[r, 0] * M[0, j] + Jt[r, 1] * M[1, j] + Jt[r, 2] * M[2, j]
-    th = x[2]
     c, s = math.cos(th), math.sin(th)
-    dxw = c * d0 - s * d1
-    dyw = s * d0 + c * d1
     for j in range(m):
         a, b = Fu[0, j], Fu[1, j]
         Fu[0, j] = c * a - s * b
         Fu[1, j] = s * a + c * b
+    return d0, d1, d2
+
+
+@njit(cache=True)
+def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work):
+    """``EkfBackend.predict`` (``cal == 0``) or ``_predict_calibrated`` (1: increments,
+    2: differential / skid-steer) of the fraction ``part`` of a step (input ``u * part``)."""
+    Jt, Fu, var, uc, v, F, FP = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    Jc = work[12]
+    n = x.shape[0]
+    m = u.shape[0]
+    up = work[13]  # the step's input part, u * part (as the Localizer passes it)
+    for j in range(m):
+        up[j] = u[j] * part
+    _calibrated_input(x, up, dt, cal, cidx, uc)
+    th = x[2]
+    d0, d1, d2 = _input_noise(integ, M, K, floor, rate, uc, dt, th, Jt, Fu, var)
+    c, s = math.cos(th), math.sin(th)
+    dxw = c * d0 - s * d1
+    dyw = s * d0 + c * d1
     if cal == 0:
         # F_p P F_p^T = P + B + B^T, B = e v^T, v = P[2] + P22 e / 2 (as EkfBackend.predict)
         e0, e1 = -dyw, dxw
@@ -447,6 +478,61 @@ def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, w
     x[2] = _wrap(th + d2)
 
 
+@njit(cache=True, inline="always")
+def _measure(x, kind, aux, idx, dt, H, jac):
+    """``h(x)`` ``(h0, h1)`` of a stream kind (``h1`` only for GPS), and with ``jac`` its
+    Jacobian in ``H`` (2, n): ``BeaconRange`` (beacon ``aux``, scale/offset columns ``idx``),
+    ``GpsPosition`` (lever arm ``aux``), ``CompassHeading`` (offset column ``idx[0]``),
+    ``GyroYawRate`` (clone and bias columns ``idx``, ``dt`` since the clone)."""
+    n = x.shape[0]
+    d = 2 if kind == GPS else 1
+    if jac:
+        for r in range(d):
+            for i in range(n):
+                H[r, i] = 0.0
+    h0 = h1 = 0.0
+    if kind == RANGE:
+        dx, dy = x[0] - aux[0], x[1] - aux[1]
+        dist = math.hypot(dx, dy)
+        scale = x[idx[0]] if idx[0] >= 0 else 1.0
+        offset = x[idx[1]] if idx[1] >= 0 else 0.0
+        h0 = scale * dist + offset
+        if jac:
+            dd = max(dist, 1e-9)
+            H[0, 0], H[0, 1] = scale * dx / dd, scale * dy / dd
+            if idx[0] >= 0:
+                H[0, idx[0]] = dist
+            if idx[1] >= 0:
+                H[0, idx[1]] = 1.0
+    elif kind == GPS:
+        lx, ly = aux[0], aux[1]
+        c, s = math.cos(x[2]), math.sin(x[2])
+        h0 = x[0] + c * lx - s * ly
+        h1 = x[1] + s * lx + c * ly
+        if jac:
+            H[0, 0] = H[1, 1] = 1.0
+            H[0, 2] = -s * lx - c * ly
+            H[1, 2] = c * lx - s * ly
+    elif kind == COMPASS:
+        off = x[idx[0]] if idx[0] >= 0 else 0.0
+        h0 = _wrap(x[2] + off)
+        if jac:
+            H[0, 2] = 1.0
+            if idx[0] >= 0:
+                H[0, idx[0]] = 1.0
+    else:  # GYRO
+        ref = x[idx[0]] if idx[0] >= 0 else x[2]
+        bias = x[idx[1]] if idx[1] >= 0 else 0.0
+        h0 = _wrap(x[2] - ref) / dt + bias
+        if jac:
+            H[0, 2] = 1.0 / dt
+            if idx[0] >= 0:
+                H[0, idx[0]] = -1.0 / dt
+            if idx[1] >= 0:
+                H[0, idx[1]] = 1.0
+    return h0, h1
+
+
 @njit(cache=True)
 def _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work):
     """filterpy's ``ExtendedKalmanFilter.update`` (Joseph form) with the gate; returns
@@ -455,45 +541,7 @@ def _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work):
     A, H, PHT, Kg, HP, AH = work[6], work[7], work[8], work[9], work[10], work[11]
     n = x.shape[0]
     d = 2 if kind == GPS else 1
-    for r in range(d):
-        for i in range(n):
-            H[r, i] = 0.0
-    h0 = h1 = 0.0
-    if kind == RANGE:
-        dx, dy = x[0] - aux[0], x[1] - aux[1]
-        dist = math.hypot(dx, dy)
-        scale = x[idx[0]] if idx[0] >= 0 else 1.0
-        offset = x[idx[1]] if idx[1] >= 0 else 0.0
-        h0 = scale * dist + offset
-        dd = max(dist, 1e-9)
-        H[0, 0], H[0, 1] = scale * dx / dd, scale * dy / dd
-        if idx[0] >= 0:
-            H[0, idx[0]] = dist
-        if idx[1] >= 0:
-            H[0, idx[1]] = 1.0
-    elif kind == GPS:
-        lx, ly = aux[0], aux[1]
-        c, s = math.cos(x[2]), math.sin(x[2])
-        h0 = x[0] + c * lx - s * ly
-        h1 = x[1] + s * lx + c * ly
-        H[0, 0] = H[1, 1] = 1.0
-        H[0, 2] = -s * lx - c * ly
-        H[1, 2] = c * lx - s * ly
-    elif kind == COMPASS:
-        off = x[idx[0]] if idx[0] >= 0 else 0.0
-        h0 = _wrap(x[2] + off)
-        H[0, 2] = 1.0
-        if idx[0] >= 0:
-            H[0, idx[0]] = 1.0
-    else:  # GYRO
-        ref = x[idx[0]] if idx[0] >= 0 else x[2]
-        bias = x[idx[1]] if idx[1] >= 0 else 0.0
-        h0 = _wrap(x[2] - ref) / dt + bias
-        H[0, 2] = 1.0 / dt
-        if idx[0] >= 0:
-            H[0, idx[0]] = -1.0 / dt
-        if idx[1] >= 0:
-            H[0, idx[1]] = 1.0
+    h0, h1 = _measure(x, kind, aux, idx, dt, H, True)
     y0 = z[0] - h0
     y1 = z[1] - h1 if d == 2 else 0.0
     if kind == COMPASS:
@@ -568,6 +616,253 @@ def _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work):
     return nis, True
 
 
+# ----------------------------------------------------------------------------- UKF
+@njit(cache=True)
+def ukf_work(n, m):
+    """Scratch buffers of the UKF kernels: sigma points (2n+1, n) and their images, the
+    square root, the predicted measurements, the cross covariance."""
+    N = 2 * n + 1
+    return (
+        np.empty((N, n)),  # 0 sigma points
+        np.empty((N, n)),  # 1 their images under the motion
+        np.empty((n, n)),  # 2 (lambda + n) P
+        np.empty((n, n)),  # 3 its square root U (U^T U = A)
+        np.empty((N, 2)),  # 4 h of each sigma point
+        np.empty((n, 2)),  # 5 Pxz / K
+        np.empty(n),  # 6 a state residual
+        np.empty(m),  # 7 a sigma point's calibrated input
+    )
+
+
+@njit(cache=True)
+def _psd_sqrt(A, U, tol):
+    """``ukf._psd_sqrt``: ``U`` (n, n) with ``U^T U = A``, upper Cholesky, or when a pivot is
+    at or below ``tol`` of its diagonal entry (a singular direction) the symmetric square
+    root of the eigen-decomposition with negative eigenvalues clipped to zero."""
+    n = A.shape[0]
+    ok = True
+    for j in range(n):
+        acc = A[j, j]
+        for k in range(j):
+            acc -= U[k, j] * U[k, j]
+        if not acc > tol * A[j, j]:
+            ok = False
+            break
+        piv = math.sqrt(acc)
+        U[j, j] = piv
+        for i in range(j + 1, n):
+            acc = A[j, i]
+            for k in range(j):
+                acc -= U[k, j] * U[k, i]
+            U[j, i] = acc / piv
+        for i in range(j):
+            U[j, i] = 0.0
+    if ok:
+        return
+    B = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            B[i, j] = 0.5 * (A[i, j] + A[j, i])
+    vals, vecs = np.linalg.eigh(B)
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                if vals[k] > 0.0:
+                    acc += vecs[i, k] * math.sqrt(vals[k]) * vecs[j, k]
+            U[i, j] = acc
+
+
+@njit(cache=True)
+def _sigma_points(x, P, c, angles, tol, uw):
+    """filterpy's ``MerweScaledSigmaPoints.sigma_points`` with ``UkfBackend``'s subtract
+    (angles wrapped) and square root: ``x``, ``x + U_k``, ``x - U_k`` into ``uw[0]``; ``c``
+    is ``lambda + n``."""
+    S, A, U = uw[0], uw[2], uw[3]
+    n = x.shape[0]
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = c * P[i, j]
+    _psd_sqrt(A, U, tol)
+    for i in range(n):
+        S[0, i] = x[i]
+    for k in range(n):
+        for i in range(n):
+            S[k + 1, i] = x[i] + U[k, i]
+            S[n + k + 1, i] = x[i] - U[k, i]
+        for a in angles:
+            S[k + 1, a] = _wrap(S[k + 1, a])
+            S[n + k + 1, a] = _wrap(S[n + k + 1, a])
+
+
+@njit(cache=True)
+def _ukf_predict(
+    x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, Wm, Wc, c, angles, tol, work, uw
+):  # fmt: skip
+    """``UkfBackend.predict`` of the fraction ``part`` of a step: the sigma points of ``x``,
+    ``P`` through ``pose (+) delta(u)`` (each with its own calibrated input when ``cal``),
+    their circular mean and covariance (``unscented_transform``) plus ``Q = F_u Sigma_u
+    F_u^T`` at the mean's calibrated input and the random walk; ``P`` symmetrised."""
+    Jt, Fu, var, uc, up = work[0], work[1], work[2], work[3], work[13]
+    S, X, dx, ui = uw[0], uw[1], uw[6], uw[7]
+    n = x.shape[0]
+    m = u.shape[0]
+    N = 2 * n + 1
+    for j in range(m):
+        up[j] = u[j] * part
+    _calibrated_input(x, up, dt, cal, cidx, uc)
+    d0, d1, d2 = _input_noise(integ, M, K, floor, rate, uc, dt, x[2], Jt, Fu, var)
+    _sigma_points(x, P, c, angles, tol, uw)
+    for i in range(N):
+        if cal != 0:  # UkfBackend._fx: the sigma point's own calibration
+            _calibrated_input(S[i], up, dt, cal, cidx, ui)
+            w, vx, vy = _twist(M, ui)
+            d0, d1, d2 = _increment(integ, w, vx, vy, Jt)
+        th = S[i, 2]
+        co, si = math.cos(th), math.sin(th)
+        for k in range(n):
+            X[i, k] = S[i, k]
+        X[i, 0] = S[i, 0] + co * d0 - si * d1
+        X[i, 1] = S[i, 1] + si * d0 + co * d1
+        X[i, 2] = _wrap(th + d2)
+    _ut_state(X, Wm, Wc, angles, x, P, dx)
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for j in range(m):
+                acc += Fu[a, j] * var[j] * Fu[b, j]
+            P[a, b] += acc
+    if dt > 0:
+        for i in range(n):
+            P[i, i] += walk[i] * dt
+    for i in range(n):
+        for j in range(i + 1, n):
+            sym = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = sym
+            P[j, i] = sym
+
+
+@njit(cache=True)
+def _ut_state(X, Wm, Wc, angles, x, P, dx):
+    """``unscented_transform`` of the state sigma points ``X`` with ``UkfBackend.x_mean``
+    (circular in the ``angles``) and ``residual_x``: the mean into ``x``, the covariance
+    (without noise) into ``P``."""
+    N, n = X.shape
+    for k in range(n):
+        acc = 0.0
+        for i in range(N):
+            acc += Wm[i] * X[i, k]
+        x[k] = acc
+    for a in angles:
+        sa = ca = 0.0
+        for i in range(N):
+            sa += Wm[i] * math.sin(X[i, a])
+            ca += Wm[i] * math.cos(X[i, a])
+        x[a] = math.atan2(sa, ca)
+    for a in range(n):
+        for b in range(n):
+            P[a, b] = 0.0
+    for i in range(N):
+        for k in range(n):
+            dx[k] = X[i, k] - x[k]
+        for a in angles:
+            dx[a] = _wrap(dx[a])
+        w = Wc[i]
+        for a in range(n):
+            for b in range(n):
+                P[a, b] += w * (dx[a] * dx[b])
+
+
+@njit(cache=True)
+def _ukf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, Wm, Wc, c, angles, tol, work, uw):
+    """filterpy's ``UnscentedKalmanFilter.update`` through ``UkfBackend.update``: the sigma
+    points of ``x``, ``P`` through the kernels' ``h`` (:func:`_measure`), the mean and residual
+    circular for the compass, ``P - K S K^T`` (symmetrised) and the gate; returns ``(nis,
+    accepted)``, the state unchanged when the NIS fails ``nis <= gate``."""
+    H = work[7]
+    S, Z, PK, dx = uw[0], uw[4], uw[5], uw[6]
+    n = x.shape[0]
+    N = 2 * n + 1
+    d = 2 if kind == GPS else 1
+    circ = kind == COMPASS
+    _sigma_points(x, P, c, angles, tol, uw)
+    for i in range(N):
+        Z[i, 0], Z[i, 1] = _measure(S[i], kind, aux, idx, dt, H, False)
+    z0 = z1 = 0.0
+    for i in range(N):
+        z0 += Wm[i] * Z[i, 0]
+        z1 += Wm[i] * Z[i, 1]
+    if circ:
+        sa = ca = 0.0
+        for i in range(N):
+            sa += Wm[i] * math.sin(Z[i, 0])
+            ca += Wm[i] * math.cos(Z[i, 0])
+        z0 = math.atan2(sa, ca)
+    s00, s01, s11 = r00, r01, r11
+    for a in range(n):
+        PK[a, 0] = PK[a, 1] = 0.0
+    v00 = v01 = v11 = 0.0
+    for i in range(N):
+        e0 = Z[i, 0] - z0
+        if circ:
+            e0 = _wrap(e0)
+        e1 = Z[i, 1] - z1 if d == 2 else 0.0
+        w = Wc[i]
+        v00 += w * (e0 * e0)
+        v01 += w * (e0 * e1)
+        v11 += w * (e1 * e1)
+        for k in range(n):
+            dx[k] = S[i, k] - x[k]
+        for a in angles:
+            dx[a] = _wrap(dx[a])
+        for k in range(n):
+            PK[k, 0] += w * (dx[k] * e0)
+            PK[k, 1] += w * (dx[k] * e1)
+    y0 = z[0] - z0
+    if circ:
+        y0 = _wrap(y0)
+    y1 = z[1] - z1 if d == 2 else 0.0
+    if d == 1:
+        s00 += v00
+        i00 = 1.0 / s00
+        nis = y0 * i00 * y0
+        if not nis <= gate:
+            return nis, False
+        for k in range(n):
+            PK[k, 0] = PK[k, 0] * i00
+        for k in range(n):
+            x[k] += PK[k, 0] * y0
+        for a in range(n):
+            for b in range(n):
+                P[a, b] -= PK[a, 0] * (s00 * PK[b, 0])
+    else:
+        s00, s01, s11 = s00 + v00, s01 + v01, s11 + v11
+        det = s00 * s11 - s01 * s01
+        i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+        nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i01 * y0 + i11 * y1)
+        if not nis <= gate:
+            return nis, False
+        for k in range(n):
+            p0, p1 = PK[k, 0], PK[k, 1]
+            PK[k, 0] = p0 * i00 + p1 * i01
+            PK[k, 1] = p0 * i01 + p1 * i11
+        for k in range(n):
+            x[k] += PK[k, 0] * y0 + PK[k, 1] * y1
+        for a in range(n):
+            q0 = s00 * PK[a, 0] + s01 * PK[a, 1]
+            q1 = s01 * PK[a, 0] + s11 * PK[a, 1]
+            for b in range(n):
+                P[a, b] -= q0 * PK[b, 0] + q1 * PK[b, 1]
+    for a in angles:
+        x[a] = _wrap(x[a])
+    for i in range(n):
+        for j in range(i + 1, n):
+            sym = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = sym
+            P[j, i] = sym
+    return nis, True
+
+
 @njit(cache=True)
 def _clone(x, P, dst, src):
     x[dst] = x[src]
@@ -579,7 +874,11 @@ def _clone(x, P, dst, src):
 
 
 @njit(cache=True)
-def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work):
+def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk):
+    """Apply measurement ``j`` (the Localizer's ``_apply``): a gyro's first reading only clones
+    the heading; else the gated update of the EKF, or of the UKF when ``uk`` holds its
+    weights (``(Wm, Wc, lambda + n, angles, singular pivot, ukf_work)``, ``Wm`` not empty);
+    a gyro reading then clones the heading."""
     s = ms[j]
     kind = skind[s]
     tm = mt[j]
@@ -595,14 +894,35 @@ def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, ni
         r00, r01, r11 = sR[s, 0, 0], sR[s, 0, 1], sR[s, 1, 1]
     else:
         r00, r01, r11 = mR[j], 0.0, mR[j]
-    v, ok = _ekf_update(
-        x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s], work
-    )  # fmt: skip
+    Wm, Wc, c, angles, tol, uw = uk
+    if Wm.shape[0] > 0:
+        v, ok = _ukf_update(
+            x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s],
+            Wm, Wc, c, angles, tol, work, uw,
+        )  # fmt: skip
+    else:
+        v, ok = _ekf_update(
+            x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s], work
+        )  # fmt: skip
     nis[j] = v
     acc[j] = 1 if ok else 0
     if kind == GYRO:
         t_ref[s] = tm
         _clone(x, P, sidx[s, 0], 2)
+
+
+@njit(cache=True, inline="always")
+def _predict(
+    x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk,
+    unscented, Wm, Wc, c, angles, tol, work, uw,
+):  # fmt: skip
+    if unscented:
+        _ukf_predict(
+            x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk,
+            Wm, Wc, c, angles, tol, work, uw,
+        )  # fmt: skip
+    else:
+        _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work)
 
 
 @njit(cache=True)
@@ -611,7 +931,42 @@ def ekf_offline(
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
     traj_x, traj_P, odom, acc, nis,
 ):  # fmt: skip
-    """The Localizer's offline event loop with the EKF backend, over a whole log.
+    """The Localizer's offline event loop with the EKF backend, over a whole log
+    (:func:`_offline`)."""
+    none = (np.zeros(0), np.zeros(0), 0.0, np.zeros(0, dtype=np.int64), 0.0, ukf_work(0, 0))
+    _offline(
+        x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
+        mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
+        traj_x, traj_P, odom, acc, nis, none,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def ukf_offline(
+    x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
+    mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
+    traj_x, traj_P, odom, acc, nis, Wm, Wc, c, angles, tol,
+):  # fmt: skip
+    """The Localizer's offline event loop with the UKF backend, over a whole log
+    (:func:`_offline`): ``Wm``, ``Wc`` (2n+1,) the Merwe weights, ``c = lambda + n``,
+    ``angles`` the circular states (theta, heading clones), ``tol`` the singular pivot of
+    the square root (``ukf.SINGULAR_PIVOT``)."""
+    uk = (Wm, Wc, c, angles, tol, ukf_work(x.shape[0], U.shape[1]))
+    _offline(
+        x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
+        mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
+        traj_x, traj_P, odom, acc, nis, uk,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _offline(
+    x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
+    mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
+    traj_x, traj_P, odom, acc, nis, uk,
+):  # fmt: skip
+    """The Localizer's offline event loop with the EKF backend, or the UKF's when ``uk``
+    holds its weights (:func:`_apply`), over a whole log.
 
     Parameters
     ----------
@@ -628,8 +983,11 @@ def ekf_offline(
     skind, sidx (S, 2), sgate, sR (S, 2, 2) : per-stream kind, state columns, gate, R.
     traj_x : (N+1, 3), traj_P : (N+1, 3, 3), odom : (3,), acc : (J,) int8, nis : (J,) out.
         ``acc`` is 1 accepted, 0 rejected, 2 a clone-only first gyro reading.
+    uk : the UKF's weights and buffers (:func:`_apply`), ``Wm`` empty for the EKF.
     """
     n = x.shape[0]
+    unscented = uk[0].shape[0] > 0
+    Wm, Wc, c, angles, tol, uw = uk
     m = U.shape[1]
     work = _work(n, m)
     Jt = work[0]
@@ -644,7 +1002,7 @@ def ekf_offline(
     J = mt.shape[0]
     j = 0
     while j < J and mstep[j] == -1:
-        _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work)
+        _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
         j += 1
     for k in range(U.shape[0]):
         t0, t1 = tt[k], tt[k + 1]
@@ -658,16 +1016,18 @@ def ekf_offline(
             f = 1.0 if span <= 0.0 else min(max((tm - t0) / span, done), 1.0)
             if f > done:
                 part = f - done
-                _ekf_predict(
-                    x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work
+                _predict(
+                    x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk,
+                    unscented, Wm, Wc, c, angles, tol, work, uw,
                 )  # fmt: skip
                 done = f
-            _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work)
+            _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
             j += 1
         if done < 1.0 or not due:
             part = 1.0 - done
-            _ekf_predict(
-                x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work
+            _predict(
+                x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk,
+                unscented, Wm, Wc, c, angles, tol, work, uw,
             )  # fmt: skip
         for a in range(3):
             traj_x[k + 1, a] = x[a]
