@@ -9,10 +9,11 @@ against it to 1e-9 (``tests/test_compiled.py``):
   :class:`~odofuse.estimators.ekf.EkfBackend` (odometry prediction, optionally with the
   odometry-calibration states, step splitting at measurement times, filterpy's Joseph-form
   update and the chi-square gate) for range-to-beacon, GPS, compass and gyro-rate sensors;
-* :func:`ukf_offline`: the same event loop with :class:`~odofuse.estimators.ukf.UkfBackend`
-  (filterpy's Merwe sigma points and weights, ``ukf._psd_sqrt``, the circular mean in theta
-  and the heading clones, the sigma points regenerated before each update), on the EKF's
-  measurement functions (:func:`_measure`) and calibrated inputs (``tests/test_compiled_ukf.py``);
+* :func:`filter_offline` with UKF weights: the same event loop with
+  :class:`~odofuse.estimators.ukf.UkfBackend` (filterpy's Merwe sigma points and weights,
+  ``ukf._psd_sqrt``, the circular mean in theta and the heading clones, the sigma points
+  regenerated before each update), on the EKF's measurement functions (:func:`_measure`) and
+  calibrated inputs (``tests/test_compiled_ukf.py``);
 * :func:`pf_predict`, :func:`pf_moments`, :func:`pf_reweight`, :func:`pf_mean`,
   :func:`pf_gram`: the :class:`~odofuse.estimators.particle.ParticleBackend`'s propagation,
   innovation moments and reweighting, and cloud mean and covariance, on the random numbers the
@@ -748,17 +749,7 @@ def _ut_state(X, Wm, Wc, angles, x, P, dx):
     (circular in the ``angles``) and ``residual_x``: the mean into ``x``, the covariance
     (without noise) into ``P``."""
     N, n = X.shape
-    for k in range(n):
-        acc = 0.0
-        for i in range(N):
-            acc += Wm[i] * X[i, k]
-        x[k] = acc
-    for a in angles:
-        sa = ca = 0.0
-        for i in range(N):
-            sa += Wm[i] * math.sin(X[i, a])
-            ca += Wm[i] * math.cos(X[i, a])
-        x[a] = math.atan2(sa, ca)
+    pf_mean(X, Wm, angles, x)  # the weighted mean, circular in the angles
     for a in range(n):
         for b in range(n):
             P[a, b] = 0.0
@@ -932,9 +923,9 @@ def ekf_offline(
     traj_x, traj_P, odom, acc, nis,
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend, over a whole log
-    (:func:`_offline`)."""
+    (:func:`filter_offline`)."""
     none = (np.zeros(0), np.zeros(0), 0.0, np.zeros(0, dtype=np.int64), 0.0, ukf_work(0, 0))
-    _offline(
+    filter_offline(
         x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
         mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
         traj_x, traj_P, odom, acc, nis, none,
@@ -942,31 +933,13 @@ def ekf_offline(
 
 
 @njit(cache=True)
-def ukf_offline(
-    x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
-    mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-    traj_x, traj_P, odom, acc, nis, Wm, Wc, c, angles, tol,
-):  # fmt: skip
-    """The Localizer's offline event loop with the UKF backend, over a whole log
-    (:func:`_offline`): ``Wm``, ``Wc`` (2n+1,) the Merwe weights, ``c = lambda + n``,
-    ``angles`` the circular states (theta, heading clones), ``tol`` the singular pivot of
-    the square root (``ukf.SINGULAR_PIVOT``)."""
-    uk = (Wm, Wc, c, angles, tol, ukf_work(x.shape[0], U.shape[1]))
-    _offline(
-        x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
-        mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-        traj_x, traj_P, odom, acc, nis, uk,
-    )  # fmt: skip
-
-
-@njit(cache=True)
-def _offline(
+def filter_offline(
     x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
     traj_x, traj_P, odom, acc, nis, uk,
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend, or the UKF's when ``uk``
-    holds its weights (:func:`_apply`), over a whole log.
+    holds its weights, over a whole log (:func:`ekf_offline`; ``compiled.ukf.run``).
 
     Parameters
     ----------
@@ -983,7 +956,9 @@ def _offline(
     skind, sidx (S, 2), sgate, sR (S, 2, 2) : per-stream kind, state columns, gate, R.
     traj_x : (N+1, 3), traj_P : (N+1, 3, 3), odom : (3,), acc : (J,) int8, nis : (J,) out.
         ``acc`` is 1 accepted, 0 rejected, 2 a clone-only first gyro reading.
-    uk : the UKF's weights and buffers (:func:`_apply`), ``Wm`` empty for the EKF.
+    uk : ``(Wm, Wc, c, angles, tol, ukf_work(n, m))``: the UKF's Merwe weights (2n+1,),
+        ``c = lambda + n``, its circular states (theta, heading clones), the singular pivot
+        of its square root (``SINGULAR_PIVOT``) and buffers; ``Wm`` empty: the EKF.
     """
     n = x.shape[0]
     unscented = uk[0].shape[0] > 0

@@ -1,4 +1,4 @@
-"""Compiled offline UKF: a whole log's event array through :func:`~.kernels.ukf_offline`.
+"""Compiled offline UKF: a whole log's event array through :func:`~.kernels.filter_offline`.
 
 The run is prepared as the compiled EKF's (:func:`.ekf.prepare`: the same assembly, coverage,
 event arrays and hand-over to the Localizer, :func:`.ekf.finish`) and filtered by the
@@ -40,5 +40,6 @@ def run(log, config):
     opts = config.estimator_options("ukf")
     Wm, Wc, c = merwe_weights(len(args["x"]), opts.alpha, opts.beta, opts.kappa)
     angles = np.asarray(angle_states(loc.models), dtype=np.int64)
-    kern.ukf_offline(*args.values(), Wm, Wc, float(c), angles, SINGULAR_PIVOT)
+    uk = (Wm, Wc, float(c), angles, SINGULAR_PIVOT, kern.ukf_work(len(Wm) // 2, args["U"].shape[1]))
+    kern.filter_offline(*args.values(), uk)
     return compiled_ekf.finish(loc, log, streams, args)
