@@ -20,7 +20,7 @@ from graph_sim import excerpt, simulated_run  # noqa: E402
 from odofuse.config import config_from_dict  # noqa: E402
 from odofuse.declarations import INTEGRATORS  # noqa: E402
 from odofuse.estimators import compiled  # noqa: E402
-from odofuse.estimators.assembly import run_with  # noqa: E402
+from odofuse.estimators.assembly import build, run_with  # noqa: E402
 from odofuse.estimators.compiled import ukf as compiled_ukf  # noqa: E402
 from odofuse.estimators.ukf import make_backend  # noqa: E402
 
@@ -104,6 +104,48 @@ def test_without_numba_the_fallback_gives_the_same_result(monkeypatch):
     on.options["ukf"] = dataclasses.replace(on.options["ukf"], compiled="on")
     with pytest.raises(ConfigError, match="needs numba"):
         compiled_ukf.run(log, on)
+
+
+def _live(log, cfg, delay=0.0):
+    """A live UKF Localizer (``from_config``) fed the log's rows, the GPS fixes after the
+    first second ``delay`` s after their time stamp (replays)."""
+    from odofuse.estimators.common import events
+    from odofuse.estimators.localizer import Localizer
+
+    _, t, U = build(cfg, log, "ukf", make_backend)
+    loc = Localizer.from_config(
+        cfg, t0=t[0], landmarks=log.landmarks, initial_pose=log.initial_pose, keep_trajectory=True
+    )
+    evs = events(log, t, U, list(cfg.sensors))
+    late = [te > 1.0 and s == "gps" for te, _, s, _ in evs]  # not the fix at the start
+    key = [(e[0] + delay * late[n], e[1], n) for n, e in enumerate(evs)]
+    for _, _, n in sorted(key):
+        te, kind, stream, i = evs[n]
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+        else:
+            loc.add_measurement(stream, log.streams[stream].row(i))
+    loc.finish()
+    return loc
+
+
+def test_live_ukf_equals_odofuse_run_bit_for_bit_with_the_compiled_core():
+    """As the EKF's (issue 16): a live UKF Localizer runs the offline run's step kernels
+    (``compiled.ukf.live``), also through replays of GPS fixes 0.3 s late."""
+    log, cfg = _scenario(5, {"odometry_calibration": True, "slip": False, "late_window": 0.5})
+    offline = compiled_ukf.run(log, cfg)
+    assert offline is not None
+    for delay in (0.0, 0.3):
+        loc = _live(log, cfg, delay)
+        assert type(loc.backend).__name__ == "KernelUkfBackend"
+        online = loc.result()
+        np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses)
+        np.testing.assert_array_equal(online.trajectory.covariances, offline.trajectory.covariances)
+        assert online.used == offline.used and online.rejected == offline.rejected
+    off = dataclasses.replace(
+        cfg, options={"ukf": dataclasses.replace(cfg.options["ukf"], compiled="off")}
+    )
+    assert type(_live(log, off, 0.0).backend).__name__ == "UkfBackend"
 
 
 def test_merwe_weights_equal_filterpy():

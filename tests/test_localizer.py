@@ -21,9 +21,10 @@ BACKENDS = {"ekf": ekf, "ukf": ukf, "particle": particle}
 
 def _cfg(estimator="ekf", **kw):
     # The streaming Localizer is compared bit for bit with the offline *Python* path; the
-    # compiled EKF core equals that path to 1e-9 (tests/test_compiled.py), not to the last bit.
+    # compiled EKF and UKF cores equal that path to 1e-9 (tests/test_compiled.py,
+    # tests/test_compiled_ukf.py), not to the last bit.
     opts = {"particles": 200, "seed": 3} if estimator == "particle" else {}
-    if estimator == "ekf":
+    if estimator in ("ekf", "ukf"):
         opts["compiled"] = "off"
     opts.update(kw.pop("options", {}))
     return sim_config(estimator=estimator, **kw, **opts)

@@ -261,3 +261,12 @@ def run(log, config):
 
     result = compiled_ukf.run(log, config)  # numba core, None when not covered or off
     return result if result is not None else run_with(log, config, "ukf", make_backend)
+
+
+def live(loc) -> None:
+    """Give a live UKF Localizer (``Localizer.from_config``) the compiled core's step kernels
+    when ``odofuse run`` would use that core, so that online equals offline bit for bit
+    (:func:`odofuse.estimators.compiled.ukf.live`)."""
+    from odofuse.estimators.compiled import ukf as compiled_ukf
+
+    compiled_ukf.live(loc)

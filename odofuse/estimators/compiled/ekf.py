@@ -299,6 +299,15 @@ def finish(loc, log, streams, args):
 
 
 # --------------------------------------------------------------------- the streaming path
+def compose_odom(self, odom, U) -> np.ndarray:
+    """A kernel backend's ``compose_odom``: the ``odom`` pose (3,) after the steps ``U``
+    (N, m), as :func:`run` composes it."""
+    integ, M = self._motion_args[:2]
+    odom = np.array(odom, dtype=float)
+    self._kern.odom_steps(odom, np.ascontiguousarray(U, dtype=float), integ, M)
+    return odom
+
+
 @functools.cache
 def kernel_backend_class(base):
     """:class:`KernelEkfBackend` over ``base`` (``EkfBackend``, the Python backend it stands in
@@ -335,12 +344,7 @@ def kernel_backend_class(base):
             nis, ok = self._kern.ekf_update_row(kf.x, kf.P, *args, gate)
             return bool(ok), float(nis)
 
-        def compose_odom(self, odom, U) -> np.ndarray:
-            """The ``odom`` pose (3,) after the steps ``U`` (N, m), as :func:`run` composes it."""
-            integ, M = self._motion_args[:2]
-            odom = np.array(odom, dtype=float)
-            self._kern.odom_steps(odom, np.ascontiguousarray(U, dtype=float), integ, M)
-            return odom
+        compose_odom = compose_odom
 
         @property
         def last_innovation(self):
@@ -399,19 +403,26 @@ def live(loc) -> None:
     use the compiled core for its sensors (``options.ekf.compiled``, numba importable, the
     drive, error model, calibration and models covered: :func:`unsupported`); else leave its
     Python backend. Equal to the offline run bit for bit on the runs :func:`run` covers."""
+    swap_backend(loc, "ekf", "EkfBackend", kernel_backend_class)
+
+
+def swap_backend(loc, estimator: str, base: str, make_class):
+    """Replace the Python backend (class named ``base``) of the live ``estimator`` Localizer
+    ``loc`` by ``make_class(its class)``, holding the same state, when the compiled core
+    covers its config (:func:`live`); returns the new backend, or None when it is kept."""
     mode = getattr(loc.options, "compiled", "off")
-    if loc.name != "ekf" or type(loc.backend).__name__ != "EkfBackend" or mode == "off":
-        return
+    if loc.name != estimator or type(loc.backend).__name__ != base or mode == "off":
+        return None
     kinds = _kinds()
     models = loc.models.values()
     if unsupported(loc, None, []) is not None or any(type(m) not in kinds for m in models):
-        return
+        return None
     if any(kinds[type(m)] == GYRO and "gyro_theta_ref" not in m.calib_index for m in models):
-        return
-    kern = compiled.enabled(mode, "options.ekf.compiled")
+        return None
+    kern = compiled.enabled(mode, f"options.{estimator}.compiled")
     if kern is None:
-        return
-    backend = object.__new__(kernel_backend_class(type(loc.backend)))
+        return None
+    backend = object.__new__(make_class(type(loc.backend)))
     backend.__dict__.update(loc.backend.__dict__)
     backend._motion_args = _motion_args(loc.motion_model, backend.odo_cal)
     backend._kern, backend._kinds, backend._pending = kern, kinds, None
@@ -419,3 +430,4 @@ def live(loc) -> None:
     backend.kf.x = np.ascontiguousarray(backend.kf.x, dtype=float)
     backend.kf.P = np.ascontiguousarray(backend.kf.P, dtype=float)
     loc.backend = backend
+    return backend

@@ -632,6 +632,7 @@ def ukf_work(n, m):
         np.empty((n, 2)),  # 5 Pxz / K
         np.empty(n),  # 6 a state residual
         np.empty(m),  # 7 a sigma point's calibrated input
+        np.empty(5),  # 8 the last update's innovation and its covariance
     )
 
 
@@ -765,11 +766,14 @@ def _ut_state(X, Wm, Wc, angles, x, P, dx):
 
 
 @njit(cache=True)
-def _ukf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, Wm, Wc, c, angles, tol, work, uw):
+def _ukf_update(
+    x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, Wm, Wc, c, angles, tol, work, uw, out
+):  # fmt: skip
     """filterpy's ``UnscentedKalmanFilter.update`` through ``UkfBackend.update``: the sigma
     points of ``x``, ``P`` through the kernels' ``h`` (:func:`_measure`), the mean and residual
     circular for the compass, ``P - K S K^T`` (symmetrised) and the gate; returns ``(nis,
-    accepted)``, the state unchanged when the NIS fails ``nis <= gate``."""
+    accepted)``, the state unchanged when the NIS fails ``nis <= gate``. ``out`` (5,)
+    receives the innovation ``y0, y1`` and ``S`` ``s00, s01, s11`` (a recovery reads them)."""
     H = work[7]
     S, Z, PK, dx = uw[0], uw[4], uw[5], uw[6]
     n = x.shape[0]
@@ -813,6 +817,8 @@ def _ukf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, Wm, Wc, c, ang
     if circ:
         y0 = _wrap(y0)
     y1 = z[1] - z1 if d == 2 else 0.0
+    out[0], out[1] = y0, y1
+    out[2], out[3], out[4] = s00 + v00, s01 + v01, s11 + v11
     if d == 1:
         s00 += v00
         i00 = 1.0 / s00
@@ -889,7 +895,7 @@ def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, ni
     if Wm.shape[0] > 0:
         v, ok = _ukf_update(
             x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s],
-            Wm, Wc, c, angles, tol, work, uw,
+            Wm, Wc, c, angles, tol, work, uw, uw[8],
         )  # fmt: skip
     else:
         v, ok = _ekf_update(
@@ -1027,20 +1033,56 @@ def ekf_predict_step(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk):
     _ekf_predict(x, P, u, 1.0, dt, integ, M, K, floor, rate, cal, cidx, walk, work)
 
 
-@njit(cache=True)
-def ekf_update_row(x, P, kind, z0, z1, a0, a1, r00, r01, r11, i0, i1, dt, gate):
-    """One gated update of the streaming Localizer, in place: :func:`_ekf_update` on the
-    row's values ``z`` (z0, z1), beacon position / lever arm ``(a0, a1)``, ``R`` entries and
-    state columns ``(i0, i1)`` (-1: none) as :func:`_apply` passes them; returns
-    ``(nis, accepted)``."""
+@njit(cache=True, inline="always")
+def _row_arrays(z0, z1, a0, a1, i0, i1):
+    """A row's values ``z``, beacon / lever arm ``aux`` and state columns ``idx`` as arrays
+    (the form :func:`_apply` passes from the offline arrays)."""
     z = np.empty(2)
     z[0], z[1] = z0, z1
     aux = np.empty(2)
     aux[0], aux[1] = a0, a1
     idx = np.empty(2, dtype=np.int64)
     idx[0], idx[1] = i0, i1
+    return z, aux, idx
+
+
+@njit(cache=True)
+def ekf_update_row(x, P, kind, z0, z1, a0, a1, r00, r01, r11, i0, i1, dt, gate):
+    """One gated update of the streaming Localizer, in place: :func:`_ekf_update` on the
+    row's values ``z`` (z0, z1), beacon position / lever arm ``(a0, a1)``, ``R`` entries and
+    state columns ``(i0, i1)`` (-1: none) as :func:`_apply` passes them; returns
+    ``(nis, accepted)``."""
+    z, aux, idx = _row_arrays(z0, z1, a0, a1, i0, i1)
     work = _work(x.shape[0], 1)
     return _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work)
+
+
+@njit(cache=True)
+def ukf_predict_step(
+    x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, Wm, Wc, c, angles, tol
+):
+    """One odometry prediction of the streaming UKF Localizer, in place: :func:`_ukf_predict`
+    with ``part = 1``, as :func:`filter_offline` applies it (see :func:`ekf_predict_step`)."""
+    n, m = x.shape[0], u.shape[0]
+    _ukf_predict(
+        x, P, u, 1.0, dt, integ, M, K, floor, rate, cal, cidx, walk,
+        Wm, Wc, c, angles, tol, _work(n, m), ukf_work(n, m),
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def ukf_update_row(
+    x, P, kind, z0, z1, a0, a1, r00, r01, r11, i0, i1, dt, gate, Wm, Wc, c, angles, tol, out
+):  # fmt: skip
+    """One gated update of the streaming UKF Localizer, in place: :func:`_ukf_update` on the
+    row's values as :func:`ekf_update_row` takes them; ``out`` (5,) receives the innovation
+    and its covariance; returns ``(nis, accepted)``."""
+    z, aux, idx = _row_arrays(z0, z1, a0, a1, i0, i1)
+    n = x.shape[0]
+    return _ukf_update(
+        x, P, kind, z, aux, r00, r01, r11, idx, dt, gate,
+        Wm, Wc, c, angles, tol, _work(n, 1), ukf_work(n, 1), out,
+    )  # fmt: skip
 
 
 @njit(cache=True)

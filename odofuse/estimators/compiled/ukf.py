@@ -11,9 +11,15 @@ measurement functions of the compiled EKF (range to a beacon, GPS, compass, gyro
 
 Covered: what :func:`.ekf.unsupported` covers (else None and the caller runs the Python
 path), with the same fallback when a recovery would have been triggered.
+
+The streaming path: :func:`live` gives a live UKF Localizer a backend on the same kernels
+(:func:`kernel_backend_class`, as the EKF's), so online equals ``odofuse run`` bit for bit on
+the runs :func:`run` covers.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -38,8 +44,79 @@ def run(log, config):
         return None
     kern, loc, streams, args = prep
     opts = config.estimator_options("ukf")
-    Wm, Wc, c = merwe_weights(len(args["x"]), opts.alpha, opts.beta, opts.kappa)
-    angles = np.asarray(angle_states(loc.models), dtype=np.int64)
-    uk = (Wm, Wc, float(c), angles, SINGULAR_PIVOT, kern.ukf_work(len(Wm) // 2, args["U"].shape[1]))
+    weights = _weights(len(args["x"]), opts, loc.models)
+    uk = (*weights, kern.ukf_work(len(args["x"]), args["U"].shape[1]))
     kern.filter_offline(*args.values(), uk)
     return compiled_ekf.finish(loc, log, streams, args)
+
+
+def _weights(n: int, opts, models) -> tuple:
+    """The kernels' UKF arguments ``(Wm, Wc, lambda + n, angles, singular pivot)``."""
+    Wm, Wc, c = merwe_weights(n, opts.alpha, opts.beta, opts.kappa)
+    angles = np.asarray(angle_states(models), dtype=np.int64)
+    return Wm, Wc, float(c), angles, SINGULAR_PIVOT
+
+
+# --------------------------------------------------------------------- the streaming path
+@functools.cache
+def kernel_backend_class(base):
+    """:class:`KernelUkfBackend` over ``base`` (``UkfBackend``, passed in so that this module
+    imports neither it nor filterpy)."""
+
+    class KernelUkfBackend(base):
+        """:class:`~odofuse.estimators.ukf.UkfBackend` whose odometry predictions and gated
+        updates run the kernels of :func:`run` (:func:`.kernels.ukf_predict_step`,
+        :func:`.kernels.ukf_update_row`), in place on ``kf.x`` and ``kf.P``: a live Localizer
+        on it computes what ``odofuse run`` computes, bit for bit, on every run :func:`run`
+        covers. What the kernels do not cover runs filterpy: a prediction with a gyro heading
+        or a slip noise scale, a row without the kernel's columns."""
+
+        compose_odom = compiled_ekf.compose_odom
+
+        def predict(self, u, dt, dtheta=None, var_dtheta=0.0, noise_scale=1.0) -> None:
+            if dtheta is not None or noise_scale != 1.0:
+                super().predict(u, dt, dtheta, var_dtheta, noise_scale)
+                return
+            kf = self.kf
+            self._kern.ukf_predict_step(
+                kf.x, kf.P, u, dt, *self._motion_args, self.walk, *self._weights
+            )  # fmt: skip
+            self._fresh = False  # filterpy's update regenerates its sigma points
+
+        def update(self, model, row) -> tuple[bool, float]:
+            args = compiled_ekf._update_args(self._kinds.get(type(model)), model, row)
+            gate = self._gates.get(id(model))
+            if args is None or gate is None:
+                return super().update(model, row)
+            self._pending = (model, row)
+            kf = self.kf
+            nis, ok = self._kern.ukf_update_row(kf.x, kf.P, *args, gate, *self._weights, self._out)
+            return bool(ok), float(nis)
+
+        @property
+        def last_innovation(self):
+            """``(y, S, R)`` of the last update (the kernel's, or filterpy's); read only by a
+            recovery, which follows a rejected update."""
+            if self._pending is None:
+                return self._innovation
+            model, row = self._pending
+            y0, y1, s00, s01, s11 = self._out.tolist()
+            if model.dim == 1:
+                return np.array([y0]), np.array([[s00]]), model.R(row)
+            return np.array([y0, y1]), np.array([[s00, s01], [s01, s11]]), model.R(row)
+
+        @last_innovation.setter
+        def last_innovation(self, value) -> None:
+            self._innovation, self._pending = value, None
+
+    return KernelUkfBackend
+
+
+def live(loc) -> None:
+    """Give the UKF Localizer ``loc`` the compiled step kernels when ``odofuse run`` would use
+    the compiled core (:func:`.ekf.swap_backend`, ``options.ukf.compiled``); else leave its
+    filterpy backend."""
+    backend = compiled_ekf.swap_backend(loc, "ukf", "UkfBackend", kernel_backend_class)
+    if backend is not None:
+        backend._weights = _weights(backend.n, loc.options, loc.models)
+        backend._out = np.zeros(5)
