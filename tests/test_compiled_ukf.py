@@ -148,6 +148,30 @@ def test_live_ukf_equals_odofuse_run_bit_for_bit_with_the_compiled_core():
     assert type(_live(log, off, 0.0).backend).__name__ == "UkfBackend"
 
 
+def test_live_ukf_recovers_through_the_kernel_innovation():
+    """A GPS fault of 5 m for 10 s: the offline run recovers, so it falls back to filterpy;
+    the live kernel backend re-opens with the innovation and ``S`` its update wrote, and
+    equals the filterpy path (its own recoveries, counts, states to 1e-9)."""
+    from odofuse.io.log import Stream
+
+    opts = {"odometry_calibration": True, "slip": False, "reject_run": 3}
+    log, cfg = _scenario(5, opts)
+    g = log.streams["gps"]
+    v = g.values.copy()
+    v[(g.t > 15.0) & (g.t < 25.0), 0] += 5.0
+    log = dataclasses.replace(
+        log, streams={**log.streams, "gps": Stream("gps", "s", g.t, g.columns, v)}
+    )
+    assert compiled_ukf.run(log, cfg) is None  # a recovery: the offline run is filterpy's
+    ref = _python(log, cfg)
+    live = _live(log, cfg).result()
+    assert ref.extra["recoveries"] >= 3 and live.extra["recoveries"] == ref.extra["recoveries"]
+    assert live.used == ref.used and live.rejected == ref.rejected
+    a, b = live.trajectory, ref.trajectory
+    np.testing.assert_allclose(a.poses, b.poses, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a.covariances, b.covariances, rtol=1e-9, atol=1e-12)
+
+
 def test_merwe_weights_equal_filterpy():
     from filterpy.kalman import MerweScaledSigmaPoints
 
