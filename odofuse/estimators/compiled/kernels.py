@@ -331,7 +331,7 @@ def _work(n, m):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _calibrated_input(x, up, dt, cal, cidx, uc):
     """``uc`` (m,): the input ``up`` through the odometry calibration of state ``x``
     (``OdometryCalibration.apply``; ``cal`` 0 none, 1 increments, 2 two symmetric wheels)."""
@@ -350,7 +350,7 @@ def _calibrated_input(x, up, dt, cal, cidx, uc):
             uc[0], uc[1] = x[cidx[2]] * uc[0], x[cidx[2]] * uc[1]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _twist(M, uc):
     """``(w, vx, vy) = M uc``."""
     w = vx = vy = 0.0
@@ -479,7 +479,7 @@ def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, w
     x[2] = _wrap(th + d2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _measure(x, kind, aux, idx, dt, H, jac):
     """``h(x)`` ``(h0, h1)`` of a stream kind (``h1`` only for GPS), and with ``jac`` its
     Jacobian in ``H`` (2, n): ``BeaconRange`` (beacon ``aux``, scale/offset columns ``idx``),
@@ -873,8 +873,8 @@ def _clone(x, P, dst, src):
 @njit(cache=True)
 def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk):
     """Apply measurement ``j`` (the Localizer's ``_apply``): a gyro's first reading only clones
-    the heading; else the gated update of the EKF, or of the UKF when ``uk`` holds its
-    weights (``(Wm, Wc, lambda + n, angles, singular pivot, ukf_work)``, ``Wm`` not empty);
+    the heading; else the gated update of the EKF (``uk`` None), or of the UKF (``uk`` its
+    weights, ``(Wm, Wc, lambda + n, angles, singular pivot, ukf_work)``);
     a gyro reading then clones the heading."""
     s = ms[j]
     kind = skind[s]
@@ -891,15 +891,15 @@ def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, ni
         r00, r01, r11 = sR[s, 0, 0], sR[s, 0, 1], sR[s, 1, 1]
     else:
         r00, r01, r11 = mR[j], 0.0, mR[j]
-    Wm, Wc, c, angles, tol, uw = uk
-    if Wm.shape[0] > 0:
+    if uk is None:  # pruned when compiling: an EKF run does not compile the UKF's kernels
+        v, ok = _ekf_update(
+            x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s], work
+        )  # fmt: skip
+    else:
+        Wm, Wc, c, angles, tol, uw = uk
         v, ok = _ukf_update(
             x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s],
             Wm, Wc, c, angles, tol, work, uw, uw[8],
-        )  # fmt: skip
-    else:
-        v, ok = _ekf_update(
-            x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s], work
         )  # fmt: skip
     nis[j] = v
     acc[j] = 1 if ok else 0
@@ -908,18 +908,18 @@ def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, ni
         _clone(x, P, sidx[s, 0], 2)
 
 
-@njit(cache=True, inline="always")
-def _predict(
-    x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk,
-    unscented, Wm, Wc, c, angles, tol, work, uw,
-):  # fmt: skip
-    if unscented:
+@njit(cache=True)
+def _predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work, uk):
+    """The EKF's prediction (``uk`` None: the UKF's kernels are pruned when compiling) or the
+    UKF's (``uk`` as :func:`_apply` takes it)."""
+    if uk is None:
+        _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work)
+    else:
+        Wm, Wc, c, angles, tol, uw = uk
         _ukf_predict(
             x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk,
             Wm, Wc, c, angles, tol, work, uw,
         )  # fmt: skip
-    else:
-        _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work)
 
 
 @njit(cache=True)
@@ -930,11 +930,10 @@ def ekf_offline(
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend, over a whole log
     (:func:`filter_offline`)."""
-    none = (np.zeros(0), np.zeros(0), 0.0, np.zeros(0, dtype=np.int64), 0.0, ukf_work(0, 0))
     filter_offline(
         x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
         mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-        traj_x, traj_P, odom, acc, nis, none,
+        traj_x, traj_P, odom, acc, nis, None,
     )  # fmt: skip
 
 
@@ -944,8 +943,8 @@ def filter_offline(
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
     traj_x, traj_P, odom, acc, nis, uk,
 ):  # fmt: skip
-    """The Localizer's offline event loop with the EKF backend, or the UKF's when ``uk``
-    holds its weights, over a whole log (:func:`ekf_offline`; ``compiled.ukf.run``).
+    """The Localizer's offline event loop with the EKF backend (``uk`` None), or the UKF's,
+    over a whole log (:func:`ekf_offline`; ``compiled.ukf.run``).
 
     Parameters
     ----------
@@ -962,13 +961,12 @@ def filter_offline(
     skind, sidx (S, 2), sgate, sR (S, 2, 2) : per-stream kind, state columns, gate, R.
     traj_x : (N+1, 3), traj_P : (N+1, 3, 3), odom : (3,), acc : (J,) int8, nis : (J,) out.
         ``acc`` is 1 accepted, 0 rejected, 2 a clone-only first gyro reading.
-    uk : ``(Wm, Wc, c, angles, tol, ukf_work(n, m))``: the UKF's Merwe weights (2n+1,),
+    uk : None (the EKF; its specialisation compiles none of the UKF's kernels) or
+        ``(Wm, Wc, c, angles, tol, ukf_work(n, m))``: the UKF's Merwe weights (2n+1,),
         ``c = lambda + n``, its circular states (theta, heading clones), the singular pivot
-        of its square root (``SINGULAR_PIVOT``) and buffers; ``Wm`` empty: the EKF.
+        of its square root (``SINGULAR_PIVOT``) and buffers.
     """
     n = x.shape[0]
-    unscented = uk[0].shape[0] > 0
-    Wm, Wc, c, angles, tol, uw = uk
     m = U.shape[1]
     work = _work(n, m)
     Jt = work[0]
@@ -998,8 +996,7 @@ def filter_offline(
             if f > done:
                 part = f - done
                 _predict(
-                    x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk,
-                    unscented, Wm, Wc, c, angles, tol, work, uw,
+                    x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work, uk
                 )  # fmt: skip
                 done = f
             _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
@@ -1007,8 +1004,7 @@ def filter_offline(
         if done < 1.0 or not due:
             part = 1.0 - done
             _predict(
-                x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk,
-                unscented, Wm, Wc, c, angles, tol, work, uw,
+                x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work, uk
             )  # fmt: skip
         for a in range(3):
             traj_x[k + 1, a] = x[a]
@@ -1033,7 +1029,7 @@ def ekf_predict_step(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk):
     _ekf_predict(x, P, u, 1.0, dt, integ, M, K, floor, rate, cal, cidx, walk, work)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _row_arrays(z0, z1, a0, a1, i0, i1):
     """A row's values ``z``, beacon / lever arm ``aux`` and state columns ``idx`` as arrays
     (the form :func:`_apply` passes from the offline arrays)."""
