@@ -92,9 +92,9 @@ def split(tmp: Path, hours: float, window: float) -> None:
     from odofuse.batch import local_client, run_batch
     from odofuse.config import load_config
     from odofuse.estimators import run_estimator
-    from odofuse.evaluation import interpolate_poses
     from odofuse.io.loader import load_log_for
     from odofuse.outputs import read_trajectory_csv
+    from odofuse.trajectory import interpolate_poses
 
     folder = make_log(tmp / "long", hours, seed=99)
     cfg = load_config(folder / "config.yaml")

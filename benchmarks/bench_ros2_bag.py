@@ -31,10 +31,9 @@ def main(estimators) -> None:
 
     from odofuse.config import config_from_dict, parse_yaml
     from odofuse.estimators import run_estimator
-    from odofuse.evaluation import interpolate_poses
     from odofuse.io.loader import load_log_for
     from odofuse.log_defaults import apply_log_defaults
-    from odofuse.trajectory import Trajectory
+    from odofuse.trajectory import Trajectory, interpolate_poses
 
     robot = simulate_robot()
     with tempfile.TemporaryDirectory() as tmp:

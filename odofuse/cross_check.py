@@ -47,6 +47,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse.errors import one_line
+from odofuse.estimators import latency
+from odofuse.estimators.common import absolute_streams, slam_option
 from odofuse.health import Finding, assess, status_of
 from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
 
@@ -76,7 +78,6 @@ UNAIDED = frozenset({"dead_reckoning"})
 #: The estimators the check applies to: their estimate is of the problem the smoother solves.
 CHECKED = ("dead_reckoning", "ekf", "ukf", "particle", "fixed_lag", "isam2")
 #: Measurement-model kinds that observe the pose absolutely (landmarks at known positions).
-ABSOLUTE_KINDS = frozenset({"gps", "compass", "range", "bearing", "range_bearing"})
 #: Odometry streams, one of which a log's estimate integrates.
 ODOMETRY_STREAMS = ("odometry", "wheels", "cmd_vel")
 
@@ -132,23 +133,6 @@ def odometry_steps(log) -> int:
     return max((len(streams[n]) for n in ODOMETRY_STREAMS if n in streams), default=0)
 
 
-def _absolute_streams(config, log) -> list[str]:
-    from odofuse.declarations import stream_kind
-
-    streams = getattr(log, "streams", {}) or {}
-    out = []
-    for name, opts in (config.sensors or {}).items():
-        kind = getattr(opts, "model", None) or stream_kind(str(name))
-        if kind in ABSOLUTE_KINDS and name in streams and len(streams[name]):
-            out.append(str(name))
-    return out
-
-
-def _slam(config, name: str) -> bool:
-    opts = config.options.get(name) if config.options else None
-    return bool(getattr(opts, "slam", False))
-
-
 def skip_reason(config, log) -> str | None:
     """Why the cross-check does not apply to this run, or None when it does.
 
@@ -173,14 +157,14 @@ def skip_reason(config, log) -> str | None:
         return "the estimate is the batch smoother"
     if est not in CHECKED:
         return f"estimator '{est}' is not one the batch smoother is a second opinion for"
-    if _slam(config, est) or _slam(config, "smoother"):
+    if slam_option(config, est) or slam_option(config, "smoother"):
         return "a SLAM run (landmarks unknown): not the smoother's problem"
     streams = getattr(log, "streams", {}) or {}
     if "loop_closures" in streams and len(streams["loop_closures"]):
         return "the log holds loop closures (a pose-graph problem)"
     if opts.smoother == "on":
         return None
-    if not _absolute_streams(config, log):
+    if not absolute_streams(config, log):
         return "auto: no absolute sensor fused (the smoother would be dead reckoning too)"
     n = odometry_steps(log)
     if n > opts.max_odometry_steps:
@@ -212,7 +196,8 @@ def posterior_fail(estimate: Trajectory, smoother: Trajectory, samples: np.ndarr
         and ``e`` the sampled errors interpolated linearly between keyframes, at the
         estimate's times the smoother covers (:func:`odofuse.evaluation.associate`).
     """
-    from odofuse.evaluation import associate, bracket
+    from odofuse.evaluation import associate
+    from odofuse.trajectory import bracket
 
     idx, g = associate(estimate, smoother)
     t = np.clip(estimate.t[idx], smoother.t[0], smoother.t[-1])
@@ -257,7 +242,7 @@ def nees_bound(alpha: float) -> float:
 def _cov_at(smoother: Trajectory, t: np.ndarray) -> np.ndarray:
     """The smoother's world-frame position covariances (M, 2, 2) at times ``t`` (inside its
     span), linear between keyframes (a convex combination: positive semi-definite)."""
-    from odofuse.evaluation import bracket
+    from odofuse.trajectory import bracket
 
     C = smoother.covariances[:, :2, :2]
     if smoother.t.size == 1:
@@ -414,21 +399,24 @@ def alpha_budget(config, log) -> dict:
     The in-run statistical checks keep their declared probabilities: the filters' NIS window
     test and run NIS test per fused stream (``nis_alpha`` each), dead reckoning's
     gyro-vs-wheels test (``heading_alpha``), the batch smoother's residual windows per
-    odometry and gyro stream (``WINDOW_ALPHA``). What is left of ``alpha_run`` goes to the
+    odometry and gyro stream (``WINDOW_ALPHA``), the time-stamp test per fused absolute
+    stream (``options.status.latency_alpha``: a graph run's own, or the reference's that a
+    filter takes, :func:`with_reference_latency`). What is left of ``alpha_run`` goes to the
     second opinion when it applies, half to its consistency test (``cross_check_nees``) and
     half to the sanity of its reference (the smoother's variance factor above its chi-square
     band); an estimator whose skipped check degrades (not in :data:`DRIFT_EVIDENCE`) also
-    carries the smoother's residual windows (``reference_status``: a degraded smoother skips
-    the check). The other checks (a covariance not positive definite, a solver that did not
-    converge, a stream mostly rejected or silent, a calibration 5 prior sigmas out, a slip
-    run, ...) cannot fire on a
-    matching log, or with a probability below 1e-5 (docs/trust.md); they are not counted.
+    carries the smoother's residual windows and time-stamp tests (``reference_status``: a
+    degraded smoother skips the check). The other checks (a covariance not positive
+    definite, a solver that did not converge, a stream mostly rejected or silent, a
+    calibration 5 prior sigmas out, a slip run, ...) cannot fire on a matching log, or with
+    a probability below 1e-5 (docs/trust.md); they are not counted.
 
     Returns
     -------
     dict
         ``alpha_run``; ``checks``: check (``nis:<stream>``, ``nis_run:<stream>``, ``gyro_wheels``,
-        ``residual_windows:<stream>``, ``cross_check_nees``, ``reference_variance``) ->
+        ``residual_windows:<stream>``, ``latency:<stream>``, ``cross_check_nees``,
+        ``reference_variance``) ->
         false-alarm probability per run; ``total`` (their sum, at most ``alpha_run``
         unless ``overspent``); ``overspent`` (the in-run checks alone exceed it).
     """
@@ -451,10 +439,15 @@ def alpha_budget(config, log) -> dict:
     if est == "smoother":
         checks.update(windows)
     applies = skip_reason(config, log) is None
+    # the time-stamp test (estimators.latency): a graph run's own; a filter takes the reference's
+    lat_alpha = float(config.estimator_options("status").latency_alpha)
+    lat = {f"latency:{n}": lat_alpha for n in latency.streams(config, log)}
+    if est in latency.OWN or (applies and est in DRIFT_EVIDENCE):
+        checks.update(lat)
     if applies and est not in DRIFT_EVIDENCE:
         # the smoother's own degraded status on a matching log skips the check, and that
         # skip degrades this run (:func:`skipped_finding`): its windows' false alarms count
-        checks["reference_status"] = sum(windows.values())
+        checks["reference_status"] = sum(windows.values()) + sum(lat.values())
     in_run = sum(checks.values())
     if applies:
         share = max(a - in_run, 0.0) / 2.0
@@ -598,6 +591,7 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     about = {"smoother_status": ref.status}
     if ref.config != config.source:
         about["smoother_config"] = ref.config
+    result = with_reference_latency(result, ref)
     if (ref.status if ref.yardstick_status is None else ref.yardstick_status) != "ok":
         why = f"the batch smoother's own status is {ref.status}"
         return _skipped(result, why, {"skipped": why, **about})
@@ -619,6 +613,22 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     if found:
         result = dataclasses.replace(result, findings=(*result.findings, *found))
     return result, {**block, **about}, advice
+
+
+def with_reference_latency(result: EstimateResult, ref: Reference) -> EstimateResult:
+    """``result`` with the reference's ``latency`` findings on the streams it fused and did
+    not test itself: the time stamps are the log's, and a filter's own residuals cannot see
+    them (:mod:`odofuse.estimators.latency`)."""
+    if result is ref.result:
+        return result
+    own = {f.sensor for f in result.findings if f.check == "latency"}
+    fused = set(result.used) | set(result.rejected)
+    found = tuple(
+        dataclasses.replace(f, message=f"seen by the batch smoother of this log: {f.message}")
+        for f in ref.result.findings
+        if f.check == "latency" and f.degrades and f.sensor in fused and f.sensor not in own
+    )
+    return dataclasses.replace(result, findings=(*result.findings, *found)) if found else result
 
 
 def _skipped(result: EstimateResult, reason: str, block: dict, failed: bool = True):

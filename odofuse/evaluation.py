@@ -22,7 +22,7 @@ import numpy as np
 
 from odofuse.errors import InputError
 from odofuse.se2 import wrap
-from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
+from odofuse.trajectory import EstimateResult, Trajectory, interpolate_poses, pose_blocks
 
 
 def trajectory_from_stream(stream) -> Trajectory:
@@ -80,35 +80,6 @@ def apply_alignment(traj: Trajectory, r: np.ndarray, t: np.ndarray) -> Trajector
         j[:2, :2] = r
         covs = j @ traj.covariances @ j.T
     return Trajectory(traj.t, poses, covs)
-
-
-def bracket(tt: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Linear-interpolation neighbours of times ``t`` (inside the span of the sorted ``tt``,
-    at least two samples): ``k`` (M,), the sample at or before each time (clipped to
-    ``[0, len(tt) - 2]``), and ``a`` (M,), the weight of sample ``k + 1`` (0 across a
-    zero-length interval)."""
-    k = np.clip(np.searchsorted(tt, t, side="right") - 1, 0, tt.size - 2)
-    dt = tt[k + 1] - tt[k]
-    return k, np.where(dt > 0, (t - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)
-
-
-def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
-    """Poses of ``traj`` at times ``t`` (inside its time span), shape (M, 3).
-
-    Positions are interpolated linearly; headings along the shorter arc between neighbours.
-    Computed in blocks of :data:`odofuse.trajectory.BLOCK` times (temporaries bounded, same values).
-    """
-    t = np.asarray(t, dtype=float).reshape(-1)
-    tt = traj.t
-    if tt.size == 1:
-        return np.repeat(traj.poses[:1], t.size, axis=0)
-    out = np.empty((t.size, 3))
-    for b in pose_blocks(t.size):
-        k, a = bracket(tt, t[b])
-        p0, p1 = traj.poses[k], traj.poses[k + 1]
-        out[b, :2] = p0[:, :2] + a[:, None] * (p1[:, :2] - p0[:, :2])
-        out[b, 2] = wrap(p0[:, 2] + a * wrap(p1[:, 2] - p0[:, 2]))
-    return out
 
 
 #: Ground truth is not interpolated across a gap longer than this many median intervals.

@@ -229,7 +229,7 @@ def finish_run(config, log, result, runtime: float, out_dir: Path, reference=Non
 def dead_reckoning_at(config, log, t) -> np.ndarray:
     """The run's dead-reckoned base pose in the odom frame at times ``t``, shape ``(N, 3)``."""
     from odofuse.estimators import run_estimator
-    from odofuse.evaluation import interpolate_poses
+    from odofuse.trajectory import interpolate_poses
 
     dr = run_estimator("dead_reckoning", log, config).trajectory
     return interpolate_poses(dr, np.asarray(t, dtype=float))

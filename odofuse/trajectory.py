@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from odofuse.se2 import wrap
+
 #: Poses per block of a whole-run pass over per-pose arrays (metrics, covariance checks):
 #: bounds the temporaries to a few MB whatever the run's length. Each value is computed pose
 #: by pose, so the blocks give the same bits as one whole-array pass.
@@ -77,3 +79,32 @@ class EstimateResult:
     rejected: dict[str, int] = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
     findings: tuple = ()
+
+
+def bracket(tt: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear-interpolation neighbours of times ``t`` (inside the span of the sorted ``tt``,
+    at least two samples): ``k`` (M,), the sample at or before each time (clipped to
+    ``[0, len(tt) - 2]``), and ``a`` (M,), the weight of sample ``k + 1`` (0 across a
+    zero-length interval)."""
+    k = np.clip(np.searchsorted(tt, t, side="right") - 1, 0, tt.size - 2)
+    dt = tt[k + 1] - tt[k]
+    return k, np.where(dt > 0, (t - tt[k]) / np.where(dt > 0, dt, 1.0), 0.0)
+
+
+def interpolate_poses(traj: Trajectory, t) -> np.ndarray:
+    """Poses of ``traj`` at times ``t`` (inside its time span), shape (M, 3).
+
+    Positions are interpolated linearly; headings along the shorter arc between neighbours.
+    Computed in blocks of :data:`odofuse.trajectory.BLOCK` times (temporaries bounded, same values).
+    """
+    t = np.asarray(t, dtype=float).reshape(-1)
+    tt = traj.t
+    if tt.size == 1:
+        return np.repeat(traj.poses[:1], t.size, axis=0)
+    out = np.empty((t.size, 3))
+    for b in pose_blocks(t.size):
+        k, a = bracket(tt, t[b])
+        p0, p1 = traj.poses[k], traj.poses[k + 1]
+        out[b, :2] = p0[:, :2] + a[:, None] * (p1[:, :2] - p0[:, :2])
+        out[b, 2] = wrap(p0[:, 2] + a * wrap(p1[:, 2] - p0[:, 2]))
+    return out

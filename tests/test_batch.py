@@ -265,9 +265,9 @@ def test_worker_killed_mid_batch_every_log_completes(sim, logs, dask_processes, 
 def test_split_matches_the_unsplit_smoother_away_from_the_seams(sim, client, tmp_path):
     from odofuse.config import load_config
     from odofuse.estimators import run_estimator
-    from odofuse.evaluation import interpolate_poses
     from odofuse.io.loader import load_log_for
     from odofuse.outputs import read_trajectory_csv
+    from odofuse.trajectory import interpolate_poses
 
     folder = make_log(sim, tmp_path / "long", 5, seed=21, estimator="smoother")  # ~630 s
     cfg = load_config(folder / "config.yaml")

@@ -32,14 +32,16 @@ from rosbag_sim import (  # noqa: E402
 from odofuse import cli, rundir, se2  # noqa: E402
 from odofuse.config import load_config  # noqa: E402
 from odofuse.errors import InputError  # noqa: E402
-from odofuse.evaluation import interpolate_poses  # noqa: E402
 from odofuse.io import ros_msgs  # noqa: E402
 from odofuse.io.bags import read_bag  # noqa: E402
 from odofuse.io.loader import load_log_for  # noqa: E402
 from odofuse.io.log import Stream  # noqa: E402
 from odofuse.log_defaults import apply_log_defaults  # noqa: E402
 from odofuse.outputs import read_trajectory_csv  # noqa: E402
-from odofuse.trajectory import Trajectory  # noqa: E402
+from odofuse.trajectory import (
+    Trajectory,  # noqa: E402
+    interpolate_poses,  # noqa: E402
+)
 
 TOPICS = {"gyro": ["/imu/data", "/imu2/data"]}
 JOINTS = {"left": "left_wheel_joint", "right": "right_wheel_joint"}

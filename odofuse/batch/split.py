@@ -175,7 +175,7 @@ def stitch(
         Per seam: ``t`` (s), ``max_position_diff_m`` and ``max_heading_diff_rad`` of the two
         windows over their common overlap (after the rigid move of an unanchored window).
     """
-    from odofuse.evaluation import interpolate_poses
+    from odofuse.trajectory import interpolate_poses
 
     moved = [trajs[0]]
     for k in range(1, len(trajs)):
@@ -262,8 +262,8 @@ def _stitched_result(
 def _plan_log(config, spec: str, split: float, overlap: float):
     """Load one log on the client; its windows, their logs and configs, and whether anchored."""
     from odofuse.estimators import run_estimator
-    from odofuse.evaluation import interpolate_poses
     from odofuse.io.loader import load_log_for
+    from odofuse.trajectory import interpolate_poses
 
     cfg = dataclasses.replace(config, log=spec)
     log = load_log_for(cfg)

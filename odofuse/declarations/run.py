@@ -210,6 +210,14 @@ class StatusOptions:
         minimum=1e-9,
         maximum=0.5,
     )
+    latency_alpha: float = option(
+        1e-3,
+        unit="-",
+        doc="false-alarm probability per absolute stream of the time-stamp test (a reading "
+        "stamped late or early; odofuse.estimators.latency)",
+        minimum=1e-12,
+        maximum=0.5,
+    )
 
 
 #: ``options.<name>`` blocks that configure the run rather than an estimator.

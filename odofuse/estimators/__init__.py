@@ -128,6 +128,17 @@ def run_estimator(name: str, log, config, **options):
         import dataclasses
 
         result = dataclasses.replace(result, findings=tuple(result.findings) + noted)
+    from odofuse.estimators import latency
+
+    if name in latency.OWN:  # the time-stamp test on the graph's own residuals
+        import dataclasses
+
+        found, block = latency.findings(config, log, result)
+        if block:
+            extra = {**(result.extra or {}), "latency": block}
+            result = dataclasses.replace(
+                result, findings=tuple(result.findings) + tuple(found), extra=extra
+            )
     streams = getattr(log, "streams", {}) or {}
     result = _unused_streams(result, config, streams)
     n = len(streams["loop_closures"]) if "loop_closures" in streams else 0

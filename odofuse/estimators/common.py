@@ -233,3 +233,24 @@ def angle_states(models) -> np.ndarray:
             if s in idx:
                 angles.append(idx[s])
     return np.array(sorted(set(angles)))
+
+
+def absolute_streams(config, log) -> list[str]:
+    """The config's sensor streams of an absolute kind (:data:`~odofuse.declarations.sensors.
+    ABSOLUTE_KINDS`: they observe the pose against the world) that have readings in ``log``."""
+    from odofuse.declarations import stream_kind
+    from odofuse.declarations.sensors import ABSOLUTE_KINDS
+
+    streams = getattr(log, "streams", {}) or {}
+    out = []
+    for name, opts in (config.sensors or {}).items():
+        kind = getattr(opts, "model", None) or stream_kind(str(name))
+        if kind in ABSOLUTE_KINDS and name in streams and len(streams[name]):
+            out.append(str(name))
+    return out
+
+
+def slam_option(config, estimator: str) -> bool:
+    """Whether ``options.<estimator>.slam`` is on (landmarks estimated, not a map)."""
+    opts = config.options.get(estimator) if config.options else None
+    return bool(getattr(opts, "slam", False))

@@ -17,7 +17,6 @@ def demo_fusion(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
     from odofuse.config import load_config
     from odofuse.errors import OdofuseError
     from odofuse.estimators import get_estimator
-    from odofuse.evaluation import interpolate_poses
     from odofuse.io.loader import load_log_for
     from odofuse.teaching.simulate import (
         GpsSpec,
@@ -28,6 +27,7 @@ def demo_fusion(out_dir=".", quick: bool = False, seed: int = 0) -> dict:
         simulate,
         write_log,
     )
+    from odofuse.trajectory import interpolate_poses
 
     outage = (40.0, 80.0) if quick else (60.0, 120.0)
     sc = Scenario(
