@@ -350,3 +350,49 @@ def test_stream_kind_codes_agree_with_the_kernels():
 
     codes = (compiled_ekf.RANGE, compiled_ekf.GPS, compiled_ekf.COMPASS, compiled_ekf.GYRO)
     assert codes == (kernels.RANGE, kernels.GPS, kernels.COMPASS, kernels.GYRO)
+
+
+class _Terminal:
+    """A standard error that says it is a terminal, and keeps what is written to it."""
+
+    def __init__(self, tty=True):
+        self.tty, self.text = tty, ""
+
+    def isatty(self):
+        return self.tty
+
+    def write(self, s):
+        self.text += s
+
+    def flush(self):
+        pass
+
+
+def test_a_one_time_compile_is_announced_on_a_terminal_only(monkeypatch):
+    from odofuse.estimators import compiled
+
+    k = compiled.load_kernels()
+    if k is None:
+        pytest.skip("numba not installed")
+    monkeypatch.setattr(compiled, "_announced", set())
+    monkeypatch.setattr(compiled, "cold", lambda dispatcher: True)  # an empty numba cache
+    piped = _Terminal(tty=False)
+    assert not compiled.announce(k, "options.ekf.compiled", piped) and piped.text == ""
+    term = _Terminal()
+    assert compiled.announce(k, "options.ekf.compiled", term)
+    assert term.text.startswith("odofuse: compiling the numba kernels once")
+    assert not compiled.announce(k, "options.ukf.compiled", term)  # once per process
+    monkeypatch.setattr(compiled, "_announced", set())
+    monkeypatch.setattr(compiled, "cold", lambda dispatcher: False)  # the cache has them
+    assert not compiled.announce(k, "options.ukf.compiled", _Terminal())
+
+
+def test_the_cold_cache_test_reads_numbas_index():
+    from odofuse.estimators import compiled
+
+    k = compiled.load_kernels()
+    if k is None:
+        pytest.skip("numba not installed")
+    k.pf_mean(np.zeros((2, 3)), np.full(2, 0.5), np.array([2]), np.empty(3))  # cached now
+    assert compiled.cold(k.pf_mean) is False
+    assert compiled.cold(object()) is False  # not a dispatcher: cannot tell, no message
