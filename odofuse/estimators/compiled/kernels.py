@@ -459,21 +459,9 @@ def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, w
                 for k in range(n):
                     acc += FP[i, k] * F[j, k]
                 P[i, j] = acc
-    for a in range(3):
-        for b in range(3):
-            acc = 0.0
-            for j in range(m):
-                acc += Fu[a, j] * var[j] * Fu[b, j]
-            P[a, b] += acc
-    if dt > 0:
-        for i in range(n):
-            P[i, i] += walk[i] * dt
+    _add_process_noise(P, Fu, var, m, walk, dt)
     if cal != 0:
-        for i in range(n):
-            for j in range(i + 1, n):
-                sym = 0.5 * (P[i, j] + P[j, i])
-                P[i, j] = sym
-                P[j, i] = sym
+        _symmetrise(P)
     x[0] += dxw
     x[1] += dyw
     x[2] = _wrap(th + d2)
@@ -698,6 +686,32 @@ def _sigma_points(x, P, c, angles, tol, uw):
 
 
 @njit(cache=True)
+def _add_process_noise(P, Fu, var, m, walk, dt):
+    """The filters' process noise on ``P``: ``F_u Sigma_u F_u^T`` (``Sigma_u = diag(var[:m])``,
+    ``m`` inputs) on the pose block, and each state's random walk over ``dt``."""
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for j in range(m):
+                acc += Fu[a, j] * var[j] * Fu[b, j]
+            P[a, b] += acc
+    if dt > 0:
+        for i in range(P.shape[0]):
+            P[i, i] += walk[i] * dt
+
+
+@njit(cache=True)
+def _symmetrise(P):
+    """``P`` <- ``(P + P^T) / 2`` in place."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            sym = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = sym
+            P[j, i] = sym
+
+
+@njit(cache=True)
 def _ukf_predict(
     x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, Wm, Wc, c, angles, tol, work, uw
 ):  # fmt: skip
@@ -728,20 +742,8 @@ def _ukf_predict(
         X[i, 1] = S[i, 1] + si * d0 + co * d1
         X[i, 2] = _wrap(th + d2)
     _ut_state(X, Wm, Wc, angles, x, P, dx)
-    for a in range(3):
-        for b in range(3):
-            acc = 0.0
-            for j in range(m):
-                acc += Fu[a, j] * var[j] * Fu[b, j]
-            P[a, b] += acc
-    if dt > 0:
-        for i in range(n):
-            P[i, i] += walk[i] * dt
-    for i in range(n):
-        for j in range(i + 1, n):
-            sym = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = sym
-            P[j, i] = sym
+    _add_process_noise(P, Fu, var, m, walk, dt)
+    _symmetrise(P)
 
 
 @njit(cache=True)
@@ -852,11 +854,7 @@ def _ukf_update(
                 P[a, b] -= q0 * PK[b, 0] + q1 * PK[b, 1]
     for a in angles:
         x[a] = _wrap(x[a])
-    for i in range(n):
-        for j in range(i + 1, n):
-            sym = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = sym
-            P[j, i] = sym
+    _symmetrise(P)
     return nis, True
 
 
