@@ -92,7 +92,7 @@ class _Line:
         return np.array([[self.sigma**2]])
 
 
-def test_statistic_recovers_a_known_offset(monkeypatch):
+def test_statistic_recovers_a_known_offset():
     # a robot at 2 m/s along x, readings stamped 0.1 s late, no noise: tau_hat = 0.1 exactly
     # and sd = sigma / (speed sqrt(n)) (the regression's formula)
     t = np.arange(0.0, 10.0, 0.01)
@@ -101,8 +101,8 @@ def test_statistic_recovers_a_known_offset(monkeypatch):
     tr = np.arange(0.5, 9.5, 0.25)
     reads = Stream("pos", "pos", tr, ("x",), (2.0 * (tr - 0.1))[:, None])
     log = SensorLog("test", {"pos": reads})
-    monkeypatch.setattr(latency, "_twist", lambda c, lg, tt: np.tile([2.0, 0.0, 0.0], (len(tt), 1)))
-    st = latency.stream_statistic(None, log, result, "pos", _Line(0.2))
+    # the wheels' dead reckoning is the true path here (the estimate): twist (2, 0, 0) m/s
+    st = latency.stream_statistic(log, result, "pos", _Line(0.2), result.trajectory)
     assert st["n"] == len(tr)
     assert st["tau_s"] == pytest.approx(0.1, abs=1e-9)
     assert st["sd_s"] == pytest.approx(0.2 / (2.0 * math.sqrt(len(tr))), rel=1e-9)
@@ -110,7 +110,8 @@ def test_statistic_recovers_a_known_offset(monkeypatch):
     bad = reads.values.copy()
     bad[3, 0] += 100.0
     log2 = SensorLog("test", {"pos": Stream("pos", "pos", tr, ("x",), bad)})
-    assert latency.stream_statistic(None, log2, result, "pos", _Line(0.2))["n"] == len(tr) - 1
+    st2 = latency.stream_statistic(log2, result, "pos", _Line(0.2), result.trajectory)
+    assert st2["n"] == len(tr) - 1
 
 
 def test_budget_has_no_latency_without_an_absolute_sensor():

@@ -44,13 +44,11 @@ MIN_READINGS = 20
 TWIST_HALF_WIDTH = 0.05
 
 
-def _state(result, models, pose) -> np.ndarray:
-    """A full state vector for the models' ``h``/``H``: ``pose`` plus the run's final
-    calibration values (constants) at their indices."""
-    from odofuse.estimators.common import state_layout
-
-    names, index = state_layout(models)
-    x = np.zeros(3 + len(names))
+def _state(result, model, pose) -> np.ndarray:
+    """A full state vector for ``model``'s ``h``/``H`` (bound to its own states): ``pose`` plus
+    the run's final calibration values (constants) at their indices."""
+    index = getattr(model, "calib_index", {}) or {}
+    x = np.zeros(3 + len(index))
     x[:3] = pose
     cal = (result.extra or {}).get("calibration") or {}
     for name, i in index.items():
@@ -61,28 +59,36 @@ def _state(result, models, pose) -> np.ndarray:
     return x
 
 
-def _twist(config, log, t: np.ndarray) -> np.ndarray:
-    """The wheels' body twist ``(vx, vy, omega)`` at times ``t``: central differences over
-    :data:`TWIST_HALF_WIDTH` of the dead-reckoned poses (the motion model alone)."""
+def dead_reckoned(config, log):
+    """The log's dead-reckoned poses (the motion model alone, no covariance) as a
+    :class:`~odofuse.trajectory.Trajectory`: where the robot's twist comes from."""
     from odofuse.estimators.common import initial_state, odometry_inputs
     from odofuse.estimators.compiled.dead_reckoning import dead_reckon
     from odofuse.motion import motion_model_from_config
-    from odofuse.trajectory import Trajectory, interpolate_poses
+    from odofuse.trajectory import Trajectory
 
     model = motion_model_from_config(config)
     to, U = odometry_inputs(log, model)
     pose0, P0 = initial_state(config, log)
     poses, _ = dead_reckon(model, pose0, P0, U, with_cov=False)
-    dr = Trajectory(to, poses, None)
+    return Trajectory(to, poses, None)
+
+
+def _twist(dr, t: np.ndarray) -> np.ndarray:
+    """The wheels' body twist ``(vx, vy, omega)`` at times ``t``: central differences over
+    :data:`TWIST_HALF_WIDTH` of the dead-reckoned poses ``dr``."""
+    from odofuse.trajectory import interpolate_poses
+
     h = TWIST_HALF_WIDTH
     a = interpolate_poses(dr, t - h)
     b = interpolate_poses(dr, t + h)
     return se2.between(a, b) / (2.0 * h)
 
 
-def stream_statistic(config, log, result, stream: str, model) -> dict | None:
-    """``{"n", "tau_s", "sd_s", "z"}`` of one stream (``model`` bound to the run's state
-    layout), or None when fewer than :data:`MIN_READINGS` readings can judge."""
+def stream_statistic(log, result, stream: str, model, dr) -> dict | None:
+    """``{"n", "tau_s", "sd_s", "z"}`` of one stream (``model`` bound to its own states; ``dr``
+    the log's :func:`dead_reckoned` poses), or None when fewer than :data:`MIN_READINGS`
+    readings can judge."""
     from odofuse.measurements import gate_threshold
     from odofuse.trajectory import interpolate_poses
 
@@ -95,12 +101,12 @@ def stream_statistic(config, log, result, stream: str, model) -> dict | None:
     if len(idx) < MIN_READINGS:
         return None
     poses = interpolate_poses(traj, t[idx])  # the estimate at each reading's time
-    v = _twist(config, log, t[idx])
+    v = _twist(dr, t[idx])
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     xdot = np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]])
     gate = gate_threshold(getattr(model, "gate", None), int(model.dim))
     residual = getattr(model, "residual", np.subtract)
-    x = _state(result, {stream: model}, poses[0])
+    x = _state(result, model, poses[0])
     a = b = 0.0
     n = 0
     for j, i in enumerate(idx):
@@ -150,11 +156,12 @@ def findings(config, log, result) -> tuple[list[Finding], dict]:
     bound = NormalDist().inv_cdf(1.0 - alpha / 2.0)
     power = NormalDist().inv_cdf(float(FilterOptions().mde_power))
     models = measurement_models(config, log)
+    dr = dead_reckoned(config, log)
     out, block = [], {}
     for s in tested:
         _, index = state_layout({s: models[s]})
         m = models[s].bind(index) if hasattr(models[s], "bind") else models[s]
-        st = stream_statistic(config, log, result, s, m)
+        st = stream_statistic(log, result, s, m, dr)
         if st is None:
             continue
         block[s] = {**st, "bound_z": bound, "mde_s": (bound + power) * st["sd_s"]}
