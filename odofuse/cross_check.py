@@ -77,7 +77,6 @@ SAMPLE_BLOCK = 2048
 UNAIDED = frozenset({"dead_reckoning"})
 #: The estimators the check applies to: their estimate is of the problem the smoother solves.
 CHECKED = ("dead_reckoning", "ekf", "ukf", "particle", "fixed_lag", "isam2")
-#: Measurement-model kinds that observe the pose absolutely (landmarks at known positions).
 #: Odometry streams, one of which a log's estimate integrates.
 ODOMETRY_STREAMS = ("odometry", "wheels", "cmd_vel")
 

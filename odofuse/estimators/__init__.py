@@ -7,6 +7,8 @@ as ``"package.module:function"``.
 
 from __future__ import annotations
 
+import dataclasses
+
 from odofuse.errors import ConfigError
 from odofuse.plugins import load_function
 
@@ -81,8 +83,6 @@ def _unused_streams(result, config, streams):
     """A configured stream with data that the estimator counted but never used or rejected
     (all its readings outside the odometry's time span, say) degrades the run unless a
     degrading finding already names it: ``used: 0`` never hides behind ``ok``."""
-    import dataclasses
-
     from odofuse.health import Finding
 
     notes = []
@@ -125,14 +125,10 @@ def run_estimator(name: str, log, config, **options):
     _check_finite(name, result)
     noted = tuple(getattr(log, "findings", ()) or ())  # the log's plausibility findings
     if noted:
-        import dataclasses
-
         result = dataclasses.replace(result, findings=tuple(result.findings) + noted)
     from odofuse.estimators import latency
 
     if name in latency.OWN:  # the time-stamp test on the graph's own residuals
-        import dataclasses
-
         found, block = latency.findings(config, log, result)
         if block:
             extra = {**(result.extra or {}), "latency": block}
@@ -143,8 +139,6 @@ def run_estimator(name: str, log, config, **options):
     result = _unused_streams(result, config, streams)
     n = len(streams["loop_closures"]) if "loop_closures" in streams else 0
     if n and "loop_closures" not in result.used:
-        import dataclasses
-
         from odofuse.health import Finding
 
         note = Finding(

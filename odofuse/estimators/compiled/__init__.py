@@ -3,8 +3,8 @@
 ``options.ekf.compiled`` / ``options.ukf.compiled`` / ``options.dead_reckoning.compiled`` /
 ``options.particle.compiled`` (``auto``, ``on``, ``off``) choose it; ``auto`` uses numba when
 it can be imported (dead reckoning and the particle filter only on runs long enough to pay for
-loading it). This package owns that choice (:func:`enabled`, which also says on a terminal when a one-time
-compile is about to happen: :func:`announce`), the dead-reckoning dispatch
+loading it). This package owns that choice (:func:`enabled`, which also says on a terminal
+when a one-time compile is about to happen: :func:`announce`), the dead-reckoning dispatch
 (:mod:`.dead_reckoning`), the offline EKF over a log's event array (:mod:`.ekf`), the offline
 UKF on the same arrays and coverage (:mod:`.ukf`), the particle filter's propagation,
 weighting and cloud moments (:mod:`.particle`) and the kernels themselves (:mod:`.kernels`, the
