@@ -230,7 +230,7 @@ def test_worker_killed_mid_batch_every_log_completes(sim, logs, dask_processes, 
     from distributed import Client
 
     specs = [
-        make_log(sim, tmp_path / f"k{i}", 4, seed=10 + i, estimator="smoother") for i in range(6)
+        make_log(sim, tmp_path / f"k{i}", 2, seed=10 + i, estimator="smoother") for i in range(6)
     ]
     out = tmp_path / "out"
     with Client(dask_processes.address) as client:

@@ -41,6 +41,7 @@ DEFAULTS = {
     "known_landmark_sigma": 1e-06,
     "relinearize_threshold": 0.1,
     "relinearize_skip": 10,
+    "partial_relinearization_check": True,  # new in issue 28 (GTSAM's default is off)
     "odometry_floor": 1e-08,
     "final_relinearizations": 3,
     "odometry_calibration": False,

@@ -185,6 +185,14 @@ class GraphOptions:
     relinearize_skip: int = option(
         10, unit="-", doc="isam2, fixed_lag: updates between relinearisation checks", minimum=1
     )
+    partial_relinearization_check: bool = option(
+        True,
+        unit="-",
+        doc=(
+            "smoother with slam: its initial iSAM2 pass checks for relinearisation only in "
+            "the branches an update touched (GTSAM's enablePartialRelinearizationCheck)"
+        ),
+    )
     odometry_floor: float = option(
         1e-8,
         unit="m^2, rad^2",

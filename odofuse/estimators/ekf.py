@@ -117,6 +117,11 @@ class FastIncrement:
         var = self.K @ np.abs(u) + self.floor + self.rate * dt
         return np.array(d), np.array(Jt) @ self.M, var
 
+    def increment(self, u) -> tuple[np.ndarray, np.ndarray]:
+        """``MotionModel.increment(u)``: ``(delta (3,), J_delta_u (3, n))``."""
+        d, Jt = self._increment(*(self.M @ np.asarray(u, dtype=float)).tolist())
+        return np.array(d), np.array(Jt) @ self.M
+
     def terms(self, u, dt: float = 0.0) -> tuple[float, float, float, list[list[float]]]:
         """Scalar form for the EKF: ``delta`` as floats and ``G = J_delta_u diag(sigma_u)``.
 
@@ -158,6 +163,12 @@ class FastIncrement:
         return d[0], d[1], d[2], G
 
 
+def increment_function(model, fast: FastIncrement | None = None):
+    """``model.increment``, through ``fast`` (built here when None) where it applies."""
+    fast = FastIncrement(model) if fast is None else fast
+    return fast.increment if fast.ok else model.increment
+
+
 class EkfBackend:
     """EKF state ``x`` (n,) = ``[x, y, theta, augmented...]`` and covariance ``P`` (n, n).
 
@@ -193,6 +204,7 @@ class EkfBackend:
         self._errors = model.errors
         fast = FastIncrement(model)
         self._fast = fast if fast.ok else None
+        self.increment = increment_function(model, fast)
         self._cvec = np.zeros(n)
         self._diag = np.diag_indices(n)
 
@@ -325,13 +337,6 @@ class EkfBackend:
             Pn[self._diag] += self.walk * dt
         self.kf.x = xn
         self.kf.P = 0.5 * (Pn + Pn.T)
-
-    def increment(self, u) -> tuple[np.ndarray, np.ndarray]:
-        """``MotionModel.increment(u)`` (through the fast path when available)."""
-        if self._fast is not None:
-            d, J, _ = self._fast(np.asarray(u, dtype=float))
-            return d, J
-        return self.model.increment(u)
 
     # -- update ---------------------------------------------------------------------
     def update(self, model, row) -> tuple[bool, float]:

@@ -63,6 +63,7 @@ import numpy as np
 from odofuse.declarations import ParticleOptions
 from odofuse.estimators.assembly import run_with
 from odofuse.estimators.compiled import particle as compiled_particle
+from odofuse.estimators.ekf import increment_function
 from odofuse.measurements import gate_threshold
 from odofuse.motion import body_increment
 from odofuse.options import coerce
@@ -159,6 +160,7 @@ class ParticleBackend:
         self._kern = compiled_particle.kernels_for(options, events)
         self._terms = None  # the compiled predict's motion terms, at the first step (odo_cal)
         self.model = model
+        self.increment = increment_function(model)  # MotionModel.increment, faster
         self.N = options.particles
         self.rng = np.random.default_rng(options.seed)
         self.resample_threshold = options.resample_threshold
@@ -198,9 +200,6 @@ class ParticleBackend:
         self.moves = 0  # relative (gyro) updates assimilated by moving the heading
 
     # -- motion -----------------------------------------------------------------------------
-    def increment(self, u):
-        return self.model.increment(u)
-
     def predict(
         self,
         u,

@@ -23,7 +23,7 @@ import numpy as np
 from odofuse.declarations import UkfOptions
 from odofuse.estimators.assembly import run_with
 from odofuse.estimators.common import SINGULAR_PIVOT, angle_states
-from odofuse.estimators.ekf import FastIncrement
+from odofuse.estimators.ekf import FastIncrement, increment_function
 from odofuse.measurements import gate_threshold
 from odofuse.options import coerce
 from odofuse.se2 import wrap
@@ -108,6 +108,7 @@ class UkfBackend:
         }
         fast = FastIncrement(model)
         self._fast = fast if fast.ok else None
+        self.increment = increment_function(model, fast)  # MotionModel.increment, faster
 
     # -- angle-aware state arithmetic ---------------------------------------------------
     def residual_x(self, a, b) -> np.ndarray:
@@ -127,13 +128,6 @@ class UkfBackend:
         return m
 
     # -- motion -----------------------------------------------------------------------------
-    def increment(self, u):
-        """``MotionModel.increment(u)`` (through the EKF's fast path when available)."""
-        if self._fast is not None:
-            d, J, _ = self._fast(np.asarray(u, dtype=float))
-            return d, J
-        return self.model.increment(u)
-
     def _fx(self, s, dt, delta=None, raw=None):
         if raw is not None:
             u, step, dtheta = raw
