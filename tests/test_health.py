@@ -77,3 +77,22 @@ def test_filter_covariance_conditioning_in_blocks_equals_the_whole_run():
         if f.check == "covariance"
     ]
     assert f.t_start == f.t_end == 400.0 and f.figure > 1e12
+
+
+def test_condition_screen_is_an_upper_bound_and_exact_above_its_cap():
+    """``cap``: the determinant's bound replaces the eigenvalues only where it proves the
+    condition number at most ``cap``; above it the numbers are the eigenvalues' own."""
+    from odofuse.estimators import pose_checks
+
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(3000, 3, 3))
+    P = A @ np.swapaxes(A, 1, 2) + np.logspace(-14, 0, 3000)[:, None, None] * np.eye(3)
+    P[5] = np.diag([1.0, 4.0, 9.0])  # correlation = identity: condition 1, bound 6.75
+    _, exact = pose_checks._correlation_condition(P)
+    for cap in (10.0, 1e3, 1e8):
+        _, screened = pose_checks._correlation_condition(P, cap=cap)
+        assert np.all(screened >= exact * (1 - 1e-9))  # an upper bound
+        assert np.array_equal(screened > cap, exact > cap)  # the same verdicts
+        above = exact > cap
+        assert above.any() and np.array_equal(screened[above], exact[above])
+    assert pose_checks._correlation_condition(P, cap=10.0)[1][5] == 6.75

@@ -187,7 +187,14 @@ def test_nominal_windows_fail_at_the_stated_rate():
 
 
 # --------------------------------------------------------------------------- live == offline
-@pytest.mark.parametrize("estimator", ["ekf", "ukf", "particle"])
+@pytest.mark.parametrize(
+    "estimator",
+    [  # two 120 s logs, live and offline with its second opinion: 10-12 s in the suite
+        pytest.param("ekf", marks=pytest.mark.slow),
+        pytest.param("ukf", marks=pytest.mark.slow),
+        "particle",
+    ],
+)
 def test_live_status_equals_the_offline_status(estimator):
     for seed, offset in ((31, None), (32, (20.0, 60.0, 2.0, -1.0))):
         log, truth = simulate(seed, steps=1200)  # 120 s: 30 s after the burst to recover
@@ -302,3 +309,13 @@ def test_a_gate_that_can_never_fire_is_reported_inert():
     (f,) = [f for f in res.findings if f.check == "inert"]
     assert f.sensor == "gps" and not f.degrades and f.figure > 1000.0
     assert "never fire" in f.line()
+
+
+def test_the_run_nis_bound_exceeds_its_mean_so_a_mean_below_it_skips_the_quantile():
+    """``live_findings`` skips the quantile when the mean NIS is at most ``d``: valid because
+    the (1 - alpha) quantile of chi2_k exceeds k for every k at alpha <= 0.3."""
+    from odofuse import chi2
+
+    k = np.arange(1, 20001)
+    for alpha in (0.3, 0.05, 1e-3, 1e-9):
+        assert np.all(np.asarray(chi2.ppf(1.0 - alpha, k)) > k), alpha
