@@ -439,9 +439,9 @@ class ParticleBackend:
         See :func:`weighted_cov`: symmetric positive semi-definite by construction.
         """
         if self._kern is not None:
-            G = np.empty((self.n, self.n))
-            sq = self._kern.pf_gram(self.X, self.w, self.mean(), self._is_angle, G)
-            return _scaled_psd(G, 1.0 - sq)
+            P = np.empty((self.n, self.n))
+            self._kern.pf_cov(self.X, self.w, self._angle_idx, self._is_angle, P)
+            return P
         D = self.X - self.mean()
         D[:, self.angles] = wrap(D[:, self.angles])
         return weighted_cov(D, self.w)

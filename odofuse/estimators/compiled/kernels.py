@@ -15,9 +15,10 @@ against it to 1e-9 (``tests/test_compiled.py``):
   regenerated before each update), on the EKF's measurement functions (:func:`_measure`) and
   calibrated inputs (``tests/test_compiled_ukf.py``);
 * :func:`pf_predict`, :func:`pf_moments`, :func:`pf_reweight`, :func:`pf_mean`,
-  :func:`pf_gram`: the :class:`~odofuse.estimators.particle.ParticleBackend`'s propagation,
-  innovation moments and reweighting, and cloud mean and covariance, on the random numbers the
-  backend's numpy generator draws (``tests/test_compiled_particle.py``).
+  :func:`pf_gram`, :func:`pf_cov`: the
+  :class:`~odofuse.estimators.particle.ParticleBackend`'s propagation, innovation moments and
+  reweighting, and cloud mean and covariance, on the random numbers the backend's numpy
+  generator draws (``tests/test_compiled_particle.py``).
 
 Integrator codes: 0 ``euler``, 1 ``rk2``, 2 ``exact``, 3 ``euler_end``. Compiled with
 ``cache=True``: the first run on a machine compiles and stores the machine code next to this
@@ -1256,3 +1257,28 @@ def pf_gram(X, w, m, is_angle, G):
             G[a, b] = acc
             G[b, a] = acc
     return sq
+
+
+@njit(cache=True)
+def pf_cov(X, w, angles, is_angle, P):
+    """``ParticleBackend.cov`` in one call: the mean (:func:`pf_mean`), the Gram matrix
+    (:func:`pf_gram`) and ``particle._scaled_psd`` (its eigenvalues clipped at 0, over
+    ``1 - sum w^2``; zeros for a single effective particle) into ``P`` (n, n)."""
+    n = X.shape[1]
+    m = np.empty(n)
+    pf_mean(X, w, angles, m)
+    G = np.empty((n, n))
+    denom = 1.0 - pf_gram(X, w, m, is_angle, G)
+    if not denom > 1e-12:
+        P[:, :] = 0.0
+        return
+    vals, vecs = np.linalg.eigh(G)  # G is symmetric by construction
+    for k in range(n):
+        vals[k] = max(vals[k], 0.0) / denom
+    for a in range(n):
+        for b in range(a, n):
+            acc = 0.0
+            for k in range(n):
+                acc += vecs[a, k] * vals[k] * vecs[b, k]
+            P[a, b] = acc
+            P[b, a] = acc

@@ -1,7 +1,7 @@
 """Compiled particle filter: :class:`~odofuse.estimators.particle.ParticleBackend`'s propagation,
 weighting and moments through the numba kernels (:func:`~.kernels.pf_predict`,
 :func:`~.kernels.pf_moments`, :func:`~.kernels.pf_reweight`, :func:`~.kernels.pf_mean`,
-:func:`~.kernels.pf_gram`).
+:func:`~.kernels.pf_gram`, :func:`~.kernels.pf_cov`).
 
 Every random number is drawn by the backend's numpy Generator, in the order and shapes of the
 numpy path, and handed to the kernels, so the compiled backend equals the numpy one for the same
