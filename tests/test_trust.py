@@ -319,7 +319,7 @@ def test_particle_filter_with_a_gyro_keeps_positive_definite_covariances():
     assert not [f for f in loc.health().findings if f.check == "covariance"]
 
 
-@pytest.mark.slow(seconds=221)  # 10^6 filter steps compiled, 221 s in the suite (was 287 s)
+@pytest.mark.slow(seconds=160)  # 10^6 filter steps compiled, 160 s in the suite (was 287 s)
 def test_particle_filter_one_million_gyro_steps_never_non_pd():
     # On the compiled kernels: the path an offline run of this size takes (``compiled: auto``
     # compiles from 5e6 particle-rows; this is 2e7), and the numpy path's equal to 1e-9
