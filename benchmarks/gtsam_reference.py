@@ -559,7 +559,6 @@ def g2o_chi2(graph, values, iterations: int = 50):
         vx.set_estimate(g2o.SE2(p.x(), p.y(), p.theta()))
         opt.add_vertex(vx)
         ids[key] = vx
-    vertex = ids.__getitem__
     edges = []
     for n in range(graph.size()):
         f = graph.at(n)
@@ -568,12 +567,12 @@ def g2o_chi2(graph, values, iterations: int = 50):
             a, b = f.keys()
             m = f.measured()
             e = g2o.EdgeSE2()
-            e.set_vertex(0, vertex(a))
-            e.set_vertex(1, vertex(b))
+            e.set_vertex(0, ids[a])
+            e.set_vertex(1, ids[b])
         elif isinstance(f, gtsam.PriorFactorPose2):
             m = f.prior()
             e = g2o.EdgeSE2Prior()
-            e.set_vertex(0, vertex(f.keys()[0]))
+            e.set_vertex(0, ids[f.keys()[0]])
         else:
             raise ValueError(f"factor {n} is not a pose-graph factor: {type(f).__name__}")
         e.set_measurement(g2o.SE2(m.x(), m.y(), m.theta()))

@@ -113,9 +113,8 @@ class FastIncrement:
 
     def __call__(self, u, dt: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(delta (3,), J_delta_u (3, n), var_u (n,))`` of one step of ``dt`` seconds."""
-        d, Jt = self._increment(*(self.M @ u).tolist())
-        var = self.K @ np.abs(u) + self.floor + self.rate * dt
-        return np.array(d), np.array(Jt) @ self.M, var
+        d, J = self.increment(u)
+        return d, J, self.K @ np.abs(u) + self.floor + self.rate * dt
 
     def increment(self, u) -> tuple[np.ndarray, np.ndarray]:
         """``MotionModel.increment(u)``: ``(delta (3,), J_delta_u (3, n))``."""
