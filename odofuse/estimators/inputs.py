@@ -22,6 +22,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from odofuse.errors import InputError
+from odofuse.health import MOSTLY_REJECTED, Finding
 from odofuse.io.csvlog import MAX_MAGNITUDE, excerpt
 
 #: What ``Localizer.add_measurement`` / ``add_odometry`` return.
@@ -200,8 +201,6 @@ def dropped_findings(used: dict, rejected: dict, dropped: dict, span=(None, None
     odometry step; most of a stream dropped means its clock (units, offset) or its latency
     does not match the odometry's, and the estimate went without it.
     """
-    from odofuse.health import MOSTLY_REJECTED, Finding
-
     out = []
     for s in sorted(dropped):
         d = int(dropped.get(s, 0))

@@ -44,6 +44,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from odofuse import health as H
 from odofuse import se2
 from odofuse.declarations import DEFAULT_LATE_WINDOW, EkfOptions
 from odofuse.errors import ConfigError, InputError
@@ -568,8 +569,6 @@ class Localizer:
         Localizer keeps the late window's poses: a fixed cost). ``status`` is degraded
         while a check is failing now, ``run_status`` when any check failed in the run.
         """
-        from odofuse import health as H
-
         mon = self.monitor
         span = (self.t_start, self.t)
         key = (self._version, self.slip_steps)
@@ -625,15 +624,13 @@ def _plainly_fine(x, P) -> bool:
     its smallest eigenvalue above :data:`odofuse.health.MIN_EIGEN_RATIO` of its largest
     (leading minors > 0, and ``det > ratio * trace^3`` bounds ``l_min / l_max`` from below);
     False says nothing (the exact checks then run). Scalar arithmetic: a few microseconds."""
-    from odofuse.health import MIN_EIGEN_RATIO
-
     (a, b, c), (_, d, e), (_, _, f) = P.tolist()
     if not all(map(math.isfinite, x.tolist())) or not math.isfinite(a + b + c + d + e + f):
         return False
     m2 = a * d - b * b
     det = a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c)
     trace = a + d + f
-    return a > 0.0 and m2 > 0.0 and det > MIN_EIGEN_RATIO * trace**3
+    return a > 0.0 and m2 > 0.0 and det > H.MIN_EIGEN_RATIO * trace**3
 
 
 # --------------------------------------------------------------------- building from config

@@ -424,6 +424,8 @@ def _outage(s: str, st: _Live, t0: float, t1: float, reject_run: int) -> list[Fi
     """:func:`outage_findings` from the streaming record (first, last, longest gap)."""
     if st.n < 2 or not st.t_last > st.t_first:
         return []  # fewer than two readings: no rate to miss (live start-up)
+    if not max(st.t_first - t0, st.gap, t1 - st.t_last) > 0.5 * (t1 - t0):
+        return []  # the longest gap is within half of the run (every health() call asks)
     gaps = [(st.t_first - t0, t0, st.t_first), (st.gap, st.gap_t0, st.gap_t0 + st.gap)]
     gaps.append((t1 - st.t_last, st.t_last, t1))
     g, a, b = max(gaps, key=lambda x: x[0])
