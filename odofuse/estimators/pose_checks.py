@@ -51,21 +51,25 @@ def _correlation_condition(
         Pb = P[b]
         diag = np.einsum("nii->ni", Pb)
         f = finite[b]
-        f[:] = np.isfinite(Pb).all(axis=(1, 2)) & (diag > 0).all(axis=1)
-        db = np.sqrt(np.clip(diag[f], 1e-300, None))
-        C = Pb[f] / (db[:, :, None] * db[:, None, :])
+        every = bool(np.isfinite(Pb).all() and (diag > 0).all())  # a whole-array test first:
+        f[:] = True if every else np.isfinite(Pb).all(axis=(1, 2)) & (diag > 0).all(axis=1)
+        every = every or bool(f.all())  # no copies by a mask where every pose is usable
+        db = np.sqrt(np.maximum(diag if every else diag[f], 1e-300))
+        C = (Pb if every else Pb[f]) / (db[:, :, None] * db[:, None, :])
         C = 0.5 * (C + np.swapaxes(C, 1, 2))
-        cond = np.empty(len(C))
-        exact = np.ones(len(C), dtype=bool)
         if cap > 0.0 and n == 3:
-            a, b_, c = C[:, 0, 1], C[:, 0, 2], C[:, 1, 2]
-            det = 1.0 + 2.0 * a * b_ * c - a * a - b_ * b_ - c * c
+            u = C[:, (0, 0, 1), (1, 2, 2)]  # the three correlations
+            det = 1.0 + 2.0 * u.prod(axis=1) - (u * u).sum(axis=1)
             bound = 6.75 / np.maximum(det, 1e-300)  # n (n / (n - 1))^(n - 1) / det
             exact = ~(bound <= cap)
-            cond[~exact] = bound[~exact]
-        if exact.any():
-            eig = np.linalg.eigvalsh(C[exact])
-            cond[exact] = eig[:, -1] / np.maximum(eig[:, 0], 1e-300)
+            if not exact.any():  # every pose proven well-conditioned (most live windows)
+                out.append(bound)
+                continue
+            cond = np.where(exact, 0.0, bound)
+        else:
+            cond, exact = np.empty(len(C)), slice(None)
+        eig = np.linalg.eigvalsh(C[exact])
+        cond[exact] = eig[:, -1] / np.maximum(eig[:, 0], 1e-300)
         out.append(cond)
     return finite, np.concatenate(out)
 
@@ -97,7 +101,7 @@ def covariance_health(t, P, options: FilterOptions) -> list[Finding]:
                     figure=float(cond.max()),
                 )
             )
-    sig = np.sqrt(np.clip(P[:, 0, 0] + P[:, 1, 1], 0.0, None))
+    sig = np.sqrt(np.maximum(P[:, 0, 0] + P[:, 1, 1], 0.0))
     sig = np.where(np.isfinite(sig), sig, np.inf)
     floored = np.maximum(sig, 1e-12)
     run_min = np.minimum.accumulate(floored)
