@@ -148,14 +148,22 @@ def skip_reason(config, log) -> str | None:
         opinion for (a plug-in, SLAM, a log with loop closures: a pose-graph problem); with
         ``auto``, no absolute sensor fused or more than ``max_odometry_steps`` odometry steps.
     """
-    opts = config.estimator_options("cross_check")
     est = config.estimator
-    if opts.smoother == "off":
+    if config.estimator_options("cross_check").smoother == "off":
         return "off (options.cross_check.smoother)"
     if est == "smoother":
         return "the estimate is the batch smoother"
     if est not in CHECKED:
         return f"estimator '{est}' is not one the batch smoother is a second opinion for"
+    return scope_reason(config, log)
+
+
+def scope_reason(config, log) -> str | None:
+    """The log-shape part of :func:`skip_reason` (SLAM, loop closures, ``auto``'s absolute
+    sensors and length), whatever the estimator: also the scope of the smoother's own
+    variance-factor test (:func:`variance_factor_findings`)."""
+    opts = config.estimator_options("cross_check")
+    est = config.estimator
     if slam_option(config, est) or slam_option(config, "smoother"):
         return "a SLAM run (landmarks unknown): not the smoother's problem"
     streams = getattr(log, "streams", {}) or {}
@@ -452,6 +460,9 @@ def alpha_budget(config, log) -> dict:
         share = max(a - in_run, 0.0) / 2.0
         checks["cross_check_nees"] = share
         checks["reference_variance"] = share
+    elif est == "smoother" and own_test(config, log):
+        # the test that makes it unfit as a yardstick for the others, at their share
+        checks["variance_factor"] = max(a - in_run, 0.0) / 2.0
     return {
         "alpha_run": a,
         "checks": checks,
@@ -470,8 +481,6 @@ def reference_problems(ref: Reference, estimate: Trajectory, alpha: float) -> li
     band it is pessimistic and the consistency test only conservative); none at all; or its
     mean position sigma more than :data:`REFERENCE_SIGMA_RATIO` times the estimate's own.
     """
-    from odofuse import chi2
-
     vc = (ref.result.extra or {}).get("variance_components")
     out = []
     if not vc:
@@ -484,15 +493,12 @@ def reference_problems(ref: Reference, estimate: Trajectory, alpha: float) -> li
                 f"the smoother's variance components did not converge in "
                 f"{vc.get('iterations')} passes"
             )
-        f, r = vc.get("variance_factor"), vc.get("redundancy")
-        if f is not None and r and r > 0:
-            hi = float(chi2.ppf(1.0 - alpha, r)) / r if alpha > 0 else math.inf
-            if not (math.isfinite(f) and f <= hi):
-                out.append(
-                    f"the smoother's variance factor {f:.3g} is above its chi-square band "
-                    f"({hi:.3g} at {r} degrees of freedom, false alarm {alpha:.2g}): its "
-                    "noise model is optimistic, its covariance claims too much"
-                )
+        excess = variance_factor_excess(vc, alpha)
+        if excess:
+            out.append(
+                f"the smoother's {excess}: its noise model is optimistic, its covariance "
+                "claims too much"
+            )
     sm = ref.result.trajectory
     if sm.covariances is not None and estimate.covariances is not None and len(estimate):
         ts = sm.covariances[:, 0, 0] + sm.covariances[:, 1, 1]
@@ -506,6 +512,59 @@ def reference_problems(ref: Reference, estimate: Trajectory, alpha: float) -> li
                     f"than {REFERENCE_SIGMA_RATIO:g}x: it has every reading the estimate had)"
                 )
     return out
+
+
+def variance_factor_excess(vc: dict, alpha: float) -> str | None:
+    """``"variance factor ... above its chi-square band (...)"`` when the global variance
+    factor of ``vc`` (``extra["variance_components"]``: ``v^T v / (m - n)`` of the noise
+    models at the optimum, Koch's global test) is above the ``1 - alpha`` quantile of
+    ``chi2(m - n) / (m - n)``; None when it is inside, or not available."""
+    from odofuse import chi2
+
+    f, r = vc.get("variance_factor"), vc.get("redundancy")
+    if f is None or not r or r <= 0:
+        return None
+    hi = float(chi2.ppf(1.0 - alpha, r)) / r if alpha > 0 else math.inf
+    if math.isfinite(f) and f <= hi:
+        return None
+    return (
+        f"variance factor {f:.3g} is above its chi-square band ({hi:.3g} at {r} degrees of "
+        f"freedom, false alarm {alpha:.2g})"
+    )
+
+
+def own_test(config, log) -> bool:
+    """Whether the batch smoother run as the estimate tests its own variance factor: where it
+    is the others' second opinion (:func:`scope_reason`, the check not switched off)."""
+    off = config.estimator_options("cross_check").smoother == "off"
+    return config.estimator == "smoother" and not off and scope_reason(config, log) is None
+
+
+def variance_factor_findings(
+    smoother: EstimateResult, alpha: float, seen_by_reference: bool = False
+) -> list[Finding]:
+    """The ``variance_factor`` finding (degrading) of a batch smoother's run: its residuals
+    say that the config's noise model is optimistic for this log, so a covariance computed
+    with it claims too much, the smoother's and any other estimator's of the same log and
+    config (``seen_by_reference``: the finding of a filter that the smoother checks, as the
+    time-stamp test's; for the others the skipped check degrades, :func:`skipped_finding`).
+    The same test (:func:`variance_factor_excess`) makes the smoother unable to judge the
+    others (:func:`reference_problems`); without this finding a smoother or a filter pulled
+    by a fault their other checks do not see (a gyro bias step, docs/trust.md) said ``ok``
+    at a position NEES of 100."""
+    vc = (smoother.extra or {}).get("variance_components") or {}
+    excess = variance_factor_excess(vc, alpha)
+    if not excess:
+        return []
+    by = "seen by the batch smoother of this log: " if seen_by_reference else ""
+    return [
+        Finding(
+            "variance_factor",
+            f"{by}the residuals' {excess}: the noise model is optimistic for this log, a "
+            "covariance computed with it claims more than the readings support",
+            figure=float(vc["variance_factor"]),
+        )
+    ]
 
 
 def skipped_finding(estimator: str, reason: str, failed: bool) -> Finding:
@@ -575,6 +634,9 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     """
     budget = alpha_budget(config, log)
     reason = skip_reason(config, log)
+    if "variance_factor" in budget["checks"]:  # the smoother as the estimate (own_test)
+        found = variance_factor_findings(result, budget["checks"]["variance_factor"])
+        result = dataclasses.replace(result, findings=(*result.findings, *found))
     if reason is not None:
         return _skipped(result, reason, {"skipped": reason}, failed=False)
     try:  # a smoother that cannot run this log must not fail the run it only checks
@@ -594,7 +656,11 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     if (ref.status if ref.yardstick_status is None else ref.yardstick_status) != "ok":
         why = f"the batch smoother's own status is {ref.status}"
         return _skipped(result, why, {"skipped": why, **about})
-    problems = reference_problems(ref, result.trajectory, budget["checks"]["reference_variance"])
+    share = budget["checks"]["reference_variance"]
+    if result.estimator in DRIFT_EVIDENCE:  # the others' skip below degrades for the same cause
+        found = variance_factor_findings(ref.result, share, seen_by_reference=True)
+        result = dataclasses.replace(result, findings=(*result.findings, *found))
+    problems = reference_problems(ref, result.trajectory, share)
     if problems:
         why = "unable to judge: " + "; ".join(problems)
         return _skipped(result, why, {"skipped": why, **about})

@@ -77,11 +77,15 @@ def test_an_unsane_reference_cannot_judge_and_says_so(ref, words):
     est = _line(var=1e-2)
     (problem,) = xc.reference_problems(ref, est, 0.02)
     assert words in problem
-    for name, degrades in (("ekf", False), ("dead_reckoning", True), ("fixed_lag", True)):
+    # an optimistic noise model is the log's: a filter takes the smoother's finding
+    optimistic = words == "above its chi-square band"
+    for name, degrades in (("ekf", optimistic), ("dead_reckoning", True), ("fixed_lag", True)):
         m = checked_metrics(_config(name), _log(), EstimateResult(name, est), 0.1, ref)
         (line,) = [w for w in m["warnings"] if w.startswith("[cross_check_skipped]")]
         assert "unable to judge" in line and words in line
         assert m["status"] == ("degraded" if degrades else "ok"), (name, m["warnings"])
+        vf = [w for w in m["warnings"] if w.startswith("[variance_factor] seen by the batch")]
+        assert len(vf) == (name == "ekf" and optimistic), m["warnings"]
         assert m["cross_check"]["skipped"].startswith("unable to judge")
         assert m["advice"] == []  # no silent fallback either
 
@@ -101,6 +105,29 @@ def test_a_sane_reference_judges_and_the_band_is_the_chi_square_quantile():
         _reference(vc={**SANE, "variance_factor": 1.01 * hi}), _line(), 0.02
     )
     assert f"{hi:.3g}" in p
+
+
+def test_the_smoother_tests_its_own_variance_factor_where_it_is_the_second_opinion():
+    """The statistic that makes the smoother unable to judge the others degrades it too (a
+    gyro bias step left it ``ok`` at NEES 100 while iSAM2 was told it could not be
+    trusted), at its stated share of ``alpha_run``, and only in the second opinion's scope."""
+    from odofuse import chi2
+
+    def run(vc, gps=True):
+        smoother = EstimateResult("smoother", _line(), extra={"variance_components": vc})
+        return checked_metrics(_config("smoother", gps), _log(gps), smoother, 0.1)
+
+    m = run({**SANE, "variance_factor": 1.25})
+    share = m["alpha"]["checks"]["variance_factor"]
+    hi = float(chi2.ppf(1.0 - share, 100)) / 100  # 1.30 at 100 degrees of freedom
+    assert 0.02 < share < 0.025 and hi > 1.25 and m["status"] == "ok" and m["warnings"] == []
+    m = run({**SANE, "variance_factor": 1.01 * hi})
+    (line,) = m["warnings"]
+    assert m["status"] == "degraded" and line.startswith("[variance_factor] the residuals'")
+    assert f"{hi:.3g} at 100 degrees of freedom" in line
+    # no absolute sensor: not the second opinion's scope, no test and no share
+    m = run({**SANE, "variance_factor": 1e3}, gps=False)
+    assert "variance_factor" not in m["alpha"]["checks"] and m["status"] == "ok"
 
 
 def test_a_skip_for_the_logs_shape_is_a_note_and_not_applicable_ones_say_nothing():
