@@ -411,19 +411,21 @@ def alpha_budget(config, log) -> dict:
     filter takes, :func:`with_reference_latency`). What is left of ``alpha_run`` goes to the
     second opinion when it applies, half to its consistency test (``cross_check_nees``) and
     half to the sanity of its reference (the smoother's variance factor above its chi-square
-    band); an estimator whose skipped check degrades (not in :data:`DRIFT_EVIDENCE`) also
-    carries the smoother's residual windows and time-stamp tests (``reference_status``: a
-    degraded smoother skips the check). The other checks (a covariance not positive
-    definite, a solver that did not converge, a stream mostly rejected or silent, a
-    calibration 5 prior sigmas out, a slip run, ...) cannot fire on a matching log, or with
-    a probability below 1e-5 (docs/trust.md); they are not counted.
+    band: a filter's ``variance_factor`` finding, the others' skip); the smoother run as the
+    estimate spends half of what is left on the same test of its own residuals
+    (``variance_factor``, :func:`own_test`); an estimator whose skipped check degrades (not
+    in :data:`DRIFT_EVIDENCE`) also carries the smoother's residual windows and time-stamp
+    tests (``reference_status``: a degraded smoother skips the check). The other checks (a
+    covariance not positive definite, a solver that did not converge, a stream mostly
+    rejected or silent, a calibration 5 prior sigmas out, a slip run, ...) cannot fire on a
+    matching log, or with a probability below 1e-5 (docs/trust.md); they are not counted.
 
     Returns
     -------
     dict
         ``alpha_run``; ``checks``: check (``nis:<stream>``, ``nis_run:<stream>``, ``gyro_wheels``,
         ``residual_windows:<stream>``, ``latency:<stream>``, ``cross_check_nees``,
-        ``reference_variance``) ->
+        ``reference_variance``, ``variance_factor``) ->
         false-alarm probability per run; ``total`` (their sum, at most ``alpha_run``
         unless ``overspent``); ``overspent`` (the in-run checks alone exceed it).
     """
