@@ -51,9 +51,9 @@ def _correlation_condition(
         Pb = P[b]
         diag = np.einsum("nii->ni", Pb)
         f = finite[b]
-        every = bool(np.isfinite(Pb).all() and (diag > 0).all())  # a whole-array test first:
+        # a whole-array test first: where every pose is usable, no per-pose test, no masked copies
+        every = bool(np.isfinite(Pb).all() and (diag > 0).all())
         f[:] = True if every else np.isfinite(Pb).all(axis=(1, 2)) & (diag > 0).all(axis=1)
-        every = every or bool(f.all())  # no copies by a mask where every pose is usable
         db = np.sqrt(np.maximum(diag if every else diag[f], 1e-300))
         C = (Pb if every else Pb[f]) / (db[:, :, None] * db[:, None, :])
         C = 0.5 * (C + np.swapaxes(C, 1, 2))
