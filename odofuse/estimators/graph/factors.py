@@ -153,6 +153,8 @@ class Factors:
         for s in problem.models:
             self.used.setdefault(s, 0)
         self.created: list = []  # (measurement, factor) in the order added
+        # the last keyframe's sensor rows: (position among its factors, measurement, factor)
+        self.rows: list = []
         self.by_kf: dict[int, list[Measurement]] = {}
         for meas in problem.measurements:
             added = meas.keyframe if meas.added_at is None else meas.added_at
@@ -452,6 +454,7 @@ class Factors:
             g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
         first = g.size()  # this keyframe's factors are g's from here on
         twins: dict[int, object] = {}  # position in g -> the factor for self.final
+        self.rows = []
         self._theta_guess[i] = float(values_guess.theta())
         if i > 0:
             f = self.odometry(i)
@@ -475,6 +478,7 @@ class Factors:
             final = (self.final_robust or {}).get(meas.stream)
             if final is not None and final != self.p.robust.get(meas.stream):
                 twins[g.size()] = self.with_loss(meas, f, final)
+            self.rows.append((g.size() - first, meas, f))
             g.add(f)
             self.created.append((meas, f))
             self.used[meas.stream] = self.used.get(meas.stream, 0) + meas.rows

@@ -18,6 +18,7 @@ import numpy as np
 from odofuse import se2
 from odofuse.declarations import GraphOptions
 from odofuse.errors import ConfigError
+from odofuse.estimators.graph import innovations
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.health import solver_findings
 from odofuse.estimators.graph.isam2_slam import cholesky_suits, incremental_slam
@@ -603,6 +604,7 @@ def run_fixed_lag(log, config) -> EstimateResult:
     latency = []
     findings: list[Finding] = []
     current = gtsam.Pose2(*problem.pose0)
+    monitor = innovations.monitor(problem)
 
     def freeze(upto: int) -> None:
         nonlocal done
@@ -622,6 +624,8 @@ def run_fixed_lag(log, config) -> EstimateResult:
         # keyframes that this update will marginalise: take their final estimate first
         freeze(int(np.searchsorted(problem.kt, t - lag, side="left")) if i > 0 else 0)
         g, v = fac.keyframe(i, current)
+        if i > 0 and fac.rows:
+            innovations.observe(monitor, smoother.getISAM2(), fac, g, v)
         graph.push_back(g)
         values.insert(v)
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
@@ -650,5 +654,10 @@ def run_fixed_lag(log, config) -> EstimateResult:
     poses[:, 2] = se2.wrap(poses[:, 2])
     final_keys = [*persistent, *fac.bias_current.values()]
     final_values = _with_poses(smoother.calculateEstimate(), poses, final_keys)
-    extra = {"latency": _latency_summary(latency), "lag_s": lag}
+    extra = {
+        "latency": _latency_summary(latency),
+        "lag_s": lag,
+        "nis": innovations.summary(monitor),
+    }
+    findings += monitor.stream_findings((float(problem.kt[0]), float(problem.kt[-1])), False)
     return finish(problem, fac, final_values, covs, "fixed_lag", extra, findings, stitched=True)

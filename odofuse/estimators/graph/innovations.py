@@ -1,0 +1,141 @@
+"""Predicted innovations of an incremental graph: the filters' NIS, for the fixed-lag smoother.
+
+Before keyframe ``i``'s factors go into the smoother, each of its sensor rows is tested
+against the prediction that everything before it makes: the smoother's joint marginal of the
+old variables the keyframe's factors touch (the last pose, the calibration vectors, a
+landmark), carried to the new variables by the keyframe's other factors (odometry, gyro, a
+walking bias's step, a pinned beacon copy). With the sensor row's factor whitened by its
+Gaussian noise (robust loss removed), ``A delta - b``, the innovation is ``y = b - A mu`` and
+its covariance ``S = A P A^T + I`` (``mu``, ``P``: the prediction's mean and covariance in the
+tangent space at the smoother's estimate), and ``NIS = y^T S^-1 y`` is chi-square with the
+row's dimension when the smoother's covariance is honest: the statistic a filter's gate and
+NIS windows test (docs/trust.md, "The promise"). The rows of one keyframe are each tested
+against the same prediction, so each is chi-square on its own (a filter tests them in turn).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from odofuse.declarations import FilterOptions
+
+#: The fixed-lag smoother's NIS checks run at the filters' defaults (window, ``nis_alpha``,
+#: persistence, hysteresis, ``reject_run``), without recovery: its robust loss already bounds
+#: a gross row's pull. ``cross_check.alpha_budget`` counts them at this ``nis_alpha``.
+NIS_OPTIONS = dataclasses.replace(FilterOptions(), recovery=False)
+
+
+def _jacobian(lin, index: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A linearised factor's whitened Jacobian on the stacked tangent vector, and its ``b``."""
+    A, b = lin.jacobian()
+    out = np.zeros((A.shape[0], n))
+    col = 0
+    for k in lin.keys():
+        start, dim = index[k]
+        out[:, start : start + dim] = A[:, col : col + dim]
+        col += dim
+    return out, np.asarray(b, dtype=float)
+
+
+def predicted_nis(isam, graph, new_values, rows: dict, dims: dict) -> dict[int, float]:
+    """NIS of one keyframe's sensor factors against the smoother's prediction.
+
+    Parameters
+    ----------
+    isam : gtsam.ISAM2
+        The smoother's iSAM2, before the keyframe's update.
+    graph : gtsam.NonlinearFactorGraph
+        The keyframe's factors.
+    new_values : gtsam.Values
+        The keyframe's new variables at their predicted values.
+    rows : dict
+        Position in ``graph`` of each sensor factor to test -> the same factor with its
+        Gaussian noise only (no robust loss). The other factors of ``graph`` make the
+        prediction.
+    dims : dict
+        Key -> tangent dimension of every variable of ``graph``.
+
+    Returns
+    -------
+    dict
+        Position -> NIS; empty when a factor refers to a variable that neither the smoother
+        nor ``new_values`` holds (nothing predicts it), nan where the prediction's
+        covariance is not positive definite.
+    """
+
+    keys = sorted({k for j in range(graph.size()) for k in graph.at(j).keys()})
+    new = set(new_values.keys())
+    old = [k for k in keys if k not in new]
+    if not all(isam.valueExists(k) for k in old):
+        return {}
+    index, n = {}, 0
+    for k in old + [k for k in keys if k in new]:
+        index[k] = (n, int(dims[k]))
+        n += int(dims[k])
+    values = isam.calculateEstimate()
+    values.insert(new_values)
+    info = np.zeros((n, n))
+    eta = np.zeros(n)
+    m = sum(int(dims[k]) for k in old)
+    try:
+        if old:
+            cov = np.asarray(isam.jointMarginalCovariance(old).fullMatrix(), dtype=float)
+            info[:m, :m] = np.linalg.inv(cov)
+        for j in range(graph.size()):
+            if j not in rows:
+                A, b = _jacobian(graph.at(j).linearize(values), index, n)
+                info += A.T @ A
+                eta += A.T @ b
+        chol = np.linalg.cholesky(info)
+    except (np.linalg.LinAlgError, RuntimeError):
+        return {j: math.nan for j in rows}
+    mu = np.linalg.solve(chol.T, np.linalg.solve(chol, eta))
+    out = {}
+    for j, f in rows.items():
+        A, b = _jacobian(f.linearize(values), index, n)
+        half = np.linalg.solve(chol, A.T)  # P = L^-T L^-1, so A P A^T = half^T half
+        S = half.T @ half + np.eye(A.shape[0])
+        y = b - A @ mu
+        out[j] = float(y @ np.linalg.solve(S, y))
+    return out
+
+
+def monitor(problem):
+    """The filters' streaming NIS checks (:class:`~odofuse.estimators.monitors.FilterMonitor`)
+    for the sensor streams of ``problem``, with :data:`NIS_OPTIONS`."""
+    from odofuse.estimators.monitors import FilterMonitor
+
+    return FilterMonitor(NIS_OPTIONS, problem.models)
+
+
+def observe(mon, isam, fac, graph, new_values) -> None:
+    """Feed ``mon`` the NIS of the sensor rows of the keyframe ``fac`` just made (``graph``,
+    ``new_values``; :attr:`Factors.rows`) against ``isam``'s prediction, each accepted when
+    within its stream's gate (as a filter's gate would)."""
+    rows, streams = {}, {}
+    for pos, meas, f in fac.rows:
+        twin = f if meas.stream not in fac.p.robust else fac.with_loss(meas, f, ("none", 0.0))
+        if twin.dim() == mon.dims.get(meas.stream):
+            rows[pos], streams[pos] = twin, meas
+    if not rows:
+        return
+    for pos, nis in predicted_nis(isam, graph, new_values, rows, fac.dims).items():
+        if not math.isfinite(nis):
+            continue
+        meas = streams[pos]
+        t = float(fac.p.kt[meas.keyframe])
+        mon.observe(meas.stream, t, bool(nis <= mon.gates[meas.stream]), nis)
+
+
+def summary(mon) -> dict:
+    """``extra["nis"]``: per tested stream, its readings, those beyond its gate and the mean
+    NIS of the others (expected: the stream's dimension)."""
+    out = {}
+    for s, st in mon.live.items():
+        if st.n:
+            mean = st.tsum / st.tn if st.tn else None
+            out[s] = {"readings": st.n, "beyond_gate": st.n - st.tn, "mean_nis": mean}
+    return out

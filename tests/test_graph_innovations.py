@@ -1,0 +1,131 @@
+"""The fixed-lag smoother's predicted innovations (issue 31: drift evidence of its own).
+
+``predicted_nis`` must be the Kalman filter's NIS of the same prediction: checked on a pose
+chain where the textbook formulas give it in closed form, then through ``odofuse run`` on a
+simulated log (consistent without a fault, the GPS's NIS checks firing with one)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+from odofuse.estimators.graph.innovations import predicted_nis  # noqa: E402
+
+X0, X1, L9 = gtsam.symbol("x", 0), gtsam.symbol("x", 1), gtsam.symbol("l", 9)
+
+
+def _adjoint_inverse(d):
+    """Pose2 adjoint of ``d^-1`` (tangent order x, y, theta), written out by hand."""
+    x, y, th = d
+    c, s = math.cos(th), math.sin(th)
+    # d^-1 = (R^T, -R^T t); Ad(R, t) = [[R, [t_y, -t_x]^T], [0, 1]]
+    ti = -np.array([c * x + s * y, -s * x + c * y])
+    return np.array([[c, s, ti[1]], [-s, c, -ti[0]], [0.0, 0.0, 1.0]])
+
+
+def _chain(P0, pose0, delta, Q):
+    isam = gtsam.ISAM2()
+    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    g.add(gtsam.PriorFactorPose2(X0, gtsam.Pose2(*pose0), gtsam.noiseModel.Gaussian.Covariance(P0)))
+    v.insert(X0, gtsam.Pose2(*pose0))
+    isam.update(g, v)
+    kf, new = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    kf.add(
+        gtsam.BetweenFactorPose2(
+            X0, X1, gtsam.Pose2(*delta), gtsam.noiseModel.Gaussian.Covariance(Q)
+        )
+    )
+    pred = gtsam.Pose2(*pose0).compose(gtsam.Pose2(*delta))
+    new.insert(X1, pred)
+    return isam, kf, new, pred
+
+
+def test_predicted_nis_is_the_kalman_filters_on_a_pose_chain():
+    P0 = np.array([[0.04, 0.01, 0.002], [0.01, 0.09, -0.003], [0.002, -0.003, 0.01]])
+    Q = np.diag([0.01, 0.0025, 0.0004])
+    pose0, delta = (2.0, -1.0, 0.7), (1.5, 0.3, 0.4)
+    isam, kf, new, pred = _chain(P0, pose0, delta, Q)
+    z, R = np.array([pred.x() + 0.8, pred.y() - 0.5]), np.diag([0.25, 0.16])
+    row = gtsam.PoseTranslationPrior2D(
+        X1, gtsam.Pose2(z[0], z[1], 0.0), gtsam.noiseModel.Gaussian.Covariance(R)
+    )
+    kf.add(row)
+    # the textbook prediction: P1 = Ad(delta^-1) P0 Ad(delta^-1)^T + Q (body frame of x1);
+    # the position in the world moves with R(theta1) times the body translation
+    Ad = _adjoint_inverse(delta)
+    P1 = Ad @ P0 @ Ad.T + Q
+    c, s = math.cos(pred.theta()), math.sin(pred.theta())
+    H = np.array([[c, -s, 0.0], [s, c, 0.0]])
+    S = H @ P1 @ H.T + R
+    y = z - np.array([pred.x(), pred.y()])
+    want = float(y @ np.linalg.solve(S, y))
+    got = predicted_nis(isam, kf, new, {1: row}, {X0: 3, X1: 3})
+    assert got[1] == pytest.approx(want, rel=1e-9)
+
+
+def test_a_row_that_nothing_predicts_is_not_tested():
+    isam, kf, new, pred = _chain(
+        np.eye(3) * 0.01, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), np.eye(3) * 1e-3
+    )
+    row = gtsam.RangeFactor2D(X1, L9, 3.0, gtsam.noiseModel.Isotropic.Sigma(1, 0.1))
+    kf.add(row)
+    assert predicted_nis(isam, kf, new, {1: row}, {X0: 3, X1: 3, L9: 2}) == {}
+
+
+# --------------------------------------------------------------- through odofuse run
+@pytest.fixture(scope="module")
+def lap(tmp_path_factory):
+    """One lap (94 s) of the trust scenarios' figure eight with its ``odofuse simulate``
+    config, and a copy whose GPS fixes are 5 m off in x over 40-55 s (multipath)."""
+    import csv
+    import shutil
+
+    from test_cross_check_skipped import _simulated_log
+
+    root = tmp_path_factory.mktemp("lap")
+    clean = _simulated_log(root / "clean")
+    shutil.copytree(clean.parent, root / "fault")
+    gps = root / "fault" / "gps.csv"
+    rows = list(csv.reader(gps.open(encoding="utf-8")))
+    for r in rows[1:]:
+        if 40.0 <= float(r[0]) < 55.0:
+            r[1] = repr(float(r[1]) + 5.0)
+    with gps.open("w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh).writerows(rows)
+    return clean, root / "fault" / "config.yaml"
+
+
+def test_fixed_lag_gps_innovations_are_chi_square_on_a_matching_log(lap, tmp_path):
+    from test_cross_check_skipped import _run
+
+    from odofuse import chi2
+
+    m = _run(lap[0], "fixed_lag", tmp_path / "out")
+    nis = m["extra"]["nis"]
+    assert set(nis) == {"gps"}  # the gyro is a factor between poses, not a tested row
+    n = nis["gps"]["readings"] - nis["gps"]["beyond_gate"]
+    lo, hi = chi2.ppf([0.001, 0.999], 2 * n) / n
+    assert n >= 90 and lo < nis["gps"]["mean_nis"] < hi
+    assert m["status"] == "ok", m["warnings"]
+    checks = m["alpha"]["checks"]
+    assert checks["nis:gps"] == checks["nis_run:gps"] == 1e-3 and "nis:gyro" not in checks
+    assert m["alpha"]["total"] <= m["alpha"]["alpha_run"]
+
+
+def test_fixed_lag_says_a_gps_offset_itself_when_the_second_opinion_cannot(lap, tmp_path):
+    """Issue 31: fixed-lag's status rested on the second opinion alone (``ok`` at NEES 8-17
+    when it was skipped). With the filters' NIS checks on its own innovations, a skip is a note
+    and the GPS fault degrades the run through fixed-lag's own findings."""
+    from test_cross_check_skipped import _run
+
+    m = _run(lap[1], "fixed_lag", tmp_path / "out")
+    assert m["status"] == "degraded"
+    own = {f["check"] for f in m["findings"] if f["degrades"] and f.get("sensor") == "gps"}
+    assert own & {"nis", "nis_run", "rejection_run"}, m["warnings"]
+    (skip,) = [f for f in m["findings"] if f["check"] == "cross_check_skipped"]
+    assert not skip["degrades"] and "rests on the run's own checks" in skip["message"]
+    assert "warning: fixed_lag: [nis" in m["_stdout"]
