@@ -197,7 +197,7 @@ def health_cost(m: int, reps: int = 7) -> None:
     streaming checks' own time per reading, timed alone; and ``health()`` timed inside the
     run at 1 Hz, 10 Hz and every step (the fastest run's mean per call). The two timed-alone
     figures hold on a loaded machine, where whole runs vary by tens of percent."""
-    from odofuse.estimators import monitors
+    from odofuse.status import monitors
 
     best = {False: 0.0, True: 0.0}
     calls = {50: math.inf, 5: math.inf, 1: math.inf}

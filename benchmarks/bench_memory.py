@@ -36,7 +36,7 @@ PHASES = (
     ("odofuse.evaluation", "align_se2", "metrics: align"),
     ("odofuse.evaluation", "rpe", "metrics: rpe"),
     ("odofuse.evaluation", "nees", "metrics: nees"),
-    ("odofuse.health", "assess", "metrics: assess"),
+    ("odofuse.status.findings", "assess", "metrics: assess"),
     ("odofuse.rundir", "write_outputs", "outputs (truth tum, evo)"),
     ("odofuse.outputs", "write_trajectory_csv", "write csv"),
     ("odofuse.outputs", "write_tum", "write tum"),

@@ -5,7 +5,7 @@ Run from any directory: ``python benchmarks/bench_trust.py [--only NAME ...] [--
 (m), the position NEES (expected 2), and two statuses with their verdicts of
 :func:`odofuse.teaching.trust_scenarios.judge`: the estimator alone (``alone``, cross-check
 off: what a live pipeline has) and as ``odofuse run`` gives it (``checked``: with the batch
-smoother's second opinion, :mod:`odofuse.cross_check`, under its ``auto`` rule). A verdict is
+smoother's second opinion, :mod:`odofuse.status.cross_check`, under its ``auto`` rule). A verdict is
 ``holds`` (position NEES below 10 and RMSE within 5x of the best estimator on the log, issue
 25 item 6), ``degraded`` (it said so) or ``SILENT`` (a silent failure: neither); ``advice``
 says whether the run got an advice line (accuracy against the smoother). ``alarm`` marks a run

@@ -92,7 +92,7 @@ def print_table(rows: list[dict], file=None) -> None:
     then each run's warnings and advice, one line each.
 
     ``runtime [s]`` is the estimator's own; a row with ``second_opinion_s`` (the batch
-    smoother run of the cross-check, :mod:`odofuse.cross_check`) adds the column
+    smoother run of the cross-check, :mod:`odofuse.status.cross_check`) adds the column
     ``2nd opinion [s]``, so the printed times add up to the wall time of the check."""
     file = file or sys.stdout
     second = any(r.get("second_opinion_s") is not None for r in rows)

@@ -338,7 +338,7 @@ def check_groundtruth(stream) -> None:
 
 def _coverage(out: dict, traj: Trajectory, gt: Trajectory) -> list:
     """Record what the ground truth covered; a finding when under half the estimate's span."""
-    from odofuse.health import Finding
+    from odofuse.status.findings import Finding
 
     mask = covered(traj.t, gt.t)
     span = float(traj.t[-1] - traj.t[0])
@@ -394,9 +394,9 @@ def metrics(
         rpe_rot_rad, rpe_delta_m, nees_mean, nees_position_mean`` (3-D pose NEES, expected 3,
         and position-only NEES, expected 2; None without covariances). ``status`` (``ok`` or
         ``degraded``), ``warnings`` (one line per finding) and ``findings`` (the records) come
-        from :func:`odofuse.health.assess`, never from ground truth.
+        from :func:`odofuse.status.findings.assess`, never from ground truth.
     """
-    from odofuse.health import assess, status_of
+    from odofuse.status.findings import assess, status_of
 
     traj = result.trajectory
     names = sorted(set(result.used) | set(result.rejected))

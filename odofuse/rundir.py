@@ -7,7 +7,7 @@ It combines the file writers of :mod:`odofuse.outputs` with the picture of
 :mod:`odofuse.plotting` (which do not know each other); ``metrics.json`` comes last and marks a
 complete run. The folder is written whole: claimed by one run, written beside it and swapped
 in (:func:`write_outputs`). Every run's metrics go through :func:`checked_metrics`: the
-batch smoother's second opinion (:mod:`odofuse.cross_check`) before the self-judged status.
+batch smoother's second opinion (:mod:`odofuse.status.cross_check`) before the self-judged status.
 """
 
 from __future__ import annotations
@@ -152,7 +152,7 @@ def _check_replaceable(out: Path, estimator: str) -> None:
 def run_one(config, log, out_dir: Path, reference=None) -> dict:
     """Run one estimator on ``log`` and write its outputs into ``out_dir``; returns metrics.
 
-    ``reference`` (an :class:`odofuse.cross_check.Reference` or a function returning one) is
+    ``reference`` (an :class:`odofuse.status.cross_check.Reference` or a function returning one) is
     the batch smoother run of the cross-check, shared by several runs on one log; None: run
     when the check applies. A smoother run given its own reference reuses it.
     """
@@ -166,12 +166,12 @@ def run_one(config, log, out_dir: Path, reference=None) -> dict:
 
 def smoother_reference(config, log):
     """A function returning the batch smoother run of ``config`` on ``log``, run once on its
-    first call (:class:`odofuse.cross_check.Reference`): ``reference`` of :func:`run_one` for
+    first call (:class:`odofuse.status.cross_check.Reference`): ``reference`` of :func:`run_one` for
     several runs on one log."""
     import functools
 
-    from odofuse.cross_check import reference_of
     from odofuse.log_defaults import apply_log_defaults
+    from odofuse.status.cross_check import reference_of
 
     return functools.cache(lambda: reference_of(*apply_log_defaults(config, log)))
 
@@ -194,13 +194,13 @@ def checked_metrics(config, log, result, runtime: float, reference=None) -> dict
 
     The one path from an estimate to its ``metrics.json`` content, shared by
     :func:`finish_run` and the trust scenarios' runs
-    (:func:`odofuse.teaching.trust_scenarios.run`): :func:`odofuse.cross_check.cross_check`
+    (:func:`odofuse.teaching.trust_scenarios.run`): :func:`odofuse.status.cross_check.cross_check`
     adds its findings (so ``status`` and ``warnings`` follow), the ``cross_check`` block, the
     ``advice`` list (accuracy against the smoother: never a finding, never the status) and the
-    run's false-alarm budget ``alpha`` (:func:`odofuse.cross_check.alpha_budget`).
+    run's false-alarm budget ``alpha`` (:func:`odofuse.status.cross_check.alpha_budget`).
     """
-    from odofuse.cross_check import alpha_budget, cross_check
     from odofuse.evaluation import metrics
+    from odofuse.status.cross_check import alpha_budget, cross_check
 
     result, block, advice = cross_check(config, log, result, reference)
     m = metrics(result, log, runtime)

@@ -69,7 +69,7 @@ class EstimateResult:
 
     ``used``/``rejected`` count measurements per sensor stream; ``extra`` holds estimator
     specific results (calibration estimates, landmark positions, ...), JSON-serialisable;
-    ``findings`` are the estimator's own self-checks that failed (:mod:`odofuse.health`),
+    ``findings`` are the estimator's own self-checks that failed (:mod:`odofuse.status.findings`),
     from which the run's ``status`` is derived.
     """
 

@@ -249,8 +249,8 @@ def test_plaza1_slice_equals_the_filterpy_path():
 @pytest.mark.slow(seconds=10)  # filterpy UKF over all of Plaza1: 9.5 s alone, more beside a worker
 def test_plaza1_equals_the_filterpy_path_with_its_findings_and_status():
     """``odofuse run``'s UKF row: the whole log, findings (NIS windows) and status."""
-    from odofuse.health import status_of
     from odofuse.io.builtin import load_builtin
+    from odofuse.status.findings import status_of
 
     log = load_builtin("builtin:plaza1")
     cfg = _plaza_config(compiled="on")

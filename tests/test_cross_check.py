@@ -1,4 +1,4 @@
-"""The batch smoother's second opinion (odofuse.cross_check): its arithmetic on hand-made
+"""The batch smoother's second opinion (odofuse.status.cross_check): its arithmetic on hand-made
 trajectories, when it applies, and how it reaches metrics.json through odofuse.rundir."""
 
 import json
@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from odofuse import cross_check as xc
 from odofuse.config import config_from_dict
 from odofuse.io.log import SensorLog, Stream
 from odofuse.rundir import checked_metrics, run_one
+from odofuse.status import cross_check as xc
 from odofuse.trajectory import EstimateResult, Trajectory
 
 SIGMA = 0.01  # m, the hand-made smoother's per-axis position sigma: s = sqrt(2) * SIGMA

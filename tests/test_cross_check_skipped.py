@@ -18,11 +18,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from odofuse import cross_check as xc
 from odofuse.config import config_from_dict
-from odofuse.estimators.pose_checks import collapse_findings
 from odofuse.io.log import SensorLog, Stream
 from odofuse.rundir import checked_metrics
+from odofuse.status import cross_check as xc
+from odofuse.status.pose_checks import collapse_findings
 from odofuse.trajectory import EstimateResult, Trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -162,7 +162,7 @@ def test_a_skip_for_the_logs_shape_is_a_note_and_not_applicable_ones_say_nothing
 def test_advice_never_changes_status():
     """Issue 25 item 2: the status is derived from the findings alone; the accuracy ratio is
     an advice line and never a finding, whether the run is ok or degraded."""
-    from odofuse.health import Finding, status_of
+    from odofuse.status.findings import Finding, status_of
 
     def status_from_findings(m):
         return status_of([Finding(**f) for f in m["findings"]])

@@ -12,8 +12,8 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")
 
-from odofuse import cross_check as xc  # noqa: E402
 from odofuse.estimators.graph import variance  # noqa: E402
+from odofuse.status import cross_check as xc  # noqa: E402
 from odofuse.trajectory import Trajectory  # noqa: E402
 
 X = gtsam.symbol_shorthand.X
@@ -208,9 +208,9 @@ def test_the_error_samples_are_the_same_for_the_same_inputs_and_seed():
 
 
 def test_the_smoother_keeps_its_error_samples_in_memory_and_out_of_metrics_json():
-    from odofuse.cross_check import reference_of
     from odofuse.estimators import run_estimator
     from odofuse.evaluation import metrics
+    from odofuse.status.cross_check import reference_of
     from odofuse.teaching import trust_scenarios as ts
 
     log, cfg = ts.simulated("gps_outage", 1, 7)

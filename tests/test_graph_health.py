@@ -1,6 +1,6 @@
 """The graph back end says when it failed (issue 10 item 4): findings, never a quiet ``ok``.
 
-Every check runs without ground truth (:mod:`odofuse.estimators.graph.health`); the tests
+Every check runs without ground truth (:mod:`odofuse.status.graph_checks`); the tests
 provoke each failure on a small simulated log and check that the run is ``degraded`` with a
 warning naming the cause, and that a healthy run stays ``ok``.
 """
@@ -17,13 +17,13 @@ gtsam = pytest.importorskip("gtsam")
 from graph_sim import simulated_run  # noqa: E402
 
 from odofuse.estimators import run_estimator  # noqa: E402
-from odofuse.estimators.graph import health  # noqa: E402
 from odofuse.estimators.graph.solvers import (  # noqa: E402
     levenberg_marquardt,
     marginal_covariances,
 )
 from odofuse.evaluation import metrics  # noqa: E402
 from odofuse.io.log import Stream  # noqa: E402
+from odofuse.status import graph_checks as health  # noqa: E402
 
 X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
 
@@ -186,7 +186,7 @@ def test_a_slip_run_of_keyframe_intervals_longer_than_a_second_degrades():
     the note alone."""
     from types import SimpleNamespace
 
-    from odofuse.estimators.graph.health import slip_findings
+    from odofuse.status.graph_checks import slip_findings
 
     problem = SimpleNamespace(
         kt=np.arange(0.0, 10.5, 0.5), models={"gyro": None}, gyro={"gyro": None}

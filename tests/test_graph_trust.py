@@ -1,8 +1,8 @@
 """The graph back end on issue 10's scenarios: it holds or says ``degraded``, never silently.
 
 Robust odometry in the graph (:func:`odofuse.estimators.graph.factors.slip_scales`, the filters'
-:func:`odofuse.estimators.monitors.slip_scale` on keyframe intervals) and the residual-window
-check (:func:`odofuse.estimators.graph.health.window_findings`), on the one-lap scenarios of
+:func:`odofuse.status.monitors.slip_scale` on keyframe intervals) and the residual-window
+check (:func:`odofuse.status.graph_checks.window_findings`), on the one-lap scenarios of
 :mod:`odofuse.teaching.trust_scenarios` (seed 7) and on synthetic inputs.
 """
 
@@ -18,11 +18,11 @@ import pytest
 pytest.importorskip("gtsam")
 
 from odofuse.declarations import GraphOptions  # noqa: E402
-from odofuse.estimators import monitors  # noqa: E402
-from odofuse.estimators.graph import health  # noqa: E402
 from odofuse.estimators.graph.factors import slip_scales  # noqa: E402
 from odofuse.estimators.graph.problem import GraphProblem, GyroIncrements  # noqa: E402
 from odofuse.measurements import gate_threshold  # noqa: E402
+from odofuse.status import graph_checks as health  # noqa: E402
+from odofuse.status import monitors  # noqa: E402
 from odofuse.teaching import trust_scenarios as ts  # noqa: E402
 
 _CACHE: dict = {}

@@ -3,7 +3,13 @@
 import numpy as np
 
 from odofuse.evaluation import metrics
-from odofuse.health import Finding, assess, covariance_findings, rejection_findings, status_of
+from odofuse.status.findings import (
+    Finding,
+    assess,
+    covariance_findings,
+    rejection_findings,
+    status_of,
+)
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -56,7 +62,7 @@ def test_estimator_findings_come_first_and_are_not_duplicated():
 
 def test_filter_covariance_conditioning_in_blocks_equals_the_whole_run():
     from odofuse.declarations import EkfOptions
-    from odofuse.estimators import pose_checks
+    from odofuse.status import pose_checks
 
     rng = np.random.default_rng(3)
     A = rng.normal(size=(1000, 3, 3))
@@ -82,7 +88,7 @@ def test_filter_covariance_conditioning_in_blocks_equals_the_whole_run():
 def test_condition_screen_is_an_upper_bound_and_exact_above_its_cap():
     """``cap``: the determinant's bound replaces the eigenvalues only where it proves the
     condition number at most ``cap``; above it the numbers are the eigenvalues' own."""
-    from odofuse.estimators import pose_checks
+    from odofuse.status import pose_checks
 
     rng = np.random.default_rng(4)
     A = rng.normal(size=(3000, 3, 3))

@@ -1,4 +1,4 @@
-"""The time-stamp test (odofuse.estimators.latency): range readings stamped 0.5 s late are seen
+"""The time-stamp test (odofuse.status.latency): range readings stamped 0.5 s late are seen
 by the batch smoother's residuals and reach the filters' status through the cross-check; the
 same log on time is not flagged, and the statistic recovers a known offset of a noise-free residual.
 
@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from odofuse.cross_check import alpha_budget
-from odofuse.estimators import latency
 from odofuse.io.log import SensorLog, Stream
 from odofuse.log_defaults import apply_log_defaults
 from odofuse.rundir import checked_metrics, estimate, smoother_reference
+from odofuse.status import latency
+from odofuse.status.cross_check import alpha_budget
 from odofuse.trajectory import EstimateResult, Trajectory
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))

@@ -37,7 +37,9 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
             "odofuse.testing",
             "odofuse.trajectory",
             "odofuse.plugins",
-            "odofuse.health",
+            # the status package (every check, by role): its catalog and the findings type
+            "odofuse.status",
+            "odofuse.status.findings",
             "odofuse.chi2",
         ),
     ),
@@ -55,13 +57,28 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
     # Packages by role: motion (integrators, noise, model), measurements (base, absolute, gyro,
     # landmarks, registry).
     ("models", False, ("odofuse.motion", "odofuse.measurements", "odofuse.frames")),
-    ("estimators", False, ("odofuse.estimators",)),
+    # the in-run checks of the status package beside the estimators that feed them
+    (
+        "estimators",
+        False,
+        (
+            "odofuse.estimators",
+            "odofuse.status.monitors",
+            "odofuse.status.pose_checks",
+            "odofuse.status.latency",
+            "odofuse.status.graph_checks",
+        ),
+    ),
     (
         "results",
         True,
         ("odofuse.evaluation", "odofuse.outputs", "odofuse.outputs_ros", "odofuse.plotting"),
     ),
-    ("run folder", False, ("odofuse.rundir", "odofuse.cross_check", "odofuse.tune")),
+    (
+        "run folder",
+        False,
+        ("odofuse.rundir", "odofuse.status.cross_check", "odofuse.tune"),
+    ),
     ("fleet", False, ("odofuse.batch",)),
     # odofuse live (issue 27): rmw (wire format), transport, messages, component, run.
     ("live", False, ("odofuse.live",)),

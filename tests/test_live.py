@@ -206,6 +206,13 @@ def test_out_of_order_within_lag_equals_in_order(tmp_path, bag):
     assert values["dropped_late/gps"] == 1
 
 
+def test_health_before_the_first_odometry_is_waiting(tmp_path, bag):
+    config, log = prepare(config_file(tmp_path, bag, "{transport: none}"), str(bag))
+    comp = Component(config, lambda o, ty, m: None, log)
+    h = comp.health()
+    assert h.status == "degraded" and [f.check for f in h.findings] == ["waiting"]
+
+
 def test_timeout_raised_and_recovered(tmp_path, bag):
     config = config_file(tmp_path, bag, "{transport: none, timeout: 1.5}")
     comp, msgs, out = collect(config, bag)

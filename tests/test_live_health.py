@@ -14,13 +14,14 @@ from test_ekf import sim_config, simulate
 
 from odofuse import chi2
 from odofuse.declarations import EkfOptions
-from odofuse.estimators import ekf, monitors, particle, run_estimator, ukf
+from odofuse.estimators import ekf, particle, run_estimator, ukf
 from odofuse.estimators.assembly import events
 from odofuse.estimators.common import odometry_inputs
 from odofuse.estimators.localizer import assemble
-from odofuse.health import assess, status_of
 from odofuse.io.log import Stream
 from odofuse.motion import motion_model_from_config
+from odofuse.status import monitors
+from odofuse.status.findings import assess, status_of
 
 BACKENDS = {"ekf": ekf, "ukf": ukf, "particle": particle}
 GPS_SIGMA = 0.5

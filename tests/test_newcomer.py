@@ -136,8 +136,8 @@ def test_1_a_filter_that_overflows_stops_at_the_step_naming_stream_and_cause(rob
     from odofuse.config import load_config
     from odofuse.errors import NumericError
     from odofuse.estimators import run_estimator
-    from odofuse.health import assess, status_of
     from odofuse.io.loader import load_log
+    from odofuse.status.findings import assess, status_of
 
     cfg = load_config(write_config(robot, "metres-api", "metres"))
     motion = dataclasses.replace(cfg.motion, k_r=1.0869040495212293e-05, k_l=1.2840254166877412e-5)

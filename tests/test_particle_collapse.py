@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from gyro_sim import gyro_localizer
 
-from odofuse.estimators import pose_checks
 from odofuse.estimators.particle import ParticleBackend, weighted_cov
+from odofuse.status import pose_checks
 
 
 def test_weighted_cov_is_numpys_reliability_weights_estimator():

@@ -11,10 +11,10 @@ from gyro_sim import gyro_localizer
 from odofuse.config import config_from_dict
 from odofuse.declarations import ParticleOptions
 from odofuse.errors import ConfigError, InputError
-from odofuse.estimators import monitors
 from odofuse.estimators.particle import ParticleBackend
 from odofuse.evaluation import covered, metrics
 from odofuse.io.log import SensorLog, Stream
+from odofuse.status import monitors
 from odofuse.teaching import trust_scenarios as ts
 from odofuse.trajectory import EstimateResult, Trajectory
 
@@ -57,7 +57,7 @@ def test_a_sensor_silent_for_most_of_the_run_is_an_outage_that_degrades():
 def _learning_record(times, cov_at):
     from array import array
 
-    from odofuse.estimators import pose_checks
+    from odofuse.status import pose_checks
 
     rec = tuple(array("d") for _ in range(4))
     for tk in times:
@@ -72,7 +72,7 @@ def _heading_bias_cov(var_theta, cov_tb, var_b):
 
 
 def test_learning_check_fires_when_the_heading_rests_on_a_bias_still_being_learnt():
-    from odofuse.estimators import pose_checks
+    from odofuse.status import pose_checks
 
     # The heading fully explained by the bias (correlation 1) until 70 s, when the bias is
     # learnt (variance 1e-4 -> 1e-6): with the final bias the heading variance would have been

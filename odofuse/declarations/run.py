@@ -171,7 +171,7 @@ class CrossCheckOptions:
     """``options.cross_check``: an offline run's second opinion from the batch smoother.
 
     ``odofuse run`` / ``odofuse batch`` also run the batch smoother on the same log and config
-    and compare (:mod:`odofuse.cross_check`, docs/trust.md). ``auto`` checks when the config
+    and compare (:mod:`odofuse.status.cross_check`, docs/trust.md). ``auto`` checks when the config
     fuses an absolute sensor and the log has at most ``max_odometry_steps`` odometry steps:
     on a 1 h log of 50 Hz odometry and 1 Hz GPS the smoother took 18.5 s (the EKF 10.4 s), so
     the default (200,000 steps) checks a 1 h 50 Hz log (180,000) and skips a 10 h one.
@@ -199,7 +199,8 @@ class StatusOptions:
     ``alpha_run`` is the run's false-alarm rate: on a log that matches its config, the
     probability that the run says ``degraded``. It is split between the checks that can fire
     on such a log (Bonferroni: each check's share is stated in ``metrics.json``
-    ``alpha``, and the shares sum to at most ``alpha_run``; :func:`odofuse.health.alpha_budget`).
+    ``alpha``, and the shares sum to at most ``alpha_run``;
+    :func:`odofuse.status.cross_check.alpha_budget`).
     """
 
     alpha_run: float = option(
@@ -214,7 +215,7 @@ class StatusOptions:
         1e-3,
         unit="-",
         doc="false-alarm probability per absolute stream of the time-stamp test (a reading "
-        "stamped late or early; odofuse.estimators.latency)",
+        "stamped late or early; odofuse.status.latency)",
         minimum=1e-12,
         maximum=0.5,
     )

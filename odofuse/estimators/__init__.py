@@ -83,7 +83,7 @@ def _unused_streams(result, config, streams):
     """A configured stream with data that the estimator counted but never used or rejected
     (all its readings outside the odometry's time span, say) degrades the run unless a
     degrading finding already names it: ``used: 0`` never hides behind ``ok``."""
-    from odofuse.health import Finding
+    from odofuse.status.findings import Finding
 
     notes = []
     explained = {f.sensor for f in result.findings if f.degrades}
@@ -126,7 +126,7 @@ def run_estimator(name: str, log, config, **options):
     noted = tuple(getattr(log, "findings", ()) or ())  # the log's plausibility findings
     if noted:
         result = dataclasses.replace(result, findings=tuple(result.findings) + noted)
-    from odofuse.estimators import latency
+    from odofuse.status import latency
 
     if name in latency.OWN:  # the time-stamp test on the graph's own residuals
         found, block = latency.findings(config, log, result)
@@ -139,7 +139,7 @@ def run_estimator(name: str, log, config, **options):
     result = _unused_streams(result, config, streams)
     n = len(streams["loop_closures"]) if "loop_closures" in streams else 0
     if n and "loop_closures" not in result.used:
-        from odofuse.health import Finding
+        from odofuse.status.findings import Finding
 
         note = Finding(
             "loop_closures",

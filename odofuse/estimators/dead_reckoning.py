@@ -2,7 +2,7 @@
 
 Its own tell-tale (issue 10): where the log has a gyro, the gyro's and the wheels' heading
 changes are compared over short windows
-(:func:`odofuse.estimators.pose_checks.gyro_wheel_findings`);
+(:func:`odofuse.status.pose_checks.gyro_wheel_findings`);
 a disagreement the error models cannot explain (wheel slip, a stuck encoder, a gyro fault)
 becomes a finding, since dead reckoning keeps every such error.
 
@@ -18,11 +18,11 @@ from __future__ import annotations
 import numpy as np
 
 from odofuse import se2
-from odofuse.estimators import pose_checks
 from odofuse.estimators.common import initial_state, odometry_inputs, odometry_stream_name
 from odofuse.estimators.compiled.dead_reckoning import dead_reckon
 from odofuse.estimators.odocal import filter_odometry_calibration
 from odofuse.motion import motion_model_from_config
+from odofuse.status import pose_checks
 from odofuse.trajectory import EstimateResult, Trajectory
 
 

@@ -22,8 +22,8 @@ from collections.abc import Mapping
 import numpy as np
 
 from odofuse.errors import InputError
-from odofuse.health import MOSTLY_REJECTED, Finding
 from odofuse.io.csvlog import MAX_MAGNITUDE, excerpt
+from odofuse.status.findings import MOSTLY_REJECTED, Finding
 
 #: What ``Localizer.add_measurement`` / ``add_odometry`` return.
 USED, REJECTED, BUFFERED, DROPPED, DUPLICATE = (

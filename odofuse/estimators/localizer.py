@@ -44,11 +44,10 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from odofuse import health as H
 from odofuse import se2
 from odofuse.declarations import DEFAULT_LATE_WINDOW, EkfOptions
 from odofuse.errors import ConfigError, InputError
-from odofuse.estimators import inputs, monitors
+from odofuse.estimators import inputs
 from odofuse.estimators.common import (
     augmented_prior,
     calibration_of,
@@ -63,6 +62,8 @@ from odofuse.estimators.history import (
     held_rate_integral,
     keep_rate_sample,
 )
+from odofuse.status import findings as H
+from odofuse.status import monitors
 from odofuse.trajectory import EstimateResult, Trajectory
 
 #: Odometry inputs composed into the ``odom`` pose at once (vectorised dead reckoning).
@@ -621,7 +622,7 @@ class Localizer:
 
 def _plainly_fine(x, P) -> bool:
     """True when pose ``x`` (3,) is finite and covariance ``P`` (3, 3) positive definite with
-    its smallest eigenvalue above :data:`odofuse.health.MIN_EIGEN_RATIO` of its largest
+    its smallest eigenvalue above :data:`odofuse.status.findings.MIN_EIGEN_RATIO` of its largest
     (leading minors > 0, and ``det > ratio * trace^3`` bounds ``l_min / l_max`` from below);
     False says nothing (the exact checks then run). Scalar arithmetic: a few microseconds."""
     (a, b, c), (_, d, e), (_, _, f) = P.tolist()

@@ -44,7 +44,7 @@ which drove 20 particles from 1e-4 to 1e-14 over 10^6 gyro steps. Hence:
   nothing about. Heading clones move with the heading so ``theta - theta_ref`` is untouched.
 * **Covariance**: :meth:`ParticleBackend.cov` is the same estimator, symmetric positive
   semi-definite by construction; a cloud that has collapsed anyway is reported by the
-  Localizer's ``collapse`` check (:func:`odofuse.estimators.pose_checks.collapse_findings`).
+  Localizer's ``collapse`` check (:func:`odofuse.status.pose_checks.collapse_findings`).
 * **Recovery**: :meth:`ParticleBackend.inflate` spreads the pose about its mean.
 
 Compiled core (``options.particle.compiled``, :mod:`odofuse.estimators.compiled.particle`):

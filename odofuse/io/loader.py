@@ -216,7 +216,7 @@ def configured_streams(log: SensorLog, config) -> SensorLog:
     finding in ``log.findings`` instead, which degrades the run when no other absolute
     sensor (:data:`ABSOLUTE_KINDS`) of the config has data.
     """
-    from odofuse.health import Finding
+    from odofuse.status.findings import Finding
 
     missing = [s for s in config.sensors if not (log.has(s) and len(log.streams[s]))]
     if not missing:

@@ -8,7 +8,7 @@ the numbers can be physical for this robot and config. Each check ends in one of
   so the data row ``i`` is row ``i + 2`` when no repair reordered the file) and the column,
   when the run would otherwise be garbage (a step faster than the robot can go, times in
   nanoseconds, a gyro in degrees per second, lat/lon swapped);
-* a :class:`~odofuse.health.Finding` in ``log.findings`` (a ``warnings`` line of
+* a :class:`~odofuse.status.findings.Finding` in ``log.findings`` (a ``warnings`` line of
   ``metrics.json``; ``degrades=True`` makes the run ``degraded``) when the data may be right
   but the estimate across it cannot be trusted (a wheels gap in which the counter may have
   wrapped more than once, GPS fixes far from anything local).
@@ -47,7 +47,7 @@ by a time step or compares time scales (``speed``, ``time_units``, ``gps_jumps``
     ``robot.wheel_radius`` or ``robot.track_width``): an error naming those keys.
 
 A stream mostly rejected by its gate, or mostly dropped as late, is reported by the run
-itself (:func:`odofuse.health.rejection_findings`, the Localizer's ``dropped`` finding).
+itself (:func:`odofuse.status.findings.rejection_findings`, the Localizer's ``dropped`` finding).
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ import math
 import numpy as np
 
 from odofuse.errors import InputError
-from odofuse.health import Finding
+from odofuse.status.findings import Finding
 
 #: Defaults of ``log.max_speed`` (m/s) and ``log.max_yaw_rate`` (rad/s): generous for any
 #: wheeled mobile robot (108 km/h; two turns a second), far below what a corrupt row gives.

@@ -35,11 +35,11 @@ import numpy as np
 from odofuse import se2
 from odofuse.declarations.live import DEFAULT_OUTPUTS, DEFAULT_TOPICS, INPUT_KINDS
 from odofuse.errors import ConfigError, InputError
-from odofuse.health import Finding, status_of
 from odofuse.io.bags import stream_name
 from odofuse.live import messages
 from odofuse.live.messages import BadMessage
 from odofuse.options import explicit
+from odofuse.status.findings import Finding, status_of
 
 RESET_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"

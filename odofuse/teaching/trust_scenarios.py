@@ -7,7 +7,7 @@ diverged; dead reckoning, which fuses no absolute sensor, on its NEES alone), an
 must report ``degraded``.
 A run that neither holds nor says ``degraded`` is a *silent failure*. :func:`run` gives a
 run's metrics through the path ``odofuse run`` takes (:func:`odofuse.rundir.checked_metrics`,
-with the batch smoother's second opinion of :mod:`odofuse.cross_check`), or, with
+with the batch smoother's second opinion of :mod:`odofuse.status.cross_check`), or, with
 ``check=False``, the estimator alone, as a live pipeline has it.
 
 Faults the simulator does not produce itself are applied to the simulated log in memory:
@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from odofuse.cross_check import HOLD_NEES, HOLD_RMSE_RATIO, UNAIDED
 from odofuse.io.log import Stream
+from odofuse.status.cross_check import HOLD_NEES, HOLD_RMSE_RATIO, UNAIDED
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository (configs/)
 
@@ -199,7 +199,7 @@ def run(
     estimator : str
     options : dict, optional
         Merged into ``options.<estimator>``.
-    reference : odofuse.cross_check.Reference, optional
+    reference : odofuse.status.cross_check.Reference, optional
         The batch smoother of this log and config (:func:`smoother_reference`), computed once
         and shared; None: run when the check applies. A smoother run reuses it.
     check : bool
@@ -227,9 +227,10 @@ def run_config(config, estimator: str, options: dict | None = None, check: bool 
 
 
 def smoother_reference(log, config):
-    """The batch smoother run of ``log`` with ``config`` (:class:`odofuse.cross_check.Reference`),
-    to share between the runs of one scenario."""
-    from odofuse.cross_check import reference_of
+    """The batch smoother run of ``log`` with ``config``
+    (:class:`odofuse.status.cross_check.Reference`), to share between the runs of one
+    scenario."""
+    from odofuse.status.cross_check import reference_of
 
     return reference_of(config, log)
 

@@ -104,9 +104,9 @@ def predicted_nis(isam, graph, new_values, rows: dict, dims: dict) -> dict[int, 
 
 
 def monitor(problem):
-    """The filters' streaming NIS checks (:class:`~odofuse.estimators.monitors.FilterMonitor`)
+    """The filters' streaming NIS checks (:class:`~odofuse.status.monitors.FilterMonitor`)
     for the sensor streams of ``problem``, with :data:`NIS_OPTIONS`."""
-    from odofuse.estimators.monitors import FilterMonitor
+    from odofuse.status.monitors import FilterMonitor
 
     return FilterMonitor(NIS_OPTIONS, problem.models)
 

@@ -20,7 +20,6 @@ from odofuse.declarations import GraphOptions
 from odofuse.errors import ConfigError
 from odofuse.estimators.graph import innovations
 from odofuse.estimators.graph.factors import Factors
-from odofuse.estimators.graph.health import solver_findings
 from odofuse.estimators.graph.isam2_slam import cholesky_suits, incremental_slam
 from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, model_kind
@@ -32,7 +31,8 @@ from odofuse.estimators.graph.solvers import (
     pose_array,
     world_covs,
 )
-from odofuse.health import Finding
+from odofuse.status.findings import Finding
+from odofuse.status.graph_checks import solver_findings
 from odofuse.trajectory import EstimateResult
 
 

@@ -4,7 +4,7 @@ Owns :func:`marginal_covariances`: ``gtsam.Marginals`` of the solution; when GTS
 system (``IndeterminantLinearSystemException``: a gauge-free or numerically singular
 information matrix), the marginals of the same graph linearised with a weak prior on every
 variable, and when that fails too, no covariances. Each fallback is reported as a
-:class:`~odofuse.health.Finding` (:func:`~odofuse.estimators.graph.health.marginals_finding`)
+:class:`~odofuse.status.findings.Finding` (:func:`~odofuse.status.graph_checks.marginals_finding`)
 instead of a traceback. The batch smoother uses it (iSAM2 and the fixed-lag smoother read
 their own Bayes tree's marginals).
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from odofuse.estimators.graph.health import marginals_finding
+from odofuse.status.graph_checks import marginals_finding
 
 
 def marginal_covariances(graph, values, keys, dims) -> tuple[dict, list]:

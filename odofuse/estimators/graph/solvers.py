@@ -32,18 +32,18 @@ from odofuse import se2
 from odofuse.errors import one_line
 from odofuse.estimators.graph.chordal import chordal_poses
 from odofuse.estimators.graph.factors import Factors
-from odofuse.estimators.graph.health import (
+from odofuse.estimators.graph.isam2_slam import cholesky_suits, incremental_slam
+from odofuse.estimators.graph.keys import X
+from odofuse.estimators.graph.marginals import marginal_covariances
+from odofuse.estimators.graph.problem import GraphProblem, build_problem, convex_problem
+from odofuse.estimators.graph.variance import factor_groups, variance_components
+from odofuse.status.graph_checks import (
     factor_residuals,
     graph_findings,
     residual_summary,
     robust_weights,
     solver_findings,
 )
-from odofuse.estimators.graph.isam2_slam import cholesky_suits, incremental_slam
-from odofuse.estimators.graph.keys import X
-from odofuse.estimators.graph.marginals import marginal_covariances
-from odofuse.estimators.graph.problem import GraphProblem, build_problem, convex_problem
-from odofuse.estimators.graph.variance import factor_groups, variance_components
 from odofuse.trajectory import EstimateResult, Trajectory
 
 
@@ -209,7 +209,7 @@ def finish(
     ``extra`` gains ``calibration``, ``landmarks`` (SLAM), ``keyframes``, ``python_factors``,
     ``outliers`` (per stream, factors beyond the model's gate) and ``residuals`` (per stream:
     factors, chi-square per dimension, median ratio, fraction beyond 0.999); ``findings``
-    (solver, covariance) are followed by :func:`~odofuse.estimators.graph.health.graph_findings`
+    (solver, covariance) are followed by :func:`~odofuse.status.graph_checks.graph_findings`
     (``stitched``: poses from several solutions, the fixed-lag smoother's).
     """
     poses = pose_array(values, len(problem.kt))
@@ -501,7 +501,7 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
         cross-check's posterior, never written; only the cross-check's reference asks for
         them, so a smoother run of its own does not pay for them); ``findings`` for a solver
         that did not converge, covariances that could not be computed, and the checks of
-        :mod:`odofuse.estimators.graph.health`.
+        :mod:`odofuse.status.graph_checks`.
     """
     import gtsam
 

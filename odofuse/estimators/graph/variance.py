@@ -7,7 +7,7 @@ exact parametric bootstrap of the linearised smoother), the grouping of a graph'
 stream (:func:`factor_groups`) and the whitened sparse system of a linearised graph it works
 on. :func:`odofuse.estimators.graph.solvers.run_smoother` records the components in
 ``extra["variance_components"]`` and the samples in ``extra["_error_samples"]`` (in memory
-only: ``extra`` keys starting with ``_`` are not written); :mod:`odofuse.cross_check` scales
+only: ``extra`` keys starting with ``_`` are not written); :mod:`odofuse.status.cross_check` scales
 its yardstick with the first and asks the second whether the estimate holds (docs/trust.md
 sections 6.2, 6.3).
 """
@@ -133,7 +133,7 @@ ROBUST_GATE = 0.999
 
 def _model_factor(graph, values, b, owner, n: int):
     """``(sigma0^2, redundancy)``: the global variance factor of the noise models at the
-    optimum, ``sum e^T e / (m' - n)``, for the chi-square test of :mod:`odofuse.cross_check`.
+    optimum, ``sum e^T e / (m' - n)``, for the chi-square test of :mod:`odofuse.status.cross_check`.
 
     A robust factor enters with its base model's whitened error ``e``, not with the IRLS
     weight it has in ``b`` (the normal equations'): ``sum w(e) e^T e`` has no chi-square law

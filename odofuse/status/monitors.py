@@ -8,7 +8,7 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   :class:`~odofuse.estimators.localizer.Localizer`: it says when a stream shows divergence (a
   run of consecutive rejections while the stream keeps arriving), computes the covariance
   inflation that makes the rejected innovation admissible (:func:`inflation_factor`), and
-  turns what it saw into :class:`~odofuse.health.Finding` records (windowed NIS outside its
+  turns what it saw into :class:`~odofuse.status.findings.Finding` records (windowed NIS outside its
   chi-square band, rejection runs, recoveries, a sensor silent for most of the run, pose
   covariance conditioning and growth, calibration states that ran to their bounds or
   collapsed, a heading that rested on a gyro bias still being learnt over most of the run);
@@ -18,7 +18,7 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   :class:`LiveHealth`) and the offline result read, and the minimal detectable errors of
   every gate and NIS window (:func:`gate_mde`, :func:`window_mde`, :func:`mde_of`);
 * :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
-* the track checks it calls live in :mod:`odofuse.estimators.pose_checks` (covariance
+* the track checks it calls live in :mod:`odofuse.status.pose_checks` (covariance
   health, collapse, and dead reckoning's gyro-vs-wheels tell-tale).
 
 Thresholds are chosen a priori from statistics (chi-square quantiles, false-alarm
@@ -39,15 +39,15 @@ from typing import NamedTuple
 import numpy as np
 
 from odofuse.declarations import FilterOptions
-from odofuse.estimators.pose_checks import (
+from odofuse.measurements import gate_threshold
+from odofuse.status.findings import Finding
+from odofuse.status.pose_checks import (
     _s,
     collapse_findings,
     covariance_health,
     learning_findings,
     record_learning,
 )
-from odofuse.health import Finding
-from odofuse.measurements import gate_threshold
 
 
 # ----------------------------------------------------------------------------- recovery
@@ -134,7 +134,7 @@ class LiveHealth:
     run_status : str
         What the offline run of the log so far would say of it: ``"degraded"`` when any
         degrading finding was raised at any time of the run (``status_of(findings)``).
-    findings : tuple of odofuse.health.Finding
+    findings : tuple of odofuse.status.findings.Finding
         Everything noticed so far, the episodes that are over included (their time spans).
     test_ratios : dict
         Sensor -> the last reading's innovation test statistic (NIS) over its gate bound

@@ -3,7 +3,7 @@
 Owns the per-factor residuals of a solution (:func:`factor_residuals`: whitened chi-square
 of every sensor, gyro and odometry factor with the *Gaussian* part of its noise model, so a
 robust loss does not hide a residual), the per-stream summary and outlier counts
-(:func:`residual_summary`), and the :class:`~odofuse.health.Finding` records of a graph run
+(:func:`residual_summary`), and the :class:`~odofuse.status.findings.Finding` records of a graph run
 (:func:`graph_findings`, :func:`solver_findings`, :func:`marginals_finding`).
 
 Every threshold is fixed a priori from the chi-square distribution, never from a ground
@@ -40,9 +40,10 @@ import math
 import numpy as np
 
 from odofuse import se2
-from odofuse.estimators.graph.factors import slip_scales
-from odofuse.estimators.graph.keys import X
-from odofuse.health import Finding
+from odofuse.status.findings import Finding
+
+# odofuse.estimators.graph (keys, factors) is imported inside the functions that use it: the
+# graph package imports this module while it initialises.
 
 SCALE_RATIO = 4.0
 OUTLIER_FRACTION = 0.10
@@ -83,6 +84,8 @@ def robust_weights(factors, values, floor: float = 1e-6) -> np.ndarray:
 
 def gyro_error(problem, values, stream: str, n: int) -> float:
     """rad, ``wrap(theta_j - theta_i + b T - dtheta)`` of the ``n``-th gyro increment."""
+    from odofuse.estimators.graph.keys import X
+
     inc = problem.gyro[stream]
     i = int(inc.interval[n])
     b = 0.0
@@ -106,6 +109,8 @@ def factor_residuals(problem, fac, values) -> dict[str, dict]:
         interval than the odometry says (negative when it moved less, e.g. when it rejected
         a spurious odometry step).
     """
+    from odofuse.estimators.graph.keys import X
+
     rows: dict[str, list] = {}
     kt = problem.kt
     for meas, f in fac.created:
@@ -173,6 +178,8 @@ def graph_findings(
     values are a converged batch least-squares solution (the smoother), the premise of
     :func:`window_findings`.
     """
+    from odofuse.estimators.graph.factors import slip_scales
+
     out: list[Finding] = []
     relative = {problem.odometry_stream, *problem.gyro}
     for stream, s in sorted(summary.items()):
@@ -292,14 +299,14 @@ def window_findings(problem, residuals: dict, optimum: bool = True) -> list[Find
 def outage_findings(problem) -> list[Finding]:
     """A sensor silent for more than half of the run: the filters' ``outage`` check.
 
-    The rule and its bound are the filters' (:func:`odofuse.estimators.monitors.outage_findings`,
+    The rule and its bound are the filters' (:func:`odofuse.status.monitors.outage_findings`,
     issue 10 item 5: no score over less than half of the span without a warning; more than
     the default ``reject_run`` of the stream's readings), given the times of the rows that got a
     factor (a gyro: the ends of its keyframe intervals). Over such a gap the graph's poses
     rest on odometry alone, a drift no residual can show.
     """
     from odofuse.declarations import FilterOptions
-    from odofuse.estimators.monitors import outage_findings as stream_outage
+    from odofuse.status.monitors import outage_findings as stream_outage
 
     times: dict[str, list] = {}
     for meas in problem.measurements:
@@ -317,10 +324,10 @@ def outage_findings(problem) -> list[Finding]:
 
 def slip_findings(problem, scales) -> list[Finding]:
     """The (non-degrading) note of the keyframe intervals whose odometry noise was widened,
-    and the filters' ``slip_run`` (:func:`odofuse.estimators.monitors.slip_run_findings`): two or
+    and the filters' ``slip_run`` (:func:`odofuse.status.monitors.slip_run_findings`): two or
     more consecutive slipping intervals spanning more than it (a wheel spinning free, dragged
     or with its encoder stuck; 1e-6 on a matching log)."""
-    from odofuse.estimators.monitors import slip_run_findings
+    from odofuse.status.monitors import slip_run_findings
 
     n = int(np.count_nonzero(scales > 1.0))
     if not n:

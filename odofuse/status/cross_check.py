@@ -47,9 +47,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse.errors import one_line
-from odofuse.estimators import latency
 from odofuse.estimators.common import absolute_streams, slam_option
-from odofuse.health import Finding, assess, status_of
+from odofuse.status import latency
+from odofuse.status.findings import Finding, assess, status_of
 from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
 
 #: RMSE ratio to the batch smoother within which an estimator that fuses absolute sensors holds.
@@ -98,7 +98,7 @@ class Reference:
     result : EstimateResult
         The smoother's estimate (poses and world-frame covariances).
     status : str
-        Its own status (:func:`odofuse.health.status_of` of its findings).
+        Its own status (:func:`odofuse.status.findings.status_of` of its findings).
     runtime_s : float
         Wall-clock time of the smoother run (s).
     config : str
@@ -439,8 +439,8 @@ def alpha_budget(config, log) -> dict:
         false-alarm probability per run; ``total`` (their sum, at most ``alpha_run``
         unless ``overspent``); ``overspent`` (the in-run checks alone exceed it).
     """
-    from odofuse.estimators.graph.health import WINDOW_ALPHA
     from odofuse.estimators.graph.innovations import NIS_OPTIONS
+    from odofuse.status.graph_checks import WINDOW_ALPHA
 
     a = float(config.estimator_options("status").alpha_run)
     est = config.estimator
@@ -463,7 +463,7 @@ def alpha_budget(config, log) -> dict:
     if est == "smoother":
         checks.update(windows)
     applies = skip_reason(config, log) is None
-    # the time-stamp test (estimators.latency): a graph run's own; a filter takes the reference's
+    # the time-stamp test (status.latency): a graph run's own; a filter takes the reference's
     lat_alpha = float(config.estimator_options("status").latency_alpha)
     lat = {f"latency:{n}": lat_alpha for n in latency.streams(config, log)}
     if est in latency.OWN or (applies and est in DRIFT_EVIDENCE):
@@ -700,7 +700,7 @@ def cross_check(config, log, result: EstimateResult, reference=None):
 def with_reference_latency(result: EstimateResult, ref: Reference) -> EstimateResult:
     """``result`` with the reference's ``latency`` findings on the streams it fused and did
     not test itself: the time stamps are the log's, and a filter's own residuals cannot see
-    them (:mod:`odofuse.estimators.latency`)."""
+    them (:mod:`odofuse.status.latency`)."""
     if result is ref.result:
         return result
     own = {f.sensor for f in result.findings if f.check == "latency"}

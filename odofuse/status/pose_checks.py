@@ -2,7 +2,7 @@
 dead reckoning's gyro-vs-wheels tell-tale, and a calibration state still being learnt over
 most of the run (``learning``).
 
-:mod:`odofuse.estimators.monitors` owns the per-reading monitor of the filters (NIS windows,
+:mod:`odofuse.status.monitors` owns the per-reading monitor of the filters (NIS windows,
 rejection runs, recovery) and calls these on the filter's track; dead reckoning calls
 :func:`gyro_wheel_findings` directly. Thresholds are chosen a priori from statistics, never
 from ground truth.
@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from odofuse.declarations import FilterOptions
-from odofuse.health import Finding
+from odofuse.status.findings import Finding
 from odofuse.trajectory import pose_blocks
 
 
@@ -75,7 +75,7 @@ def _correlation_condition(
 
 
 def covariance_health(t, P, options: FilterOptions) -> list[Finding]:
-    """Conditioning and growth of the pose covariances (SPD is :mod:`odofuse.health`'s).
+    """Conditioning and growth of the pose covariances (SPD is :mod:`odofuse.status.findings`'s).
 
     The condition number is that of the correlation matrix (unit-free: metres and radians
     do not mix); growth is the position sigma over its running minimum, reported once it
