@@ -1,7 +1,7 @@
 """Issue 25 item 5: a Monte Carlo benchmark of the run status's false-alarm and detection rates.
 
 Run from any directory: ``python benchmarks/bench_status.py [--seeds N] [--first S]
-[--estimators ...] [--faults ...] [--quick]``.
+[--estimators ...] [--faults ...] [--quick] [--real-robot]``.
 
 Each seed simulates short logs (about 90 s) with the simulator of ``odofuse.teaching`` and
 writes them as ``odofuse simulate`` does, with the config a user would write for the robot
@@ -88,6 +88,11 @@ FAULTS = {
     "range_time_shift": ("gyro_ranges", "range timestamps +0.5 s"),
 }
 QUICK_FAULTS = ("stuck_encoder", "gps_multipath", "range_5pct_long")
+#: ``--real-robot``: not a fault but what a real robot of this kind has, which the config a user
+#: writes should call ``ok`` (counted like the nominal logs): the differential robot with gyro
+#: and GPS, its wheel radius 2.5 % off (1.25 sigmas of the default scale prior), a gyro bias of
+#: 3 mrad/s, and three GPS fixes 25-45 m off (drawn per seed; the gate's job).
+REAL_ROBOT = "real_robot"
 
 
 # ------------------------------------------------------------------------------- the logs
@@ -117,6 +122,8 @@ def scenario_dict(seed: int, drive: str, sensors: str, noise: dict, fault: str |
         systematic["E_s"] = 1.03
     elif fault == "track_width_3pct":
         systematic["E_b"] = systematic.get("E_b", 1.0) * 1.03
+    elif fault == REAL_ROBOT:
+        systematic["E_s"], bias = 1.025, 0.003
     sens: dict = {}
     if sensors != "wheels":
         sens["gyro"] = {"sigma": noise["gyro"], "bias": bias, "rate": RATES["gyro"]}
@@ -160,12 +167,19 @@ def _with_stream(log, stream):
     return dataclasses.replace(log, streams={**log.streams, stream.name: stream})
 
 
-def inject(log, fault: str | None):
-    """``log`` with the faults the simulator does not make itself (in memory)."""
+def inject(log, fault: str | None, seed: int = 0):
+    """``log`` with the faults the simulator does not make itself (in memory; ``seed`` draws
+    the real robot's gross fixes)."""
     if fault == "stuck_encoder":
         from odofuse.teaching.trust_scenarios import stuck_encoder
 
         return stuck_encoder(log, 30.0, 40.0)
+    if fault == REAL_ROBOT:  # three fixes 25-45 m off in x, drawn from the log's own seed
+        st = log.streams["gps"]
+        v, rng = st.values.copy(), np.random.default_rng(seed)
+        for k in rng.choice(len(v), 3, replace=False):
+            v[k, st.columns.index("x")] += rng.uniform(25.0, 45.0)
+        return _with_stream(log, Stream(st.name, st.source, st.t, st.columns, v))
     if fault is None or fault not in (
         "gyro_bias_step",
         "gps_multipath",
@@ -202,7 +216,8 @@ def make_case(seed: int, fault: str | None = None):
         sensors = SENSOR_SETS[(seed // len(DRIVES)) % len(SENSOR_SETS)]
         level = (seed // (len(DRIVES) * len(SENSOR_SETS))) % len(NOISE)
     else:
-        drive, sensors, level = "differential", FAULTS[fault][0], seed % len(NOISE)
+        sensors = FAULTS[fault][0] if fault in FAULTS else "gyro_gps"  # or REAL_ROBOT
+        drive, level = "differential", seed % len(NOISE)
     noise = NOISE[level]
     sc = scenario_dict(seed, drive, sensors, noise, fault)
     sim = simulate(scenario_from_dict(sc, f"seed {seed}"))
@@ -212,7 +227,7 @@ def make_case(seed: int, fault: str | None = None):
         cfg_path.write_text(yaml.safe_dump(user_config(sc, noise), sort_keys=False))
         cfg = load_config(cfg_path)
         log = load_log_for(cfg)
-    return inject(log, fault), cfg, f"{drive}/{sensors}/noise{level}"
+    return inject(log, fault, seed), cfg, f"{drive}/{sensors}/noise{level}"
 
 
 # ------------------------------------------------------------------------------- scoring
@@ -284,16 +299,17 @@ def run_log(log, cfg, estimators):
 
 
 # ------------------------------------------------------------------------------- the table
-def measure(seeds, estimators, faults, fault_seeds=None, log_lines=print):
+def measure(seeds, estimators, faults, fault_seeds=None, log_lines=print, base=None):
     """Run the benchmark: ``{"nominal": {est: [row...]}, fault: {est: [row...]}}`` (the
-    faults on ``fault_seeds``, default ``seeds``)."""
+    faults on ``fault_seeds``, default ``seeds``); ``base`` :data:`REAL_ROBOT`: the
+    "nominal" logs are the real robot's."""
     table: dict = {"nominal": {e: [] for e in estimators}}
     for f in faults:
         table[f] = {e: [] for e in estimators}
     for kind in ("nominal", *faults):
         for seed in seeds if kind == "nominal" or fault_seeds is None else fault_seeds:
             t0 = time.perf_counter()
-            log, cfg, what = make_case(seed, None if kind == "nominal" else kind)
+            log, cfg, what = make_case(seed, base if kind == "nominal" else kind)
             rows = run_log(log, cfg, estimators)
             for est, row in rows.items():
                 table[kind][est].append((seed, what, *row))
@@ -351,6 +367,11 @@ def main(argv=None) -> int:
     p.add_argument("--faults", nargs="*", default=None, choices=list(FAULTS))
     p.add_argument("--no-faults", action="store_true", help="nominal logs only")
     p.add_argument("--quick", action="store_true", help="2 seeds, ekf and smoother, 3 faults")
+    p.add_argument(
+        "--real-robot",
+        action="store_true",
+        help="the nominal column on the real robot's logs (REAL_ROBOT), no faults",
+    )
     args = p.parse_args(argv)
     seeds_n = args.seeds if args.seeds is not None else (2 if args.quick else 100)
     estimators = args.estimators or (["ekf", "smoother"] if args.quick else list(ESTIMATORS))
@@ -359,7 +380,7 @@ def main(argv=None) -> int:
         if args.faults is not None
         else (list(QUICK_FAULTS) if args.quick else list(FAULTS))
     )
-    if args.no_faults:
+    if args.no_faults or args.real_robot:
         faults = []
     seeds = range(args.first, args.first + seeds_n)
     fault_n = args.fault_seeds if args.fault_seeds is not None else max(1, seeds_n // 5)
@@ -369,7 +390,9 @@ def main(argv=None) -> int:
         f"{fault_seeds.stop - 1}, estimators {' '.join(estimators)}"
     )
     t0 = time.perf_counter()
-    table = measure(seeds, estimators, faults, fault_seeds)
+    table = measure(
+        seeds, estimators, faults, fault_seeds, base=REAL_ROBOT if args.real_robot else None
+    )
     print(
         f"\n{time.perf_counter() - t0:.0f} s; alpha_run {ALPHA_RUN}, bounds at "
         f"{BOUND_CONFIDENCE:.0%} (binomial), NEES at {NEES_PROBABILITY} (chi-square, n_eff)"
