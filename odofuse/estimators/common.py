@@ -235,16 +235,23 @@ def angle_states(models) -> np.ndarray:
     return np.array(sorted(set(angles)))
 
 
+def sensor_kind(config, name) -> str | None:
+    """The model kind of the config's sensor ``name``: its ``model``, else its name's default
+    (:func:`~odofuse.declarations.stream_kind`)."""
+    from odofuse.declarations import stream_kind
+
+    return getattr(config.sensors[name], "model", None) or stream_kind(str(name))
+
+
 def absolute_streams(config, log) -> list[str]:
     """The config's sensor streams of an absolute kind (:data:`~odofuse.declarations.sensors.
     ABSOLUTE_KINDS`: they observe the pose against the world) that have readings in ``log``."""
-    from odofuse.declarations import stream_kind
     from odofuse.declarations.sensors import ABSOLUTE_KINDS
 
     streams = getattr(log, "streams", {}) or {}
     out = []
-    for name, opts in (config.sensors or {}).items():
-        kind = getattr(opts, "model", None) or stream_kind(str(name))
+    for name in config.sensors or {}:
+        kind = sensor_kind(config, name)
         if kind in ABSOLUTE_KINDS and name in streams and len(streams[name]):
             out.append(str(name))
     return out

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from odofuse.errors import one_line
-from odofuse.estimators.common import absolute_streams, slam_option
+from odofuse.estimators.common import absolute_streams, sensor_kind, slam_option
 from odofuse.status import latency
 from odofuse.status.findings import Finding, assess, status_of
 from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
@@ -400,14 +400,6 @@ def compare(
     return block, found, advice
 
 
-def _gyro(config, stream: str) -> bool:
-    """Whether the config's sensor ``stream`` is a gyro (its ``model``, else its name's kind)."""
-    from odofuse.declarations import stream_kind
-
-    kind = getattr(config.sensors[stream], "model", None) or stream_kind(stream)
-    return kind == "gyro"
-
-
 def alpha_budget(config, log) -> dict:
     """The run's false-alarm rate and its split over the checks that can fire on a log that
     matches its config (docs/trust.md, "The promise"; Bonferroni: the union's probability is
@@ -451,14 +443,14 @@ def alpha_budget(config, log) -> dict:
         # the fixed-lag smoother tests its sensor rows (not the gyro, a factor between poses)
         # at the filters' defaults
         nis_opts = NIS_OPTIONS if est == "fixed_lag" else config.estimator_options(est)
-        tested = [n for n in fused if est != "fixed_lag" or not _gyro(config, n)]
+        tested = [n for n in fused if est != "fixed_lag" or sensor_kind(config, n) != "gyro"]
         nis = float(nis_opts.nis_alpha)
         checks.update({f"nis:{n}": nis for n in sorted(tested)})
         checks.update({f"nis_run:{n}": nis for n in sorted(tested)})
     elif est == "dead_reckoning" and "gyro" in streams and len(streams["gyro"]):
         checks["gyro_wheels"] = float(config.estimator_options(est).heading_alpha)
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
-    gyros = [n for n in fused if _gyro(config, n)]
+    gyros = [n for n in fused if sensor_kind(config, n) == "gyro"]
     windows = {f"residual_windows:{n}": WINDOW_ALPHA for n in [odo, *gyros] if n}
     if est == "smoother":
         checks.update(windows)

@@ -659,5 +659,6 @@ def run_fixed_lag(log, config) -> EstimateResult:
         "lag_s": lag,
         "nis": innovations.summary(monitor),
     }
-    findings += monitor.stream_findings((float(problem.kt[0]), float(problem.kt[-1])), False)
+    span = (float(problem.kt[0]), float(problem.kt[-1]))
+    findings += monitor.stream_findings(span, outage=False)  # the graph has its own outage
     return finish(problem, fac, final_values, covs, "fixed_lag", extra, findings, stitched=True)
