@@ -151,10 +151,15 @@ def test_live_ukf_equals_odofuse_run_bit_for_bit_with_the_compiled_core():
 def test_live_ukf_recovers_through_the_kernel_innovation():
     """A GPS fault of 5 m for 10 s: the offline run recovers, so it falls back to filterpy;
     the live kernel backend re-opens with the innovation and ``S`` its update wrote, and
-    equals the filterpy path (its own recoveries, counts, states to 1e-9)."""
+    equals the filterpy path (its own recoveries, counts, states to 1e-9).
+
+    One recovery may inflate the pose covariance by at most 1e3 here: at the default cap (1e6)
+    repeated recoveries blow the heading variance up to 28-1400 rad^2, where the sigma points
+    wrap and a 1e-13 difference between the two paths flips a gate decision (7 against 9
+    recoveries on an AMD EPYC): the comparison would then test rounding, not the code path."""
     from odofuse.io.log import Stream
 
-    opts = {"odometry_calibration": True, "slip": False, "reject_run": 3}
+    opts = {"odometry_calibration": True, "slip": False, "reject_run": 3, "max_inflation": 1e3}
     log, cfg = _scenario(5, opts)
     g = log.streams["gps"]
     v = g.values.copy()
