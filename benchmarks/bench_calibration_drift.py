@@ -12,8 +12,9 @@ tests "each calibration state is what the model says" without ground truth. The 
 the streaming Localizer's calibration (:meth:`Localizer.calibration`) every ``--grid`` s of
 odometry, compares each snapshot ``k`` with the snapshots 1, 2, 4, ... back, spends ``alpha``
 over the snapshots as the NIS windows spend theirs (snapshot ``k`` in block ``b =
-floor(log2 k)`` gets ``alpha 6 / (pi^2 (b + 1)^2) / 2^b``, :func:`odofuse.status.monitors._band`)
-and splits that share over its comparisons and states (Bonferroni, two-sided normal).
+floor(log2 k)`` gets ``alpha 6 / (pi^2 (b + 1)^2) / 2^b``,
+:func:`odofuse.status.monitors.window_band`) and splits that share over its comparisons and
+states (Bonferroni, two-sided normal).
 Printed per log: the largest ``z`` over its bound (above 1: the test would fire), the state
 and the times. Logs are :func:`bench_status.make_case`'s (nominal seeds and the
 ``gyro_bias_step`` fault); the Localizer is the filterpy path (``compiled: off``), which
@@ -35,7 +36,8 @@ import bench_status  # noqa: E402
 
 
 def snapshots(log, cfg, estimator: str, grid: float):
-    """``(times, calibrations, walks)``: the Localizer's calibration every ``grid`` s."""
+    """``(taken, walks)``: ``taken`` the ``(t, Localizer.calibration())`` pairs every ``grid``
+    s of odometry, ``walks`` each calibration state's random walk per sqrt(s)."""
     from odofuse.estimators import localizer as L
     from odofuse.estimators import run_estimator
 
@@ -68,12 +70,13 @@ def largest_ratio(taken, walks, alpha: float) -> tuple[float, str]:
     """The largest ``|z|`` over its bound among the comparisons, and what it compared."""
     from scipy.stats import norm
 
+    from odofuse.status.monitors import window_band
+
     names = list(taken[0][1]) if taken else []
     worst = (0.0, "no calibration state")
     for k in range(2, len(taken) + 1 if names else 0):
         lags = [k - 2**i for i in range(k.bit_length()) if k - 2**i >= 1]
-        b = k.bit_length() - 1
-        share = alpha * 6.0 / (math.pi**2 * (b + 1) ** 2) / 2**b
+        share = window_band(k, 1, 1, alpha, 1)[2]  # the NIS windows' alpha spending
         bound = float(norm.isf(share / (2 * len(lags) * len(names))))
         tk, ck = taken[k - 1]
         for j in lags:
