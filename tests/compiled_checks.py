@@ -27,8 +27,8 @@ SCENARIO = {
 
 def assert_same_run(res, ref) -> None:
     """Poses and covariances to 1e-9; used/rejected counts and extras equal (calibration
-    values and sigmas, minimal detectable errors to 1e-9); findings equal, their figures to
-    1e-9 relative."""
+    values and sigmas, minimal detectable errors to 1e-9, the calibration drift ratio to
+    1e-6 relative); findings equal, their figures to 1e-9 relative."""
     a, b = res.trajectory, ref.trajectory
     np.testing.assert_array_equal(a.t, b.t)
     np.testing.assert_allclose(a.poses, b.poses, rtol=0, atol=1e-9)
@@ -41,6 +41,11 @@ def assert_same_run(res, ref) -> None:
             assert abs(ex["calibration"][s][k] - ey["calibration"][s][k]) < 1e-9
     np.testing.assert_allclose(ex.pop("map_to_odom"), ey.pop("map_to_odom"), atol=1e-9)
     ex.pop("calibration", None), ey.pop("calibration", None)
+    dx, dy = ex.pop("calibration_drift", None), ey.pop("calibration_drift", None)
+    assert (dx is None) == (dy is None)
+    if dy is not None:  # the same snapshots; |z| of differences of close variances: 1e-6
+        assert dx["snapshots"] == dy["snapshots"] > 0
+        assert dx["ratio"] == pytest.approx(dy["ratio"], rel=1e-6, abs=1e-9)
     mx, my = ex.pop("mde", {}), ey.pop("mde", {})  # figures: to 1e-9 relative
     assert {s: set(m) for s, m in mx.items()} == {s: set(m) for s, m in my.items()}
     for s, m in my.items():

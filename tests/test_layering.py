@@ -64,6 +64,7 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
         (
             "odofuse.estimators",
             "odofuse.status.monitors",
+            "odofuse.status.drift",
             "odofuse.status.pose_checks",
             "odofuse.status.latency",
             "odofuse.status.graph_checks",

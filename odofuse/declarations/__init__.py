@@ -39,6 +39,7 @@ from odofuse.declarations.filters import (
     DeadReckoningOptions,
     EkfOptions,
     FilterOptions,
+    KalmanOptions,
     ParticleOptions,
     UkfOptions,
 )
@@ -101,6 +102,7 @@ __all__ = [
     "CrossCheckOptions",
     "DeadReckoningOptions",
     "EkfOptions",
+    "KalmanOptions",
     "EncoderOptions",
     "FilterOptions",
     "FreezeConvergence",

@@ -213,14 +213,38 @@ class FilterOptions:
 
 
 @dataclass(frozen=True)
-class EkfOptions(FilterOptions):
+class KalmanOptions(FilterOptions):
+    """The keys of the EKF and the UKF beyond :class:`FilterOptions`: the calibration drift
+    check (:mod:`odofuse.status.drift`), which tests a Kalman filter's calibration estimates
+    as the martingales they are (a particle filter's carry Monte Carlo noise that its
+    covariance does not hold)."""
+
+    drift_alpha: float = option(
+        1e-3,
+        unit="-",
+        doc="false-alarm probability of the calibration drift check over a run of any length "
+        "(0: off)",
+        minimum=0,
+        maximum=0.5,
+    )
+    drift_grid: float = option(
+        5.0,
+        unit="s",
+        doc="odometry time between two snapshots of the calibration states that the drift "
+        "check compares",
+        **_POSITIVE,
+    )
+
+
+@dataclass(frozen=True)
+class EkfOptions(KalmanOptions):
     """``options.ekf``: the extended Kalman filter."""
 
     compiled: str = _compiled_option()
 
 
 @dataclass(frozen=True)
-class UkfOptions(FilterOptions):
+class UkfOptions(KalmanOptions):
     """``options.ukf``: the unscented Kalman filter (Van der Merwe sigma points)."""
 
     alpha: float = option(0.5, unit="-", doc="spread of the sigma points", **_POSITIVE)

@@ -200,20 +200,25 @@ def gyrodometry_of(config) -> tuple[str, float] | None:
     return ("gyro", opts.threshold)
 
 
-def calibration_of(models, odo_cal, x, P) -> dict[str, dict[str, float]]:
-    """``{state: {"value", "sigma"}}`` of every augmented state of ``x`` (n,), ``P`` (n, n)
-    that is not a clone: the models' calibration states, then the odometry calibration's
-    (``odo_cal``, :mod:`odofuse.estimators.odocal`, or None)."""
-    import math
-
+def calibration_index(models, odo_cal) -> dict[str, int]:
+    """``{state: index}`` of every augmented state that is not a clone: the models'
+    calibration states, then the odometry calibration's (``odo_cal``,
+    :mod:`odofuse.estimators.odocal`, or None)."""
     _, index = state_layout(models)
     clones = {s for m in models.values() for s in (m.clones() if hasattr(m, "clones") else {})}
     if odo_cal is not None:
         index.update(zip(odo_cal.names, odo_cal.index, strict=True))
+    return {s: i for s, i in index.items() if s not in clones}
+
+
+def calibration_of(models, odo_cal, x, P) -> dict[str, dict[str, float]]:
+    """``{state: {"value", "sigma"}}`` of every augmented state of ``x`` (n,), ``P`` (n, n)
+    that is not a clone (:func:`calibration_index`)."""
+    import math
+
     return {
         s: {"value": float(x[i]), "sigma": float(math.sqrt(max(P[i, i], 0.0)))}
-        for s, i in index.items()
-        if s not in clones
+        for s, i in calibration_index(models, odo_cal).items()
     }
 
 

@@ -64,6 +64,7 @@ from odofuse.estimators.history import (
 )
 from odofuse.status import findings as H
 from odofuse.status import monitors
+from odofuse.status.drift import drift_of
 from odofuse.trajectory import EstimateResult, Trajectory
 
 #: Odometry inputs composed into the ``odom`` pose at once (vectorised dead reckoning).
@@ -150,6 +151,7 @@ class Localizer:
         self.options = options if options is not None else EkfOptions()
         self.monitor = monitors.FilterMonitor(self.options, self.models)
         monitors.setup_localizer(self)  # recovery indices, slip stream
+        self.monitor.drift = drift_of(self)  # the calibration drift check (EKF, UKF)
         x = backend.mean()
         self._track = Track(self.t, x, backend.cov(), keep_all=keep_trajectory)
         self._odom = x[:3].copy()
@@ -404,6 +406,10 @@ class Localizer:
         self.t = t1
         self._n_steps += 1
         track.append(t1, self.backend.mean(), self.backend.cov())
+        drift = self.monitor.drift
+        if drift is not None and t1 >= drift.next_t:
+            drift.observe(t1, self.backend.mean(), self.backend.cov())
+            self._book = None  # the monitor's snapshot changed
 
     def _predict(self, u, dt, dtheta_gyro, frac, var_g, scale=1.0) -> None:
         kw = {} if scale == 1.0 else {"noise_scale": scale}
@@ -548,6 +554,9 @@ class Localizer:
         if self._slip_stream is not None:
             extra["slip_steps"] = int(self.slip_steps)
         extra["recoveries"] = len(self.monitor.recoveries)
+        drift = self.monitor.drift
+        if drift is not None:  # the largest |z| over its bound (odofuse.status.drift)
+            extra["calibration_drift"] = {"ratio": drift.ratio(), "snapshots": len(drift)}
         mde = monitors.mde_of(self)
         extra["mde"] = mde
         extra.update(getattr(self.backend, "extra", lambda: {})())
@@ -572,9 +581,11 @@ class Localizer:
         """
         mon = self.monitor
         span = (self.t_start, self.t)
-        key = (self._version, self.slip_steps)
-        if key != self._fast[0]:  # what only a reading (or a slip) changes
+        drift = mon.drift
+        key = (self._version, self.slip_steps, len(drift) if drift is not None else 0)
+        if key != self._fast[0]:  # what only a reading, a slip or a drift snapshot changes
             fast = mon.stream_findings(span, outage=False) + monitors.slip_note(self)
+            fast += drift.findings() if drift is not None else []
             if mon._priors:
                 fast += mon._calibration_findings(self.calibration())
             fast += inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)

@@ -92,6 +92,17 @@ CHECKS: tuple[Check, ...] = (
         ("tests/test_live_health.py", "tests/test_graph_innovations.py"),
     ),
     Check(
+        "calibration_drift",
+        ("status/drift.py",),
+        "EKF, UKF, Localizer (live), with calibration states",
+        "a calibration estimate's change between snapshots drift_grid s apart (lags 1, 2, 4, "
+        "... snapshots) over the variance its updates and random walk explain, Bonferroni "
+        "over the comparisons and states, alpha spent over the run's snapshots",
+        "drift_alpha (1e-3)",
+        ("calibration_drift",),
+        ("tests/test_drift.py",),
+    ),
+    Check(
         "gyro_wheels",
         ("status/pose_checks.py",),
         "dead reckoning with a gyro",

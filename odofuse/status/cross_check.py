@@ -407,8 +407,9 @@ def alpha_budget(config, log) -> dict:
 
     The in-run statistical checks keep their declared probabilities: the filters' NIS window
     test and run NIS test per fused stream (``nis_alpha`` each), dead reckoning's
-    gyro-vs-wheels test (``heading_alpha``), the batch smoother's residual windows per
-    odometry and gyro stream (``WINDOW_ALPHA``), the time-stamp test per fused absolute
+    gyro-vs-wheels test (``heading_alpha``), the EKF's and UKF's calibration drift test
+    (``drift_alpha``, counted whenever they fuse a sensor), the batch smoother's residual
+    windows per odometry and gyro stream (``WINDOW_ALPHA``), the time-stamp test per fused absolute
     stream (``options.status.latency_alpha``: a graph run's own, or the reference's that a
     filter takes, :func:`with_reference_latency`). What is left of ``alpha_run`` goes to the
     second opinion when it applies, half to its consistency test (``cross_check_nees``) and
@@ -425,7 +426,8 @@ def alpha_budget(config, log) -> dict:
     Returns
     -------
     dict
-        ``alpha_run``; ``checks``: check (``nis:<stream>``, ``nis_run:<stream>``, ``gyro_wheels``,
+        ``alpha_run``; ``checks``: check (``nis:<stream>``, ``nis_run:<stream>``,
+        ``calibration_drift``, ``gyro_wheels``,
         ``residual_windows:<stream>``, ``latency:<stream>``, ``cross_check_nees``,
         ``reference_variance``, ``variance_factor``) ->
         false-alarm probability per run; ``total`` (their sum, at most ``alpha_run``
@@ -447,6 +449,9 @@ def alpha_budget(config, log) -> dict:
         nis = float(nis_opts.nis_alpha)
         checks.update({f"nis:{n}": nis for n in sorted(tested)})
         checks.update({f"nis_run:{n}": nis for n in sorted(tested)})
+        drift = float(getattr(nis_opts, "drift_alpha", 0.0))
+        if drift > 0.0 and fused:  # the EKF's and UKF's calibration drift check
+            checks["calibration_drift"] = drift
     elif est == "dead_reckoning" and "gyro" in streams and len(streams["gyro"]):
         checks["gyro_wheels"] = float(config.estimator_options(est).heading_alpha)
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)

@@ -505,6 +505,9 @@ class FilterMonitor:
         self.recoveries: list[_Recovery] = []
         self._priors = {}
         self._clones = set()
+        #: The calibration drift check (:class:`odofuse.status.drift.Drift`), set by the
+        #: Localizer of an EKF or UKF with calibration states; None otherwise.
+        self.drift = None
         for m in models.values():
             for s, (v, sd) in (m.calib_prior() if hasattr(m, "calib_prior") else {}).items():
                 self._priors.setdefault(s, (float(v), float(sd)))
@@ -516,16 +519,19 @@ class FilterMonitor:
         Localizer's late-measurement replay."""
         self.catch_up()
         lengths = {s: len(a) for s, a in self._t.items()}
-        return lengths, dict(self._floor), len(self.recoveries), dict(self.live)
+        n_drift = len(self.drift) if self.drift is not None else 0
+        return lengths, dict(self._floor), len(self.recoveries), dict(self.live), n_drift
 
     def restore(self, snap) -> None:
-        lengths, floor, n_rec, live = snap
+        lengths, floor, n_rec, live, n_drift = snap
         for s, n in lengths.items():
             del self._t[s][n:], self._nis[s][n:], self._ok[s][n:]
         self._floor = dict(floor)
         del self.recoveries[n_rec:]
         self.live = dict(live)
         self._cursor = dict(lengths)
+        if self.drift is not None:
+            self.drift.truncate(n_drift)
 
     def catch_up(self) -> None:
         """Feed the streaming checks the readings recorded without :meth:`observe` (the
@@ -594,6 +600,7 @@ class FilterMonitor:
         out = self.stream_findings(span or ((float(t[0]), float(t[-1])) if t.size else None))
         out += covariance_health(t, P, self.options)
         out += self._calibration_findings(calibration)
+        out += self.drift.findings() if self.drift is not None else []
         return out
 
     def stream_findings(self, span, outage: bool = True) -> list[Finding]:
@@ -898,7 +905,7 @@ def forget_readings(monitor: FilterMonitor, keep: int, snapshots) -> list:
             del monitor._t[s][:k], monitor._nis[s][:k], monitor._ok[s][:k]
             monitor._floor[s] = max(0, monitor._floor[s] - k)
             monitor._cursor[s] -= k
-    n_rec = min((n for _, _, n, _ in snaps), default=len(monitor.recoveries))
+    n_rec = min((n for _, _, n, *_ in snaps), default=len(monitor.recoveries))
     gone = max(0, min(len(monitor.recoveries) - keep, n_rec))
     del monitor.recoveries[:gone]
     return [
@@ -907,6 +914,7 @@ def forget_readings(monitor: FilterMonitor, keep: int, snapshots) -> list:
             {s: max(0, f - drop[s]) for s, f in floor.items()},
             n - gone,
             live,
+            n_drift,
         )
-        for lengths, floor, n, live in snaps
+        for lengths, floor, n, live, n_drift in snaps
     ]

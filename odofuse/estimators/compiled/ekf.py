@@ -256,14 +256,32 @@ def prepare(log, config, estimator: str = "ekf"):
     odom = loc._odom.copy()
     acc = np.zeros(len(mt), dtype=np.int8)
     nis = np.zeros(len(mt))
+    snap_k = snapshot_steps(t, loc.monitor.drift)
+    snap_x, snap_v = np.empty((len(snap_k), len(x))), np.empty((len(snap_k), len(x)))
     args = dict(
         x=x, P=P, walk=loc.backend.walk, tt=t, U=U, integ=integ,
         M=M, K=K, floor=floor, rate=rate,
         cal=cal_code, cidx=cidx, mt=mt, ms=ms, mstep=mstep, mz=np.ascontiguousarray(mz),
         maux=np.ascontiguousarray(maux), mR=mR, skind=skind, sidx=sidx, sgate=sgate, sR=sR,
         traj_x=traj_x, traj_P=traj_P, odom=odom, acc=acc, nis=nis,
+        snap_k=snap_k, snap_x=snap_x, snap_v=snap_v,
     )  # fmt: skip
     return kern, loc, streams, args
+
+
+def snapshot_steps(t, drift) -> np.ndarray:
+    """The steps (indices into the ``t[1:]`` step ends) after which the streaming Localizer
+    takes a snapshot of the calibration states for ``drift``
+    (:class:`odofuse.status.drift.Drift`: the first step, then the first ending at least
+    ``drift.grid`` s after the last snapshot); empty without a drift check."""
+    if drift is None or len(t) < 2:
+        return np.zeros(0, dtype=np.int64)
+    ends = np.asarray(t[1:], dtype=float)
+    out, k = [], 0
+    while k < len(ends):
+        out.append(k)
+        k = max(int(np.searchsorted(ends, ends[k] + drift.grid, side="left")), k + 1)
+    return np.asarray(out, dtype=np.int64)
 
 
 def run(log, config):
@@ -292,6 +310,9 @@ def finish(loc, log, streams, args):
         loc.rejected[s] += int(ok.size - np.count_nonzero(ok))
         loc.note_readings(s, log.streams[s], mt[mine], args["mz"][sel])  # its MDE (metrics)
     loc.backend.x, loc.backend.P = args["x"], args["P"]
+    drift = loc.monitor.drift
+    for k, xs, vs in zip(args["snap_k"], args["snap_x"], args["snap_v"], strict=True):
+        drift.observe(float(t[k + 1]), xs, np.diag(vs))
     loc._track = Track.from_arrays(t, args["traj_x"], args["traj_P"])
     loc._odom = args["odom"]
     loc.t = float(t[-1])

@@ -925,14 +925,14 @@ def _predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work,
 def ekf_offline(
     x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-    traj_x, traj_P, odom, acc, nis,
+    traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v,
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend, over a whole log
     (:func:`filter_offline`)."""
     filter_offline(
         x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
         mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-        traj_x, traj_P, odom, acc, nis, None,
+        traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v, None,
     )  # fmt: skip
 
 
@@ -940,7 +940,7 @@ def ekf_offline(
 def filter_offline(
     x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-    traj_x, traj_P, odom, acc, nis, uk,
+    traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v, uk,
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend (``uk`` None), or the UKF's,
     over a whole log (:func:`ekf_offline`; ``compiled.ukf.run``).
@@ -960,6 +960,9 @@ def filter_offline(
     skind, sidx (S, 2), sgate, sR (S, 2, 2) : per-stream kind, state columns, gate, R.
     traj_x : (N+1, 3), traj_P : (N+1, 3, 3), odom : (3,), acc : (J,) int8, nis : (J,) out.
         ``acc`` is 1 accepted, 0 rejected, 2 a clone-only first gyro reading.
+    snap_k : (K,) increasing steps after which the state is copied to ``snap_x`` (K, n) and
+        the covariance's diagonal to ``snap_v`` (K, n) (the calibration drift check's
+        snapshots, :class:`odofuse.status.drift.Drift`).
     uk : None (the EKF; its specialisation compiles none of the UKF's kernels) or
         ``(Wm, Wc, c, angles, tol, ukf_work(n, m))``: the UKF's Merwe weights (2n+1,),
         ``c = lambda + n``, its circular states (theta, heading clones), the singular pivot
@@ -979,6 +982,7 @@ def filter_offline(
             traj_P[0, a, b] = P[a, b]
     J = mt.shape[0]
     j = 0
+    si = 0
     while j < J and mstep[j] == -1:
         _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
         j += 1
@@ -1009,6 +1013,11 @@ def filter_offline(
             traj_x[k + 1, a] = x[a]
             for b in range(3):
                 traj_P[k + 1, a, b] = P[a, b]
+        if si < snap_k.shape[0] and snap_k[si] == k:
+            for a in range(n):
+                snap_x[si, a] = x[a]
+                snap_v[si, a] = P[a, a]
+            si += 1
         # The continuous odometry pose (uncalibrated increments), for map_to_odom.
         w = vx = vy = 0.0
         for i in range(m):
