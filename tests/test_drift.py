@@ -9,6 +9,7 @@ through ``odofuse run`` on a simulated CSV folder whose gyro bias steps mid-run.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -118,7 +119,10 @@ def _bias_step_log(folder: Path, seed: int) -> Path:
     return cfg
 
 
-@pytest.mark.parametrize("estimator", ["ekf", "ukf"])
+@pytest.mark.parametrize(
+    "estimator",
+    ["ekf", pytest.param("ukf", marks=pytest.mark.slow)],  # filterpy: 13 s
+)
 def test_odofuse_run_says_degraded_by_the_drift_check_on_a_gyro_bias_step(tmp_path, estimator):
     # seed 1015 of bench_status's gyro bias step: the innovations stay in their bands (every
     # other check says ok), the calibration absorbed the step (docs/trust.md)
@@ -134,3 +138,42 @@ def test_odofuse_run_says_degraded_by_the_drift_check_on_a_gyro_bias_step(tmp_pa
     drift = [w for w in m["warnings"] if w.startswith("[calibration_drift]")]
     assert drift, m["warnings"]
     assert m["extra"]["calibration_drift"]["ratio"] > 1.0
+
+
+@pytest.mark.parametrize(
+    "estimator",
+    ["ekf", pytest.param("ukf", marks=pytest.mark.slow)],  # filterpy live: 20 s
+)
+def test_the_live_localizer_finds_the_same_drift_as_the_offline_run(estimator):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_status as bs
+
+    from odofuse.estimators import ekf, run_estimator, ukf
+    from odofuse.estimators.assembly import events
+    from odofuse.estimators.common import odometry_inputs
+    from odofuse.estimators.localizer import assemble
+    from odofuse.log_defaults import apply_log_defaults
+    from odofuse.motion import motion_model_from_config
+    from odofuse.status.findings import assess, status_of
+
+    log, cfg, _ = bs.make_case(1015, "gyro_bias_step")
+    cfg, log = apply_log_defaults(cfg, log)
+    cfg = dataclasses.replace(cfg, estimator=estimator)
+    offline = run_estimator(estimator, log, cfg)
+    (want,) = [f for f in offline.findings if f.check == "calibration_drift"]
+    t, U = odometry_inputs(log, motion_model_from_config(cfg))
+    make = {"ekf": ekf, "ukf": ukf}[estimator].make_backend
+    loc = assemble(cfg, estimator, make, float(t[0]), log, keep_trajectory=False)
+    now = []
+    for te, kind, stream, i in events(log, t, U, [s for s in cfg.sensors if s in log.streams]):
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+            now.append(loc.health().status)
+        else:
+            loc.add_measurement(stream, log.streams[stream].row(i))
+    loc.finish()
+    h = loc.health()
+    (got,) = [f for f in h.findings if f.check == "calibration_drift"]
+    assert (got.t_start, got.t_end, got.message) == (want.t_start, want.t_end, want.message)
+    assert h.run_status == status_of(assess(offline)) == "degraded"
+    assert "degraded" in now  # at the snapshot that found it
