@@ -573,7 +573,8 @@ class Localizer:
         The offline run's checks, from the same code (docs/filters.md, "Live health"): the
         streaming checks of every sensor (test ratio, NIS windows with persistence and
         hysteresis, rejection runs, outage; O(1) per reading), recoveries, calibration
-        bounds, rejected and dropped fractions, the current pose covariance; and the checks
+        bounds, the calibration drift check (EKF, UKF: a snapshot every ``drift_grid`` s),
+        rejected and dropped fractions, the current pose covariance; and the checks
         over the kept poses (covariance conditioning and growth, collapse, gyro-bias
         learning, inert gates), re-run every :data:`HEALTH_TRACK_EVERY` steps (a live
         Localizer keeps the late window's poses: a fixed cost). ``status`` is degraded
