@@ -38,7 +38,7 @@ def _scalar_run(seed: int, step: float = 0.0, n: int = 400, alpha: float = 0.05)
         g = P / (P + r)
         x, P = x + g * (z - x), (1.0 - g) * P
         if t >= d.next_t - 1e-12:
-            d.observe(t, np.array([x]), np.array([[P]]))
+            d.observe(t, np.array([x]), np.array([P]))
     return d
 
 
@@ -65,13 +65,13 @@ def test_a_replay_truncates_and_retakes_the_same_snapshots():
     assert np.allclose([r[0] for r in rows], ts)
     b = Drift(["c"], [0], np.array([1e-6]), {}, 0.05, 1.0)
     for t, v, var in rows:
-        b.observe(t, v, np.diag(var))
+        b.observe(t, v, var)
     n = len(b) // 2
     ratio_then = b._worst[n - 1][0]
     b.truncate(n)
     assert len(b) == n and b.ratio() == ratio_then and b.next_t == rows[n - 1][0] + 1.0
     for t, v, var in rows[n:]:
-        b.observe(t, v, np.diag(var))
+        b.observe(t, v, var)
     assert len(b) == len(a) and b.ratio() == a.ratio()
 
 
@@ -80,7 +80,7 @@ def test_memory_is_allocated_once_and_a_finding_outlives_the_snapshots_it_came_f
     held = d._v.nbytes + d._var.nbytes + d._t.nbytes + d._worst.nbytes
     for k in range(5 * MAX_LAG):
         x = 5.0 if k == 10 else 0.0  # one jump the variance cannot explain
-        d.observe(float(k), np.array([x]), np.array([[1.0 / (k + 1)]]))
+        d.observe(float(k), np.array([x]), np.array([1.0 / (k + 1)]))
     assert len(d) == 5 * MAX_LAG
     assert d._v.nbytes + d._var.nbytes + d._t.nbytes + d._worst.nbytes == held
     (f,) = d.findings()

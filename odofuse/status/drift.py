@@ -74,14 +74,14 @@ class Drift:
         """Snapshots taken."""
         return self._n
 
-    def observe(self, t: float, x, P) -> None:
-        """Take the snapshot of time ``t`` from state ``x`` (n,) and covariance ``P`` (n, n),
-        and compare it with the earlier ones."""
+    def observe(self, t: float, x, variances) -> None:
+        """Take the snapshot of time ``t`` from state ``x`` (n,) and the diagonal of its
+        covariance ``variances`` (n,), and compare it with the earlier ones."""
         i, k = self.index, self._n + 1  # k: this snapshot, 1-based
         row = self._n % _CAP
         v, var = self._v[row], self._var[row]
         v[:] = x[i]
-        var[:] = P[i, i]
+        var[:] = variances[i]
         self._t[row] = t
         worst = self._worst[(row - 1) % _CAP] if self._n else np.zeros(6)
         lags = [2**b for b in range(k.bit_length()) if 2**b < k and 2**b <= MAX_LAG]

@@ -312,7 +312,7 @@ def finish(loc, log, streams, args):
     loc.backend.x, loc.backend.P = args["x"], args["P"]
     drift = loc.monitor.drift
     for k, xs, vs in zip(args["snap_k"], args["snap_x"], args["snap_v"], strict=True):
-        drift.observe(float(t[k + 1]), xs, np.diag(vs))
+        drift.observe(float(t[k + 1]), xs, vs)
     loc._track = Track.from_arrays(t, args["traj_x"], args["traj_P"])
     loc._odom = args["odom"]
     loc.t = float(t[-1])
