@@ -22,6 +22,10 @@ from scipy.stats import binom
 
 from odofuse.status.drift import MAX_LAG, Drift
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import bench_status as bs  # noqa: E402
+
 
 def _scalar_run(seed: int, step: float = 0.0, n: int = 400, alpha: float = 0.05) -> Drift:
     """A Kalman filter of one constant (random walk ``q`` per s) read every 0.1 s with noise
@@ -93,8 +97,6 @@ def _bias_step_log(folder: Path, seed: int) -> Path:
     """A differential robot with gyro and 1 Hz GPS (``bench_status``'s scenario and the config
     a user would write), written as a CSV folder; then the gyro's rates gain 0.03 rad/s from
     45 s on, as a bias step does (``bench_status.inject``'s ``gyro_bias_step``)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import bench_status as bs
 
     from odofuse.teaching.scenario import scenario_from_dict
     from odofuse.teaching.simlog import write_log
@@ -145,8 +147,6 @@ def test_odofuse_run_says_degraded_by_the_drift_check_on_a_gyro_bias_step(tmp_pa
     ["ekf", pytest.param("ukf", marks=pytest.mark.slow)],  # filterpy live: 20 s
 )
 def test_the_live_localizer_finds_the_same_drift_as_the_offline_run(estimator):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import bench_status as bs
 
     from odofuse.estimators import ekf, run_estimator, ukf
     from odofuse.estimators.assembly import events
