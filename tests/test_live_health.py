@@ -320,3 +320,54 @@ def test_the_run_nis_bound_exceeds_its_mean_so_a_mean_below_it_skips_the_quantil
     k = np.arange(1, 20001)
     for alpha in (0.3, 0.05, 1e-3, 1e-9):
         assert np.all(np.asarray(chi2.ppf(1.0 - alpha, k)) > k), alpha
+
+
+def test_an_episode_of_the_kept_poses_outlives_them_in_the_run_status():
+    """The checks over the kept poses see only the late window's poses (a live Localizer
+    forgets the older ones); an episode they found stays in ``findings`` and ``run_status``
+    once its poses are forgotten, as the offline run (every pose kept) reports it."""
+    from odofuse.config import RunConfig
+    from odofuse.estimators.localizer import HEALTH_TRACK_EVERY, Localizer
+
+    cfg = RunConfig(
+        log="live",
+        robot={"drive": "increments"},
+        motion={"integrator": "exact", "k": [1e-3, 1e-4], "var_floor": 1e-8},
+        estimator="ekf",
+        # a tiny initial sigma: the position sigma grows 10-fold in the first 5 s of odometry
+        initial={"pose": [0.0, 0.0, 0.0], "sigma": [1e-3, 1e-3, 1e-3]},
+        sensors={"gps": {"sigma": 0.5}},
+        options={"ekf": {"growth_factor": 10.0}},
+    )
+    loc = Localizer.from_config(cfg, 0.0)
+    rng = np.random.default_rng(7)
+    u, dt = np.array([0.01, 0.001]), 0.02
+    x = y = th = 0.0
+    first = None
+    for k in range(1, 3 * HEALTH_TRACK_EVERY):
+        loc.add_odometry(k * dt, u)
+        th += u[1]
+        x, y = x + u[0] * math.cos(th), y + u[0] * math.sin(th)
+        if k > 250 and k % 50 == 0:  # GPS once a second from 5 s on
+            ex, ey = rng.normal(0.0, 0.5, 2)
+            loc.add_measurement("gps", {"t": k * dt, "x": x + ex, "y": y + ey})
+        if k == 250:
+            first = loc.health()
+    last = loc.health()
+    (grew,) = [f for f in first.findings if f.check == "covariance_growth"]
+    assert grew.t_end <= 5.0 and first.run_status == "degraded"
+    kept_from = float(loc._track.arrays()[0][0])
+    assert kept_from > grew.t_end  # its poses are forgotten by now
+    assert grew in last.findings and last.run_status == "degraded"
+    assert last.status == "ok"  # the episode is over
+
+
+def test_the_largest_eigenvalue_in_closed_form_equals_lapack():
+    rng = np.random.default_rng(3)
+    for d in (1, 2, 3):
+        for _ in range(200):
+            A = rng.normal(size=(d, d))
+            S = A @ A.T + 1e-3 * np.eye(d)
+            S[0, -1] += 1e-9  # a slightly asymmetric S: its symmetric part's eigenvalue
+            want = np.linalg.eigvalsh(0.5 * (S + S.T))[-1]
+            assert monitors._largest_eigenvalue(S) == pytest.approx(want, rel=1e-12)

@@ -74,8 +74,11 @@ _ODOM_BATCH = 512
 _KEEP_READINGS, _TRIM_EVERY = 1000, 4096
 
 
-#: :meth:`Localizer.health` re-runs its checks over the kept poses every this many steps.
+#: :meth:`Localizer.health` re-runs its checks over the kept poses every this many odometry
+#: steps (poses: the steps a late reading's replay re-does are not counted again).
 HEALTH_TRACK_EVERY = 1024
+#: The checks over the kept poses whose episodes outlive the poses (:func:`_past_episodes`).
+_TRACK_EPISODES = frozenset({"covariance", "covariance_growth", "collapse"})
 #: Findings that describe the filter as it is now (the others, episodes of the run so far).
 _CURRENT = frozenset({"calibration", "dropped", "rejected"})
 
@@ -162,10 +165,10 @@ class Localizer:
         self._watch, self._fate = None, inputs.USED
         self._last_row: dict[str, dict] = {}  # each stream's last applied reading (its MDE)
         self._z_span: dict[str, tuple] = {}  # each stream's reading range (min, max)
-        self._n_steps = 0  # odometry steps processed (replays included): health()'s cadence
-        self._slow = (-math.inf, [], None)  # health(): (step, findings, time) of the track checks
+        self._slow = (-math.inf, [], None)  # health(): (pose count, findings, time), track checks
         self._version = 0  # readings applied or dropped: health() recomputes what they change
-        self._fast = (None, [], [])  # health(): (that version, its findings, failing streams)
+        # health(): (that version, its findings, failing streams, test and NIS ratios)
+        self._fast = (None, [], [], {}, {})
 
     @classmethod
     def from_config(
@@ -404,7 +407,6 @@ class Localizer:
         if not track.keep_all and len(track) % _TRIM_EVERY == 0:
             self._forget_readings()
         self.t = t1
-        self._n_steps += 1
         track.append(t1, self.backend.mean(), self.backend.cov())
         drift = self.monitor.drift
         if drift is not None and t1 >= drift.next_t:
@@ -591,17 +593,20 @@ class Localizer:
                 fast += mon._calibration_findings(self.calibration())
             fast += inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
             fast += H.rejection_findings(self.used, self.rejected, span)
-            self._fast = (key, fast, mon.failing())
-        _, fast, failing = self._fast
+            live = mon.live
+            ratios = {s: live[s].ratio for s in live}, {s: live[s].wratio for s in live}
+            self._fast = (key, fast, mon.failing(), *ratios)
+        _, fast, failing, test_ratios, nis_ratios = self._fast
         fast = fast + mon.outage_findings(span)
         done, slow, t_slow = self._slow
-        if self._n_steps >= done + HEALTH_TRACK_EVERY:
+        if len(self._track) >= done + HEALTH_TRACK_EVERY:
             t, _, P = self._track.arrays()
-            slow = monitors.covariance_health(t, P, self.options)
+            slow = _past_episodes(slow, float(t[0]))
+            slow += monitors.covariance_health(t, P, self.options)
             slow += monitors.collapse_findings(self, t, P) + monitors.learning_of(self, t)
             slow += monitors.inert_findings(self, monitors.mde_of(self))
             t_slow = float(t[-1])
-            self._slow = (self._n_steps, slow, t_slow)
+            self._slow = (len(self._track), slow, t_slow)
         x, P_now = self.backend.mean()[:3], self.backend.cov()[:3, :3]
         now = []
         if not _plainly_fine(x, P_now):  # then the exact checks say what is wrong
@@ -616,13 +621,12 @@ class Localizer:
             or any(f.degrades and f.t_end == t_slow for f in slow)
         )
         found = tuple(fast + slow + now)
-        live = mon.live
         return monitors.LiveHealth(
             status="degraded" if current else "ok",
             run_status=H.status_of(found),
             findings=found,
-            test_ratios={s: live[s].ratio for s in live},
-            nis_ratios={s: live[s].wratio for s in live},
+            test_ratios=dict(test_ratios),  # copies: the caller may keep or change them
+            nis_ratios=dict(nis_ratios),
             t=self.t,
         )
 
@@ -630,6 +634,20 @@ class Localizer:
         span = (float(t[0]), float(t[-1])) if len(t) else (None, None)
         dropped = inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
         return monitors.localizer_findings(self, t, P) + dropped
+
+
+def _past_episodes(findings, t0: float) -> list:
+    """The findings of earlier passes over the kept poses about poses no longer kept (their
+    span ends before ``t0``, the first kept pose's time), so that ``run_status`` and
+    ``findings`` keep an episode after its poses are forgotten (as the offline run, which
+    keeps every pose, reports it); the first such episode of each check and sensor (memory
+    stays bounded). The other checks of the pass (learning, inert) read the whole run's
+    records and are re-derived each pass."""
+    out: dict = {}
+    for f in findings:
+        if f.check in _TRACK_EPISODES and f.t_end is not None and f.t_end < t0:
+            out.setdefault((f.check, f.sensor), f)
+    return list(out.values())
 
 
 def _plainly_fine(x, P) -> bool:

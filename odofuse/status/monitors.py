@@ -446,6 +446,24 @@ def _outage(s: str, st: _Live, t0: float, t1: float, reject_run: int) -> list[Fi
     ]
 
 
+@functools.lru_cache(maxsize=64)
+def _normal_quantile(p: float) -> float:
+    """The standard normal ``p``-quantile (a few options' values: cached for the live health)."""
+    return NormalDist().inv_cdf(p)
+
+
+def _largest_eigenvalue(S: np.ndarray) -> float:
+    """The largest eigenvalue of the symmetric part of ``S`` (d, d); closed form for d <= 2
+    (the live health asks it of every stream each pass)."""
+    if S.shape == (1, 1):
+        return float(S[0, 0])
+    if S.shape == (2, 2):
+        (a, b), (c, d) = S.tolist()
+        m, h = 0.5 * (a + d), 0.5 * (b + c)
+        return m + math.hypot(0.5 * (a - d), h)
+    return float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
+
+
 def gate_mde(gate: float, s_max: float, power: float) -> float:
     """Smallest error of one reading that its gate rejects with probability >= ``power``.
 
@@ -456,7 +474,7 @@ def gate_mde(gate: float, s_max: float, power: float) -> float:
     """
     if not (math.isfinite(gate) and s_max > 0.0):
         return math.inf
-    return (math.sqrt(gate) + NormalDist().inv_cdf(power)) * math.sqrt(s_max)
+    return (math.sqrt(gate) + _normal_quantile(power)) * math.sqrt(s_max)
 
 
 def window_mde(k: int, w: int, d: int, s_max: float, opts) -> float:
@@ -473,7 +491,7 @@ def window_mde(k: int, w: int, d: int, s_max: float, opts) -> float:
         return math.inf
     persist = int(opts.health_persist)
     _, hi, _ = window_band(k + 1, w, d, opts.nis_alpha, persist)
-    z = NormalDist().inv_cdf(float(opts.mde_power) ** (1.0 / persist))
+    z = _normal_quantile(float(opts.mde_power) ** (1.0 / persist))
     nu, bound = w * d, w * hi
     root = z * math.sqrt(2.0) + math.sqrt(max(2.0 * z * z + 2.0 * bound - nu, 0.0))
     lam = max(0.5 * (root * root - nu), 0.0)
@@ -756,7 +774,7 @@ def mde_of(loc) -> dict:
         try:
             H = np.atleast_2d(np.asarray(model.H(x, row), dtype=float))
             S = H @ Pfull @ H.T + np.atleast_2d(model.R(row))
-            s_max = float(np.linalg.eigvalsh(0.5 * (S + S.T))[-1])
+            s_max = _largest_eigenvalue(S)
         except (KeyError, ValueError, np.linalg.LinAlgError):
             continue  # a row the model cannot read at this state: no figure
         if not math.isfinite(s_max):
