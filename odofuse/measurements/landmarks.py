@@ -105,7 +105,68 @@ class BeaconRange(MeasurementModel):
             return gtsam.RangeFactor2D(
                 key, landmark_key, float(self.z(row)[0]), self.noise(row, noise)
             )
-        return super().factor(key, row, calib_keys, noise)
+        keys = {s: (calib_keys or {}).get(s) for s in ("range_scale", "range_offset")}
+        if not self.calibrate:
+            keys = {}
+        return range_factor(
+            key,
+            float(self.z(row)[0]),
+            self.noise(row, noise),
+            beacon=_landmark(self._beacons, row, self.name),
+            scale_key=keys.get("range_scale"),
+            offset_key=keys.get("range_offset"),
+        )
+
+
+def range_factor(
+    pose_key, z, noise, beacon=None, landmark_key=None, scale_key=None, offset_key=None
+):
+    """``gtsam.CustomFactor`` of a range ``h = s ||p - l|| + o`` (m) from the pose ``p`` to a
+    known beacon ``l`` (``beacon``, ``(x, y)``) or a landmark variable (``landmark_key``,
+    ``Point2``; SLAM with range calibration: GTSAM's ``RangeFactor2D`` has no scale and
+    ``RangeFactorWithTransformBias2D`` no scale), with optional scale ``s`` and offset ``o``
+    variables (1-vectors; nominal 1 and 0 without their key).
+
+    The error is ``h - z`` (GTSAM's sign); Jacobians are analytic, w.r.t. the Pose2 body
+    tangent ``[v_x, v_y, omega]`` (``d p = R(theta) d v``), the landmark, ``s`` and ``o``: the
+    same numbers as :meth:`MeasurementModel.factor` on :class:`BeaconRange`'s ``h`` and ``H``
+    (distance floored at 1e-9 in the Jacobians), in scalars (Plaza1's smoother evaluates 3,527
+    of them a dozen times).
+    """
+    import gtsam
+
+    keys = [pose_key] + [k for k in (landmark_key, scale_key, offset_key) if k is not None]
+    z = float(z)
+    bx, by = (float(beacon[0]), float(beacon[1])) if beacon is not None else (0.0, 0.0)
+
+    def error(this, values, H):
+        p = values.atPose2(pose_key)
+        if landmark_key is not None:
+            bx_, by_ = values.atPoint2(landmark_key).tolist()
+        else:
+            bx_, by_ = bx, by
+        s = float(values.atVector(scale_key)[0]) if scale_key is not None else 1.0
+        o = float(values.atVector(offset_key)[0]) if offset_key is not None else 0.0
+        dx, dy = p.x() - bx_, p.y() - by_
+        d = math.hypot(dx, dy)
+        if H is not None:
+            dd = max(d, 1e-9)
+            ux, uy = dx / dd, dy / dd
+            th = p.theta()
+            c, sn = math.cos(th), math.sin(th)
+            H[0] = np.array([[s * (ux * c + uy * sn), s * (-ux * sn + uy * c), 0.0]])
+            i = 1
+            if landmark_key is not None:
+                H[i] = np.array([[-s * ux, -s * uy]])
+                i += 1
+            if scale_key is not None:
+                H[i] = np.array([[dd]])
+                i += 1
+            if offset_key is not None:
+                H[i] = np.array([[1.0]])
+        return np.array([s * d + o - z])
+
+    return gtsam.CustomFactor(noise, gtsam.KeyVector(keys), error)
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,9 @@
 """Factors GTSAM has no built-in factor for (``gtsam.CustomFactor``, analytic Jacobians).
 
-The measurement models of :mod:`odofuse.measurements` give the factors of known landmarks;
-this module adds
+The measurement models of :mod:`odofuse.measurements` give the sensors' factors (the range
+to a beacon or a landmark variable with scale and offset variables:
+:func:`odofuse.measurements.landmarks.range_factor`); this module adds
 
-* :func:`range_landmark_factor`: range ``z = s * ||p - l|| + o`` to a landmark *variable*
-  ``l`` with range scale ``s`` and offset ``o`` variables (SLAM with range calibration;
-  GTSAM's ``RangeFactor2D`` has no scale and ``RangeFactorWithTransformBias2D`` no scale);
 * :func:`frozen_calibration_factor`: a unary sensor factor whose calibration states are
   constants (iSAM2's ``calibration_freeze``: once converged, new factors stop touching the
   global calibration variables);
@@ -24,50 +22,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-
-def range_landmark_factor(pose_key, landmark_key, z, noise, scale_key=None, offset_key=None):
-    """Range from a pose to a landmark variable with optional scale/offset variables.
-
-    ``h = s ||p - l|| + o`` (m) with ``p`` the pose position and ``l`` the landmark
-    (``Point2``), ``s`` and ``o`` 1-vectors (nominal 1 and 0 when their key is ``None``).
-    The error is ``h - z`` (GTSAM's sign); Jacobians are analytic, w.r.t. the Pose2 body
-    tangent ``[v_x, v_y, omega]`` (``d p = R(theta) d v``), the landmark and ``s``, ``o``.
-
-    Returns
-    -------
-    gtsam.CustomFactor
-    """
-    import gtsam
-
-    keys = [pose_key, landmark_key]
-    if scale_key is not None:
-        keys.append(scale_key)
-    if offset_key is not None:
-        keys.append(offset_key)
-    z = float(z)
-
-    def error(this, values, H):
-        p = values.atPose2(pose_key)
-        lm = values.atPoint2(landmark_key)
-        s = float(values.atVector(scale_key)[0]) if scale_key is not None else 1.0
-        o = float(values.atVector(offset_key)[0]) if offset_key is not None else 0.0
-        dx, dy = p.x() - lm[0], p.y() - lm[1]
-        d = max(math.hypot(dx, dy), 1e-9)
-        if H is not None:
-            ux, uy = dx / d, dy / d
-            c, sn = math.cos(p.theta()), math.sin(p.theta())
-            H[0] = np.array([[s * (ux * c + uy * sn), s * (-ux * sn + uy * c), 0.0]])
-            H[1] = np.array([[-s * ux, -s * uy]])
-            i = 2
-            if scale_key is not None:
-                H[i] = np.array([[d]])
-                i += 1
-            if offset_key is not None:
-                H[i] = np.array([[1.0]])
-        return np.array([s * d + o - z])
-
-    return gtsam.CustomFactor(noise, gtsam.KeyVector(keys), error)
 
 
 def calibrated_between_factor(key_i, key_j, calib_key, delta0, G, p0, noise):
@@ -97,34 +51,142 @@ def calibrated_between_factor(key_i, key_j, calib_key, delta0, G, p0, noise):
     Returns
     -------
     gtsam.CustomFactor
-        Analytic Jacobians from GTSAM's ``between``/``compose``/``Expmap``/``Logmap``.
+        The SE(2) algebra in closed form on Python floats (:func:`_jr_inverse`,
+        :func:`_se2_log`); equal to GTSAM's ``Expmap``/``compose``/``between``/``Logmap``
+        chain and its Jacobians to 1e-12 (``tests/test_graph.py``). Plaza1's smoother
+        evaluates 5,460 of these factors 12 times, and GTSAM's per-call chain (eight
+        Jacobian buffers, five bound calls) cost most of its time (docs/speed.md).
     """
     import gtsam
 
-    D = gtsam.Pose2(*np.asarray(delta0, dtype=float))
+    dx, dy, dth = (float(a) for a in np.asarray(delta0, dtype=float))
+    cd, sd = math.cos(dth), math.sin(dth)
     G = np.asarray(G, dtype=float)
+    g = G.tolist()
     p0 = np.asarray(p0, dtype=float)
 
     def error(this, values, H):
-        xi, xj = values.atPose2(key_i), values.atPose2(key_j)
-        dp = np.asarray(values.atVector(calib_key), dtype=float) - p0
-        He = np.zeros((3, 3), order="F")
-        E = gtsam.Pose2.Expmap(G @ dp, He)
-        Hc1, Hc2 = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
-        m = D.compose(E, Hc1, Hc2)
-        H1, H2 = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
-        h = xi.between(xj, H1, H2)
-        Hm, Hh = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
-        r = m.between(h, Hm, Hh)
-        Hl = np.zeros((3, 3), order="F")
-        e = np.asarray(gtsam.Pose2.Logmap(r, Hl)).reshape(3)
+        pi, pj = values.atPose2(key_i), values.atPose2(key_j)
+        vx, vy, w = (G @ (values.atVector(calib_key) - p0)).tolist()
+        # m = delta0 * Exp(v)
+        a, b = _sinc(w), _cosc(w)
+        ex, ey = a * vx - b * vy, b * vx + a * vy
+        mx, my, mth = dx + cd * ex - sd * ey, dy + sd * ex + cd * ey, dth + w
+        # h = x_i^-1 x_j
+        ti = pi.theta()
+        ci, si = math.cos(ti), math.sin(ti)
+        tx, ty = pj.x() - pi.x(), pj.y() - pi.y()
+        hx, hy, hth = ci * tx + si * ty, -si * tx + ci * ty, pj.theta() - ti
+        # r = m^-1 h, e = Log(r)
+        cm, sm = math.cos(mth), math.sin(mth)
+        ux, uy = hx - mx, hy - my
+        rx, ry = cm * ux + sm * uy, -sm * ux + cm * uy
+        rth = math.remainder(hth - mth, 2.0 * math.pi)
+        e = _se2_log(rx, ry, rth)
         if H is not None:
-            H[0] = Hl @ Hh @ H1
-            H[1] = Hl @ Hh @ H2
-            H[2] = Hl @ Hm @ Hc2 @ He @ G
-        return e
+            # Each 3 x 3 factor is [[A, t], [0, 1]] with A = [[p, -q], [q, p]] (a rotation
+            # times a scale): products on the four numbers (p, q, t1, t2), then G's columns.
+            J = _jr_inverse(*e)
+            Hh = _compose(J, _adjoint_of_inverse(hx, hy, hth))
+            Hm = _compose(_compose(J, _adjoint_of_inverse(rx, ry, rth)), _jr(vx, vy, w))
+            p, q, t1, t2 = Hh
+            H[0] = np.array([[-p, q, -t1], [-q, -p, -t2], [0.0, 0.0, -1.0]])
+            p, q, t1, t2 = J
+            H[1] = np.array([[p, -q, t1], [q, p, t2], [0.0, 0.0, 1.0]])
+            p, q, t1, t2 = Hm
+            H[2] = np.array(
+                [
+                    [q * g1 - p * g0 - t1 * g2 for g0, g1, g2 in zip(*g, strict=True)],
+                    [-q * g0 - p * g1 - t2 * g2 for g0, g1, g2 in zip(*g, strict=True)],
+                    [-g2 for g2 in g[2]],
+                ]
+            )
+        return np.array(e)
 
     return gtsam.CustomFactor(noise, gtsam.KeyVector([key_i, key_j, calib_key]), error)
+
+
+# ----------------------------------------------------------------------------- SE(2) algebra
+# GTSAM's Pose2 conventions: tangent [v_x, v_y, omega], perturbations on the right
+# (x * Exp(d)), AdjointMap [[c, -s, y], [s, c, -x], [0, 0, 1]]. Series below |w| < 1e-3
+# (their truncation error is below 1e-18).
+_SMALL = 1e-3
+
+
+def _sinc(w: float) -> float:
+    """``sin(w) / w``."""
+    if abs(w) < _SMALL:
+        w2 = w * w
+        return 1.0 - w2 / 6.0 * (1.0 - w2 / 20.0)
+    return math.sin(w) / w
+
+
+def _cosc(w: float) -> float:
+    """``(1 - cos(w)) / w``."""
+    if abs(w) < _SMALL:
+        w2 = w * w
+        return 0.5 * w * (1.0 - w2 / 12.0 * (1.0 - w2 / 30.0))
+    return (1.0 - math.cos(w)) / w
+
+
+def _se2_log(x: float, y: float, th: float) -> tuple[float, float, float]:
+    """``Log`` of the pose ``(x, y, th)``, ``th`` in [-pi, pi]: ``V(th)^-1 t`` with
+    ``V^-1 = [[k, th/2], [-th/2, k]]``, ``k = (th/2) cot(th/2)``."""
+    half = 0.5 * th
+    if abs(th) < _SMALL:
+        k = 1.0 - th * th / 12.0 * (1.0 + th * th / 60.0)
+    else:
+        k = half * math.cos(half) / math.sin(half)
+    return k * x + half * y, -half * x + k * y, th
+
+
+def _se2_third_column(vx: float, vy: float, w: float) -> tuple[float, float]:
+    """The translation rows of the right Jacobian's last column at ``(vx, vy, w)``:
+    ``(vx (w - sin w) - vy (1 - cos w)) / w^2`` and ``(vx (1 - cos w) + vy (w - sin w)) / w^2``."""
+    if abs(w) < _SMALL:
+        w2 = w * w
+        p = w / 6.0 * (1.0 - w2 / 20.0)  # (w - sin w) / w^2
+        q = 0.5 - w2 / 24.0 * (1.0 - w2 / 30.0)  # (1 - cos w) / w^2
+    else:
+        p, q = (w - math.sin(w)) / (w * w), (1.0 - math.cos(w)) / (w * w)
+    return vx * p - vy * q, vx * q + vy * p
+
+
+# A 3 x 3 matrix [[p, -q, t1], [q, p, t2], [0, 0, 1]] as the four numbers (p, q, t1, t2).
+
+
+def _jr(vx: float, vy: float, w: float) -> tuple:
+    """GTSAM's ``Pose2.ExpmapDerivative`` (right Jacobian): ``Exp(v + d) ~= Exp(v) Exp(J d)``."""
+    return (_sinc(w), -_cosc(w), *_se2_third_column(vx, vy, w))
+
+
+def _jr_inverse(vx: float, vy: float, w: float) -> tuple:
+    """GTSAM's ``Pose2.LogmapDerivative`` at the pose whose ``Log`` is ``(vx, vy, w)``: the
+    inverse of :func:`_jr`, ``[[A^-1, -A^-1 c], [0, 1]]`` with ``A^-1 = [[k, -w/2], [w/2, k]]``,
+    ``k = (w/2) cot(w/2)``."""
+    half = 0.5 * w
+    if abs(w) < _SMALL:
+        k = 1.0 - w * w / 12.0 * (1.0 + w * w / 60.0)
+    else:
+        k = half * math.cos(half) / math.sin(half)
+    c1, c2 = _se2_third_column(vx, vy, w)
+    return k, half, -(k * c1 - half * c2), -(half * c1 + k * c2)
+
+
+def _adjoint_of_inverse(x: float, y: float, th: float) -> tuple:
+    """``AdjointMap`` of the inverse of the pose ``(x, y, th)``: the inverse is
+    ``(-R^T t, -th)``, and GTSAM's Pose2 ``AdjointMap`` is ``[[c, -s, y], [s, c, -x], [0, 0,
+    1]]``."""
+    c, s = math.cos(th), math.sin(th)
+    ix, iy = -(c * x + s * y), -(-s * x + c * y)
+    return c, -s, iy, -ix
+
+
+def _compose(m1: tuple, m2: tuple) -> tuple:
+    """The product of two such matrices."""
+    p1, q1, a1, b1 = m1
+    p2, q2, a2, b2 = m2
+    return p1 * p2 - q1 * q2, q1 * p2 + p1 * q2, p1 * a2 - q1 * b2 + a1, q1 * a2 + p1 * b2 + b1
 
 
 def frozen_calibration_factor(model, key, row, constants, noise=None):

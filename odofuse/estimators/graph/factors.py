@@ -21,11 +21,11 @@ from odofuse.estimators.graph.custom_factors import (
     calibrated_between_factor,
     frozen_calibration_factor,
     gyro_increment_factor,
-    range_landmark_factor,
 )
 from odofuse.estimators.graph.keys import B, L, X, model_kind
 from odofuse.estimators.graph.loops import STREAM
 from odofuse.estimators.graph.problem import GraphProblem, Measurement
+from odofuse.measurements.landmarks import range_factor
 
 # Variance (m^2, rad^2) added to every pre-integrated covariance so that a single step of a
 # drive with a rank-deficient input covariance (e.g. increments: no lateral noise) stays
@@ -316,13 +316,13 @@ class Factors:
             lkey = self.landmark_keys[meas.landmark]
             if calib:
                 self.python_factors += count
-                return range_landmark_factor(
+                return range_factor(
                     key,
-                    lkey,
                     meas.row["range"],
                     nm,
-                    calib.get("range_scale"),
-                    calib.get("range_offset"),
+                    landmark_key=lkey,
+                    scale_key=calib.get("range_scale"),
+                    offset_key=calib.get("range_offset"),
                 )
             return gtsam.RangeFactor2D(key, lkey, float(meas.row["range"]), nm)
         if kind == "LandmarkBearing" and meas.landmark in self.landmark_keys:
