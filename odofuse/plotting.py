@@ -155,5 +155,7 @@ def plot_run(
     ax.grid(True, lw=0.4, alpha=0.6)
     ax.legend(loc="best", fontsize=8)
     ax.set_title(title or f"odofuse: {name}")
-    fig.tight_layout()
+    # fixed margins (room for 8-character tick labels): tight_layout measured every text
+    # box first, 0.17 of the 0.25 s a plot took (four plots in the README's first command)
+    fig.subplots_adjust(left=0.12, right=0.97, bottom=0.08, top=0.95)
     return atomic_write(out_png, lambda tmp: fig.savefig(tmp, format="png"))
