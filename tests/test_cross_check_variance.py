@@ -247,3 +247,29 @@ def test_the_error_samples_are_the_dense_bootstrap_of_the_same_draws():
         wy = math.sin(th) * e[o] + math.cos(th) * e[o + 1]
         assert es.xy[:, i, 0] == pytest.approx(wx, abs=1e-12)
         assert es.xy[:, i, 1] == pytest.approx(wy, abs=1e-12)
+
+
+def test_the_whitened_system_equals_gtsams_dense_jacobian():
+    """``_whitened_system`` (GTSAM's sparse triplets, rows owned by the factors in order)
+    against GTSAM's own dense whitened ``[A, b]`` of the same linearisation, on a chain with
+    a robust factor, a Hessian factor (``LinearContainerFactor``) and a variable no factor
+    touches (its columns stay empty)."""
+    g, values, _groups, _keys = _chain(k_odo=1.0, k_fix=1.0, n=30)
+    huber = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(0.5), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)
+    )
+    g.add(gtsam.PriorFactorPose2(X(7), values.atPose2(X(7)).retract([1.0, 0.0, 0.1]), huber))
+    hess = gtsam.HessianFactor(X(3), np.diag([4.0, 2.0, 9.0]), np.ones(3), 1.0)
+    g.add(gtsam.LinearContainerFactor(hess, values))
+    values.insert(X(99), gtsam.Pose2(1.0, 2.0, 0.3))  # in no factor
+    A, b, owner, cols = variance._whitened_system(g, values)
+    lin = g.linearize(values)
+    dense_A, dense_b = lin.jacobian()  # columns: the graph's keys in order
+    keys = [k for k in cols if k != X(99)]
+    order = np.concatenate([np.arange(cols[k][0], cols[k][0] + cols[k][1]) for k in keys])
+    np.testing.assert_allclose(A.toarray()[:, order], dense_A, rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(b, dense_b, rtol=0.0, atol=1e-12)
+    a, d = cols[X(99)]
+    assert A[:, a : a + d].nnz == 0
+    rows = [np.asarray(lin.at(j).jacobian()[1]).size for j in range(lin.size())]
+    np.testing.assert_array_equal(owner, np.repeat(np.arange(lin.size()), rows))

@@ -160,7 +160,9 @@ def residual_summary(problem, residuals: dict) -> dict:
         }
         m = problem.models.get(stream)
         if m is not None and getattr(m, "gate", None) is not None:
-            thr = np.array([gate_threshold(m.gate, int(d)) for d in dof])
+            levels = np.unique(dof)  # one quantile per dimension, not per factor
+            thr = np.array([gate_threshold(m.gate, int(d)) for d in levels])
+            thr = thr[np.searchsorted(levels, dof)]
             s["outliers"] = int(np.count_nonzero(chi2 > thr))
         out[stream] = s
     return out

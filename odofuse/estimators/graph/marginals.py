@@ -16,10 +16,12 @@ import numpy as np
 from odofuse.status.graph_checks import marginals_finding
 
 
-def marginal_covariances(graph, values, keys, dims) -> tuple[dict, list]:
+def marginal_covariances(graph, values, keys, dims, lin=None) -> tuple[dict, list]:
     """Marginal covariances (GTSAM tangent) of ``keys``, and the findings of a failure.
 
-    ``dims`` maps every variable's key to its tangent dimension.
+    ``dims`` maps every variable's key to its tangent dimension; ``lin`` (optional) is
+    ``graph`` linearised at ``values`` when the caller has it (the batch smoother shares one
+    with the variance components: on Plaza1 a linearisation of its Python factors is 0.24 s).
 
     ``gtsam.Marginals`` is tried first; if the system is indeterminate, again on the graph
     linearised at ``values`` with a prior of sigma 100 (m, rad, units of the variable) on
@@ -31,11 +33,11 @@ def marginal_covariances(graph, values, keys, dims) -> tuple[dict, list]:
     import gtsam
 
     try:
-        marginals = gtsam.Marginals(graph, values)
+        marginals = gtsam.Marginals(graph if lin is None else lin, values)
         return {k: marginals.marginalCovariance(k) for k in keys}, []
     except RuntimeError as exc:
         detail = str(exc).strip().splitlines()[0][:160]
-    lin = graph.linearize(values)
+    lin = graph.linearize(values)  # a fresh one: the prior factors are added to it
     sig = 1e2
     for key, dim in dims.items():
         lin.add(

@@ -554,11 +554,13 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
     findings += solver_findings("Levenberg-Marquardt", out.reason, out.iterations)
     solve_s = time.perf_counter() - t0
     covs = None
+    # one linearisation at the optimum for the marginals and the variance components
+    lin = graph.linearize(result) if opts.covariances else None
     if opts.covariances:
         keys = [X(i) for i in range(len(problem.kt))]
         keys += [problem.final_key(name) for name in problem.calib]
         landmark_keys = [key for key in fac.landmark_keys.values() if result.exists(key)]
-        cov, bad = marginal_covariances(graph, out.values, keys + landmark_keys, fac.dims)
+        cov, bad = marginal_covariances(graph, result, keys + landmark_keys, fac.dims, lin)
         findings += bad
         if cov:
             poses = pose_array(out.values, len(problem.kt))
@@ -577,7 +579,7 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
         keys = [X(i) for i in range(len(problem.kt))]
         try:  # a normal matrix the sparse LU cannot factor: no scale, the run goes on
             vc = variance_components(
-                graph, result, factor_groups(fac, graph), keys, samples=error_samples
+                graph, result, factor_groups(fac, graph), keys, samples=error_samples, lin=lin
             )
             if error_samples > 0:
                 vc, extra["_error_samples"] = vc
