@@ -53,7 +53,9 @@ def calibrated_between_factor(key_i, key_j, calib_key, delta0, G, p0, noise):
     gtsam.CustomFactor
         The SE(2) algebra in closed form on Python floats (:func:`_jr_inverse`,
         :func:`_se2_log`); equal to GTSAM's ``Expmap``/``compose``/``between``/``Logmap``
-        chain and its Jacobians to 1e-12 (``tests/test_graph.py``). Plaza1's smoother
+        chain to 1e-11 and its Jacobians to 1e-9 where GTSAM's formulas keep their digits
+        (below about 1e-3 rad they lose them to cancellation; these switch to series:
+        ``tests/test_graph.py``). Plaza1's smoother
         evaluates 5,460 of these factors 12 times, and GTSAM's per-call chain (eight
         Jacobian buffers, five bound calls) cost most of its time (docs/speed.md).
     """
@@ -129,14 +131,18 @@ def _cosc(w: float) -> float:
     return (1.0 - math.cos(w)) / w
 
 
+def _half_cot(w: float) -> tuple[float, float]:
+    """``(w / 2, k)`` with ``k = (w / 2) cot(w / 2)``."""
+    half = 0.5 * w
+    if abs(w) < _SMALL:
+        return half, 1.0 - w * w / 12.0 * (1.0 + w * w / 60.0)
+    return half, half * math.cos(half) / math.sin(half)
+
+
 def _se2_log(x: float, y: float, th: float) -> tuple[float, float, float]:
     """``Log`` of the pose ``(x, y, th)``, ``th`` in [-pi, pi]: ``V(th)^-1 t`` with
-    ``V^-1 = [[k, th/2], [-th/2, k]]``, ``k = (th/2) cot(th/2)``."""
-    half = 0.5 * th
-    if abs(th) < _SMALL:
-        k = 1.0 - th * th / 12.0 * (1.0 + th * th / 60.0)
-    else:
-        k = half * math.cos(half) / math.sin(half)
+    ``V^-1 = [[k, th/2], [-th/2, k]]`` (:func:`_half_cot`)."""
+    half, k = _half_cot(th)
     return k * x + half * y, -half * x + k * y, th
 
 
@@ -164,11 +170,7 @@ def _jr_inverse(vx: float, vy: float, w: float) -> tuple:
     """GTSAM's ``Pose2.LogmapDerivative`` at the pose whose ``Log`` is ``(vx, vy, w)``: the
     inverse of :func:`_jr`, ``[[A^-1, -A^-1 c], [0, 1]]`` with ``A^-1 = [[k, -w/2], [w/2, k]]``,
     ``k = (w/2) cot(w/2)``."""
-    half = 0.5 * w
-    if abs(w) < _SMALL:
-        k = 1.0 - w * w / 12.0 * (1.0 + w * w / 60.0)
-    else:
-        k = half * math.cos(half) / math.sin(half)
+    half, k = _half_cot(w)
     c1, c2 = _se2_third_column(vx, vy, w)
     return k, half, -(k * c1 - half * c2), -(half * c1 + k * c2)
 

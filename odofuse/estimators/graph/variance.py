@@ -98,8 +98,8 @@ def _whitened_system(graph, values, lin=None):
     From GTSAM's own sparse triplets of the linearised graph (``sparseJacobian_``: 1-based
     rows and columns, the keys in sorted order, ``b`` as the last column, zeros left out),
     with the rows owned by the factors in order (Plaza1's 8,991 factors: one call instead of
-    a Python loop over every factor and key block, 0.6 s). ``lin``: ``graph`` linearised at
-    ``values`` when the caller has it."""
+    a Python loop over every factor and key block, 0.53 -> 0.29 s). ``lin``: ``graph``
+    linearised at ``values`` when the caller has it."""
     from scipy import sparse
 
     if lin is None:
