@@ -6,6 +6,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -273,3 +275,27 @@ def test_the_whitened_system_equals_gtsams_dense_jacobian():
     assert A[:, a : a + d].nnz == 0
     rows = [np.asarray(lin.at(j).jacobian()[1]).size for j in range(lin.size())]
     np.testing.assert_array_equal(owner, np.repeat(np.arange(lin.size()), rows))
+
+
+def test_the_components_do_not_depend_on_blas_threads():
+    """``odofuse batch`` equals ``odofuse run`` to the last digit in any worker process: the
+    components run BLAS on one thread (OpenBLAS's dot product sums in an order set by its
+    thread count above 10,000 elements; CI once saw the last digit of
+    ``position_variance_scale`` differ between a Dask worker and the test process)."""
+    import subprocess
+    import sys
+
+    script = (
+        f"import json, sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from test_cross_check_variance import _chain, variance\n"
+        "g, v, groups, keys = _chain(k_odo=1.5, k_fix=0.7, n=4000)\n"
+        "print(json.dumps(variance.variance_components(g, v, groups, keys)))\n"
+    )
+    out = []
+    for threads in ("1", "2"):
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}
+        run = subprocess.run(
+            [sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True
+        )
+        out.append(json.loads(run.stdout))
+    assert out[0] == out[1]

@@ -14,6 +14,7 @@ sections 6.2, 6.3).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -227,6 +228,23 @@ def _error_samples(A, lu0, row_scale, cols, values, position_keys, k, seed, meth
     return ErrorSamples(xy, int(seed), method)
 
 
+def _one_blas_thread(fn):
+    """Run ``fn`` with BLAS on one thread: OpenBLAS's dot products and SuperLU's
+    multi-right-hand-side solves sum in an order set by its thread count, so the last digit of
+    these components moved between a process with two threads and a Dask worker with one
+    (``odofuse batch`` must equal ``odofuse run`` to the last digit, docs/batch.md)."""
+
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fn(*args, **kwargs)
+
+    return wrapped
+
+
+@_one_blas_thread
 def variance_components(
     graph,
     values,
