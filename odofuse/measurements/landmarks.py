@@ -105,9 +105,7 @@ class BeaconRange(MeasurementModel):
             return gtsam.RangeFactor2D(
                 key, landmark_key, float(self.z(row)[0]), self.noise(row, noise)
             )
-        keys = {s: (calib_keys or {}).get(s) for s in ("range_scale", "range_offset")}
-        if not self.calibrate:
-            keys = {}
+        keys = dict(calib_keys or {}) if self.calibrate else {}
         return range_factor(
             key,
             float(self.z(row)[0]),

@@ -90,7 +90,8 @@ def calibrated_between_factor(key_i, key_j, calib_key, delta0, G, p0, noise):
             # times a scale): products on the four numbers (p, q, t1, t2), then G's columns.
             J = _jr_inverse(*e)
             Hh = _compose(J, _adjoint_of_inverse(hx, hy, hth))
-            Hm = _compose(_compose(J, _adjoint_of_inverse(rx, ry, rth)), _jr(vx, vy, w))
+            jv = (a, -b, *_se2_third_column(vx, vy, w))  # ExpmapDerivative at v (a, b above)
+            Hm = _compose(_compose(J, _adjoint_of_inverse(rx, ry, rth)), jv)
             p, q, t1, t2 = Hh
             H[0] = np.array([[-p, q, -t1], [-q, -p, -t2], [0.0, 0.0, -1.0]])
             p, q, t1, t2 = J
@@ -161,15 +162,11 @@ def _se2_third_column(vx: float, vy: float, w: float) -> tuple[float, float]:
 # A 3 x 3 matrix [[p, -q, t1], [q, p, t2], [0, 0, 1]] as the four numbers (p, q, t1, t2).
 
 
-def _jr(vx: float, vy: float, w: float) -> tuple:
-    """GTSAM's ``Pose2.ExpmapDerivative`` (right Jacobian): ``Exp(v + d) ~= Exp(v) Exp(J d)``."""
-    return (_sinc(w), -_cosc(w), *_se2_third_column(vx, vy, w))
-
-
 def _jr_inverse(vx: float, vy: float, w: float) -> tuple:
     """GTSAM's ``Pose2.LogmapDerivative`` at the pose whose ``Log`` is ``(vx, vy, w)``: the
-    inverse of :func:`_jr`, ``[[A^-1, -A^-1 c], [0, 1]]`` with ``A^-1 = [[k, -w/2], [w/2, k]]``,
-    ``k = (w/2) cot(w/2)``."""
+    inverse of the right Jacobian ``[[A, c], [0, 1]]`` (``Pose2.ExpmapDerivative``, ``A =
+    [[sinc w, cosc w], [-cosc w, sinc w]]``, ``c`` from :func:`_se2_third_column`):
+    ``[[A^-1, -A^-1 c], [0, 1]]`` with ``A^-1 = [[k, -w/2], [w/2, k]]``, ``k = (w/2) cot(w/2)``."""
     half, k = _half_cot(w)
     c1, c2 = _se2_third_column(vx, vy, w)
     return k, half, -(k * c1 - half * c2), -(half * c1 + k * c2)
