@@ -104,23 +104,21 @@ def test_condition_screen_is_an_upper_bound_and_exact_above_its_cap():
     assert pose_checks._correlation_condition(P, cap=10.0)[1][5] == 6.75
 
 
-def test_the_six_entry_screen_equals_the_correlation_determinant_bound():
-    """``_screen3`` (the live pass's screen) is the same bound ``6.75 / det C`` as the
-    correlation matrices give, from P's six entries; it declines blocks it cannot prove."""
+def test_the_screens_determinant_is_the_correlation_matrix_one_at_every_scale():
+    """``_correlation_det3`` (the screen's ``det C``, from P's six entries) equals the
+    determinant of the correlation matrix, also where P's own products would overflow or
+    vanish (a coordinate in units 1e150 times larger or smaller)."""
     from odofuse.status import pose_checks
 
     rng = np.random.default_rng(11)
     A = rng.normal(size=(500, 3, 3))
     P = A @ np.swapaxes(A, 1, 2) + np.eye(3) * rng.uniform(0.1, 2.0, (500, 1, 1))
     d = np.sqrt(np.einsum("nii->ni", P))
-    C = P / (d[:, :, None] * d[:, None, :])
-    expected = 6.75 / np.linalg.det(C)
-    bound = pose_checks._screen3(P, 1e10)
-    assert bound is not None and np.allclose(bound, expected, rtol=1e-10, atol=0.0)
-    eig = np.linalg.eigvalsh(C)
-    assert np.all(bound >= eig[:, -1] / eig[:, 0] * (1 - 1e-12))
-    for bad in (np.nan, np.inf, 0.0, 1e-200, 1e120):
-        Q = P.copy()
-        Q[3, 1, 1] = bad
-        assert pose_checks._screen3(Q, 1e10) is None
-    assert pose_checks._screen3(P, 1.0) is None  # not proven at a cap of 1
+    expected = np.linalg.det(P / (d[:, :, None] * d[:, None, :]))
+    for scale in (1.0, 1e-150, 1e150):
+        D = np.diag([scale, 1.0, 1.0 / scale])  # the same correlations
+        det = pose_checks._correlation_det3(D @ P @ D)
+        assert np.allclose(det, expected, rtol=1e-10, atol=1e-14)
+    _, cond = pose_checks._correlation_condition(D @ P @ D, cap=1e10)
+    _, exact = pose_checks._correlation_condition(P)
+    assert np.allclose(cond, 6.75 / expected, rtol=1e-10) and np.all(cond >= exact * (1 - 1e-9))

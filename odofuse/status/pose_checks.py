@@ -39,62 +39,54 @@ def _correlation_condition(
     (:func:`odofuse.trajectory.pose_blocks`), so the temporaries stay a few MB on any run
     (whole-run copies were 4 x 130 MB on a 10 h log at 50 Hz).
 
-    ``cap`` > 0: a matrix whose condition number is certainly at most ``cap`` gets that
-    certainty's bound instead (``<= cap``), without an eigen-decomposition: a correlation
-    matrix has trace ``n``, so ``l_max <= n`` and, by AM-GM on the other eigenvalues,
-    ``l_min >= det / (n / (n - 1))^(n - 1)`` (the live health's checks, 150 poses: 5x faster).
+    ``cap`` > 0 (poses, n = 3): a matrix whose condition number is certainly at most ``cap``
+    gets that certainty's bound instead (``<= cap``), without an eigen-decomposition: a
+    correlation matrix has trace 3, so ``l_max <= 3`` and, by AM-GM on the other two
+    eigenvalues, ``l_min >= det / (3/2)^2``; the bound is ``6.75 / det C``
+    (:func:`_correlation_det3`; the live health's pass over its kept poses: 5x faster).
     """
     finite = np.empty(len(P), dtype=bool)
     out = []
     n = P.shape[-1]
     for b in pose_blocks(len(P), block):
         Pb = P[b]
-        bound = _screen3(Pb, cap) if cap > 0.0 and n == 3 else None
-        if bound is not None:  # every pose usable and proven well-conditioned (live windows)
-            finite[b] = True
-            out.append(bound)
-            continue
-        diag = np.einsum("nii->ni", Pb)
+        q = Pb.reshape(len(Pb), n * n)
+        diag = q[:, :: n + 1]
         f = finite[b]
         # a whole-array test first: where every pose is usable, no per-pose test, no masked copies
-        every = bool(np.isfinite(Pb).all() and (diag > 0).all())
-        f[:] = True if every else np.isfinite(Pb).all(axis=(1, 2)) & (diag > 0).all(axis=1)
-        db = np.sqrt(np.maximum(diag if every else diag[f], 1e-300))
-        C = (Pb if every else Pb[f]) / (db[:, :, None] * db[:, None, :])
-        C = 0.5 * (C + np.swapaxes(C, 1, 2))
+        every = bool(np.isfinite(q).all() and (diag > 0).all())
+        f[:] = True if every else np.isfinite(q).all(axis=1) & (diag > 0).all(axis=1)
+        Pf = Pb if every else Pb[f]
+        exact = slice(None)
         if cap > 0.0 and n == 3:
-            u = C[:, (0, 0, 1), (1, 2, 2)]  # the three correlations
-            det = 1.0 + 2.0 * u.prod(axis=1) - (u * u).sum(axis=1)
-            bound = 6.75 / np.maximum(det, 1e-300)  # n (n / (n - 1))^(n - 1) / det
+            bound = 6.75 / np.maximum(_correlation_det3(Pf), 1e-300)  # 3 (3/2)^2 / det
             exact = ~(bound <= cap)
             if not exact.any():  # every pose proven well-conditioned (most live windows)
                 out.append(bound)
                 continue
-            cond = np.where(exact, 0.0, bound)
-        else:
-            cond, exact = np.empty(len(C)), slice(None)
-        eig = np.linalg.eigvalsh(C[exact])
-        cond[exact] = eig[:, -1] / np.maximum(eig[:, 0], 1e-300)
+            Pf = Pf[exact]
+        db = np.sqrt(np.maximum(np.einsum("nii->ni", Pf), 1e-300))
+        C = Pf / (db[:, :, None] * db[:, None, :])
+        C = 0.5 * (C + np.swapaxes(C, 1, 2))
+        eig = np.linalg.eigvalsh(C)
+        cond = eig[:, -1] / np.maximum(eig[:, 0], 1e-300)
+        if cap > 0.0 and n == 3:
+            bound[exact] = cond
+            cond = bound
         out.append(cond)
     return finite, np.concatenate(out)
 
 
-def _screen3(P, cap: float) -> np.ndarray | None:
-    """The determinant bound of :func:`_correlation_condition` for a block ``P`` (N, 3, 3)
-    whose poses are all finite with a positive diagonal and all proven at most ``cap``, from
-    ``P``'s six entries (``det C = det P_sym / (P_00 P_11 P_22)``) without forming the
-    correlation matrices; None when any pose is not (the general path then decides). The
-    live health's pass over its kept poses: 2.5x faster than forming them."""
+def _correlation_det3(P) -> np.ndarray:
+    """``det C`` of each 3 x 3 covariance of ``P`` (N, 3, 3; finite, positive diagonal) from
+    its three correlations ``r`` (of the symmetric part, over the sigmas, so no product can
+    overflow or vanish): ``1 + 2 r01 r02 r12 - r01^2 - r02^2 - r12^2``."""
     q = P.reshape(len(P), 9)
-    a, d, f = q[:, 0], q[:, 4], q[:, 8]
-    if not (len(q) and np.isfinite(q).all() and min(a.min(), d.min(), f.min()) > 1e-100):
-        return None
-    if max(q.max(), -q.min()) > 1e100:  # products could overflow or vanish: the general path
-        return None
-    b, c, e = q[:, 1] + q[:, 3], q[:, 2] + q[:, 6], q[:, 5] + q[:, 7]  # twice the symmetric part
-    adf = a * d * f
-    det_c = (adf + 0.25 * (b * c * e - a * e * e - d * c * c - f * b * b)) / adf
-    return 6.75 / det_c if det_c.min() >= 6.75 / cap else None
+    s0, s1, s2 = np.sqrt(q[:, 0]), np.sqrt(q[:, 4]), np.sqrt(q[:, 8])
+    r01 = 0.5 * (q[:, 1] + q[:, 3]) / s0 / s1  # one sigma at a time: |P01| / s0 <= s1
+    r02 = 0.5 * (q[:, 2] + q[:, 6]) / s0 / s2
+    r12 = 0.5 * (q[:, 5] + q[:, 7]) / s1 / s2
+    return 1.0 + 2.0 * r01 * r02 * r12 - (r01 * r01 + r02 * r02 + r12 * r12)
 
 
 def covariance_health(t, P, options: FilterOptions) -> list[Finding]:
