@@ -33,6 +33,7 @@ together.
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 from numba import njit
@@ -1291,3 +1292,50 @@ def pf_cov(X, w, angles, is_angle, P):
                 acc += vecs[a, k] * vals[k] * vecs[b, k]
             P[a, b] = acc
             P[b, a] = acc
+
+
+# ------------------------------------------------------------------- the on-disk cache's index
+def _lock_cache_saves() -> bool:
+    """Serialise numba's cache saves of these kernels across processes; whether it could.
+
+    numba (0.68, ``caching.IndexDataCacheFile.save``) saves a new machine code by reading the
+    function's index, taking the first free data-file number, writing the index and then the
+    data, with no lock. Two processes that compile *different* signatures of one kernel at
+    once (the EKF's and the UKF's ``filter_offline``: a background compile, :mod:`.warm`; two
+    Dask workers or two test workers on a cold cache) can both read the old index and take
+    the same number: one signature is lost from the index, and the data file may then hold
+    the other signature's code under its name. Holding an exclusive ``flock`` on one file of
+    the cache folder around each save makes the second process read the first one's index
+    (``tests/test_compiled_warm.py``). Loads need no lock: numba replaces both files whole.
+    """
+    try:
+        import fcntl
+
+        from numba.core.registry import CPUDispatcher
+    except ImportError:  # no flock (Windows): the background compile is then not started
+        return False
+    kernels = [v for v in globals().values() if isinstance(v, CPUDispatcher)]
+    try:
+        files = [k._cache._cache_file for k in kernels]
+        for f in files:
+            f.save = _locked(f.save, os.path.join(f._cache_path, "odofuse-kernels.lock"), fcntl)
+    except AttributeError:  # another numba's cache layout: leave its saves as they are
+        return False
+    return True
+
+
+def _locked(save, lock_path: str, fcntl):
+    def save_locked(key, data):
+        try:
+            f = open(lock_path, "a")  # noqa: SIM115 - closed below, after the save
+        except OSError:  # a folder numba can write to but not create files in: as before
+            return save(key, data)
+        with f:
+            fcntl.flock(f, fcntl.LOCK_EX)  # released when f is closed
+            return save(key, data)
+
+    return save_locked
+
+
+#: Whether two processes may compile these kernels at once (:func:`_lock_cache_saves`).
+CACHE_SAVES_LOCKED = _lock_cache_saves()
