@@ -23,6 +23,16 @@ SCENARIO = {
     },
     "beacons": [[1, 0.0, 6.0], [2, 0.0, -6.0], [3, 8.0, 0.0], [4, -8.0, 0.0]],
 }
+#: The same with wheel slip (the right wheel moving the robot 70 % of its count for 2 s, the
+#: left 50 % for 1.5 s) and a bump: robust odometry widens steps, in runs.
+SLIP_SCENARIO = {
+    **SCENARIO,
+    "nonsystematic": {
+        "k": 1.0e-5,
+        "slip_bursts": [[8.0, 10.0, "right", 0.3], [20.0, 21.5, "left", 0.5]],
+        "bumps": [[30.0, "left", 0.05]],
+    },
+}
 
 
 def assert_same_run(res, ref) -> None:

@@ -21,13 +21,13 @@ import pytest
 
 pytest.importorskip("numba")
 
-from compiled_checks import SCENARIO  # noqa: E402
+from compiled_checks import SCENARIO, SLIP_SCENARIO  # noqa: E402
 from compiled_checks import assert_same_run as _same  # noqa: E402
 from graph_sim import excerpt, simulated_run  # noqa: E402
 
 from odofuse.config import RunConfig, config_from_dict  # noqa: E402
 from odofuse.estimators import compiled  # noqa: E402
-from odofuse.estimators.assembly import run_with  # noqa: E402
+from odofuse.estimators.assembly import build, run_with  # noqa: E402
 from odofuse.estimators.compiled import ekf as compiled_ekf  # noqa: E402
 from odofuse.estimators.compiled.dead_reckoning import dead_reckon  # noqa: E402
 from odofuse.estimators.ekf import make_backend  # noqa: E402
@@ -186,12 +186,81 @@ def test_gate_rejections_are_the_same_decisions():
 
 
 def test_uncovered_runs_fall_back_to_python():
-    """Robust odometry with a gyro (slip) and recoveries are not compiled: same result."""
+    """Gyrodometry (the gyro's heading change replacing the wheels') is not compiled: the
+    EKF's ``run`` then is the Python path's."""
     from odofuse.estimators.ekf import run as run_ekf
 
-    log, cfg = simulated_run(SCENARIO, 3, "ekf", {"compiled": "on"})  # slip on by default
+    log, cfg = simulated_run(SCENARIO, 3, "ekf", {"compiled": "on"})
+    gyro = dataclasses.replace(cfg.sensors["gyro"], gyrodometry=True, threshold=0.01)
+    cfg = dataclasses.replace(cfg, sensors={**cfg.sensors, "gyro": gyro})
     assert compiled_ekf.run(log, cfg) is None
     _same(run_ekf(log, cfg), _python(log, cfg))
+
+
+@pytest.mark.parametrize("odo_cal", [False, True])
+def test_robust_odometry_equals_the_python_path_through_slip_bursts(odo_cal):
+    """Robust odometry (on by default with a gyro) in the kernel (``kernels.step_slip``):
+    the same widened steps in the same runs, the same ``slip``, ``slip_run`` and
+    ``learning`` record, through two slip bursts and a bump."""
+    options = {"odometry_calibration": odo_cal, "compiled": "on"}
+    log, cfg = simulated_run(SLIP_SCENARIO, 3, "ekf", options)
+    res = compiled_ekf.run(log, cfg)
+    assert res is not None, "this run is covered by the compiled core"
+    ref = _python(log, cfg)
+    assert ref.extra["slip_steps"] > 100
+    assert [f.t_start for f in ref.findings if f.check == "slip_run"] == [pytest.approx(8.04)]
+    _same(res, ref)
+
+
+def test_held_rates_of_every_step_equal_the_localizers():
+    """``kernels.held_rate_steps`` (the offline run's gyro heading change of each step) is
+    ``history.held_rate_integral`` step by step: samples between, on and outside the step
+    ends, the first one after some steps (NaN there), several in one step, none in others."""
+    from odofuse.estimators.compiled import load_kernels
+    from odofuse.estimators.history import held_rate_integral
+
+    rng = np.random.default_rng(8)
+    tt = np.cumsum(rng.uniform(0.0, 0.04, 400))
+    ts = np.sort(np.concatenate([rng.uniform(0.3, tt[-1] + 1.0, 300), tt[[40, 41, 200]]]))
+    ws = rng.normal(0.0, 0.5, ts.size)
+    out = np.empty(tt.size - 1)
+    load_kernels().held_rate_steps(ts, ws, tt, out)
+    samples = list(zip(ts.tolist(), ws.tolist(), strict=True))
+    ref = [held_rate_integral(samples, a, b) for a, b in zip(tt[:-1], tt[1:], strict=True)]
+    assert np.isnan(out[0]) and ref[0] is None
+    np.testing.assert_array_equal(out, [np.nan if r is None else r for r in ref])
+
+
+def test_live_ekf_with_robust_odometry_equals_odofuse_run_bit_for_bit():
+    """A live EKF with a gyro computes robust odometry in the offline run's kernel
+    (``KernelEkfBackend.slip_step``): bit for bit, also through replays of GPS fixes 0.3 s
+    late."""
+    from odofuse.estimators.common import events
+    from odofuse.estimators.localizer import Localizer
+
+    log, cfg = simulated_run(SLIP_SCENARIO, 3, "ekf", {"late_window": 0.5})
+    log = excerpt(log, 32.0)
+    offline = compiled_ekf.run(log, cfg)
+    assert offline is not None and offline.extra["slip_steps"] > 100
+    _, t, U = build(cfg, log, "ekf", make_backend)
+    loc = Localizer.from_config(
+        cfg, t0=t[0], landmarks=log.landmarks, initial_pose=log.initial_pose, keep_trajectory=True
+    )
+    assert type(loc.backend).__name__ == "KernelEkfBackend"
+    evs = events(log, t, U, list(cfg.sensors))
+    key = [(e[0] + 0.3 * (e[0] > 1.0 and e[2] == "gps"), e[1], n) for n, e in enumerate(evs)]
+    for _, _, n in sorted(key):
+        te, kind, stream, i = evs[n]
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+        else:
+            loc.add_measurement(stream, log.streams[stream].row(i))
+    loc.finish()
+    online = loc.result()
+    np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses)
+    np.testing.assert_array_equal(online.trajectory.covariances, offline.trajectory.covariances)
+    assert online.extra["slip_steps"] == offline.extra["slip_steps"]
+    assert online.used == offline.used and online.rejected == offline.rejected
 
 
 def test_without_numba_the_fallback_gives_the_same_result(monkeypatch):

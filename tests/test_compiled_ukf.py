@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("numba")
 
-from compiled_checks import SCENARIO  # noqa: E402
+from compiled_checks import SCENARIO, SLIP_SCENARIO  # noqa: E402
 from compiled_checks import assert_same_run as _same  # noqa: E402
 from graph_sim import excerpt, simulated_run  # noqa: E402
 
@@ -78,11 +78,13 @@ def test_gate_rejections_are_the_same_decisions():
 
 
 def test_uncovered_runs_and_off_fall_back_to_filterpy():
-    """Robust odometry with a gyro (slip) is not compiled, nor ``compiled: off``: the UKF's
-    ``run`` then is the filterpy path's."""
+    """Gyrodometry is not compiled, nor ``compiled: off``: the UKF's ``run`` then is the
+    filterpy path's."""
     from odofuse.estimators.ukf import run as run_ukf
 
-    log, cfg = _scenario(3, {}, seconds=15.0)  # slip on by default
+    log, cfg = _scenario(3, {}, seconds=15.0)
+    gyro = dataclasses.replace(cfg.sensors["gyro"], gyrodometry=True, threshold=0.01)
+    cfg = dataclasses.replace(cfg, sensors={**cfg.sensors, "gyro": gyro})
     assert compiled_ukf.run(log, cfg) is None
     _same(run_ukf(log, cfg), _python(log, cfg))
     log, cfg = _scenario(3, {"slip": False, "compiled": "off"}, ("ranges",), seconds=15.0)
@@ -127,6 +129,35 @@ def _live(log, cfg, delay=0.0):
             loc.add_measurement(stream, log.streams[stream].row(i))
     loc.finish()
     return loc
+
+
+@pytest.mark.parametrize("odo_cal", [False, True])
+def test_robust_odometry_equals_the_filterpy_path_through_slip_bursts(odo_cal):
+    """Robust odometry (on by default with a gyro) in the kernel, as the EKF's
+    (``tests/test_compiled.py``): the same widened steps, runs and findings."""
+    options = {"odometry_calibration": odo_cal, "compiled": "on"}
+    log, cfg = simulated_run(SLIP_SCENARIO, 3, "ukf", options)
+    log = excerpt(log, 32.0)  # both bursts and the bump
+    res = compiled_ukf.run(log, cfg)
+    assert res is not None, "this run is covered by the compiled core"
+    ref = _python(log, cfg)
+    assert ref.extra["slip_steps"] > 100
+    _same(res, ref)
+
+
+def test_live_ukf_with_robust_odometry_equals_odofuse_run_bit_for_bit():
+    """A live UKF with a gyro computes robust odometry in the offline run's kernel
+    (``KernelUkfBackend.slip_step``), also through replays of GPS fixes 0.3 s late."""
+    log, cfg = simulated_run(SLIP_SCENARIO, 3, "ukf", {"late_window": 0.5})
+    log = excerpt(log, 32.0)
+    offline = compiled_ukf.run(log, cfg)
+    assert offline is not None and offline.extra["slip_steps"] > 100
+    loc = _live(log, cfg, 0.3)
+    assert type(loc.backend).__name__ == "KernelUkfBackend"
+    online = loc.result()
+    np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses)
+    np.testing.assert_array_equal(online.trajectory.covariances, offline.trajectory.covariances)
+    assert online.extra["slip_steps"] == offline.extra["slip_steps"]
 
 
 def test_live_ukf_equals_odofuse_run_bit_for_bit_with_the_compiled_core():

@@ -47,6 +47,7 @@ from odofuse.status.pose_checks import (
     covariance_health,
     learning_findings,
     record_learning,
+    record_learning_terms,
 )
 
 
@@ -832,7 +833,15 @@ def setup_localizer(loc) -> None:
     gyros = [s for s, m in loc.models.items() if isinstance(m, GyroYawRate)]
     on = loc.options.slip and gyros and loc._gyro_stream is None
     loc._slip_stream = gyros[0] if on else None
-    loc._slip_gate = gate_threshold(loc.options.slip_gate, 1)
+    # (gate, gyro sigma, bias variance when the bias is not a state) of step_slip_scale
+    gyro = loc.models[gyros[0]] if on else None
+    loc._slip_params = np.array(
+        [
+            gate_threshold(loc.options.slip_gate, 1),
+            float(getattr(gyro, "sigma", 0.0)),
+            float(getattr(gyro, "bias_sigma", 0.0)) ** 2,
+        ]
+    )
     loc.slip_steps = 0
     loc._slip_runs = {}  # step end time -> summed disagreement of its slip run (rad)
     loc._slip_starts = {}  # step end time -> start time of its slip run (s)
@@ -852,28 +861,38 @@ def recover(loc, stream, model, row) -> tuple[bool, float]:
 
 
 def step_slip_scale(loc, t0: float, t1: float, u) -> float:
-    """Input-noise factor of one odometry step (robust odometry, :func:`slip_scale`)."""
+    """Input-noise factor of one odometry step (robust odometry, :func:`slip_scale`).
+
+    A backend on the compiled kernels computes it in its kernel (``slip_step``: the offline
+    run's arithmetic, so a live run equals ``odofuse run`` bit for bit); this is the
+    reference it equals to 1e-9."""
     g = loc._gyro_increment(t0, t1)
     if g is None or t1 <= t0:
         return 1.0
-    model = loc.models[loc._slip_stream]
-    delta, J = loc._increment(u)
-    mm = loc.motion_model
-    var_odo = float((J[2] ** 2) @ mm.errors.variances(mm.drive, u, t1 - t0))
     span = t1 - t0
-    if loc._bias_idx is not None:
-        bias = float(loc.backend.mean()[loc._bias_idx])
-        cov = loc.backend.cov()
-        var_b = float(cov[loc._bias_idx, loc._bias_idx])
-        record_learning(loc._bias_record, t0, cov, loc._bias_idx)
-    else:
-        bias, var_b = 0.0, float(getattr(model, "bias_sigma", 0.0)) ** 2
-    sigma = float(getattr(model, "sigma", 0.0))
-    var_ref = (sigma**2 + var_b) * span**2
-    d = g - bias * span - float(delta[2])
     runs = loc._slip_runs
     run = runs.get(t0, 0.0)
-    scale = slip_scale(d, var_odo, var_ref, loc._slip_gate, run)
+    gate, sigma, var_b = loc._slip_params
+    kernel = getattr(loc.backend, "slip_step", None)
+    if kernel is not None:
+        learn = np.full(3, np.nan)
+        scale, after = kernel(u, span, g, run, loc._slip_params, loc._bias_idx, learn)
+        if loc._bias_idx is not None:
+            record_learning_terms(loc._bias_record, t0, *learn.tolist())
+    else:
+        delta, J = loc._increment(u)
+        mm = loc.motion_model
+        var_odo = float((J[2] ** 2) @ mm.errors.variances(mm.drive, u, span))
+        bias = 0.0
+        if loc._bias_idx is not None:
+            bias = float(loc.backend.mean()[loc._bias_idx])
+            cov = loc.backend.cov()
+            var_b = float(cov[loc._bias_idx, loc._bias_idx])
+            record_learning(loc._bias_record, t0, cov, loc._bias_idx)
+        var_ref = (sigma**2 + var_b) * span**2
+        d = g - bias * span - float(delta[2])
+        scale = slip_scale(d, var_odo, var_ref, gate, run)
+        after = run + d if scale > 1.0 else 0.0
     starts = loc._slip_starts
     if scale > 1.0:
         loc.slip_steps += 1
@@ -882,7 +901,7 @@ def step_slip_scale(loc, t0: float, t1: float, u) -> float:
         longest = loc._slip_longest
         if t1 - begin > longest[1] - longest[0]:
             loc._slip_longest = (begin, t1)
-    runs[t1] = run + d if scale > 1.0 else 0.0
+    runs[t1] = after
     if len(runs) > 4096:  # keep what a replay inside the late window can still ask for
         horizon = t1 - loc.late_window - 1.0
         for key in [k for k in runs if k < horizon]:

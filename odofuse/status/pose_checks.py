@@ -344,12 +344,17 @@ def record_learning(rec, t: float, P, i: int) -> None:
     relative to itself). A replay (``t`` at or before the last entry, the Localizer's
     late-measurement window) first drops the entries it re-does.
     """
+    vt, vb = float(P[2, 2]), float(P[i, i])
+    record_learning_terms(rec, t, vt, float(P[2, i]) ** 2 / vb if vb > 0.0 else 0.0, vb)
+
+
+def record_learning_terms(rec, t: float, vt: float, ve: float, vb: float) -> None:
+    """:func:`record_learning` of the terms ``P_tt``, ``P_tb^2 / P_bb`` and ``P_bb`` (the
+    compiled filters compute them in their kernel)."""
     times, ptt, expl, pbb = rec
     while times and times[-1] >= t:
         for a in rec:
             a.pop()
-    vt, vb = float(P[2, 2]), float(P[i, i])
-    ve = float(P[2, i]) ** 2 / vb if vb > 0.0 else 0.0
     if times:
         tol = LEARNING_STEP * ptt[-1]
         if (

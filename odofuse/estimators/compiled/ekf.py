@@ -35,6 +35,7 @@ from odofuse.declarations import INTEGRATORS
 from odofuse.estimators import compiled
 from odofuse.estimators.compiled.dead_reckoning import linear_terms
 from odofuse.estimators.history import Track
+from odofuse.status.pose_checks import record_learning_terms
 
 _CAL_DRIVES = {"increments": 1, "differential": 2, "skid_steer": 2}
 #: Stream kinds of the kernels (``kernels.RANGE`` ...; repeated here so that deciding
@@ -78,8 +79,6 @@ def unsupported(loc, log, streams) -> str | None:
 
     if loc._gyro_stream is not None:
         return "gyrodometry"
-    if loc._slip_stream is not None:
-        return "robust odometry (slip) with a gyro"
     model = loc.motion_model
     if linear_terms(model) is None:
         return f"drive '{model.drive.name}' or its error model is not linear in u"
@@ -264,9 +263,54 @@ def prepare(log, config, estimator: str = "ekf"):
         cal=cal_code, cidx=cidx, mt=mt, ms=ms, mstep=mstep, mz=np.ascontiguousarray(mz),
         maux=np.ascontiguousarray(maux), mR=mR, skind=skind, sidx=sidx, sgate=sgate, sR=sR,
         traj_x=traj_x, traj_P=traj_P, odom=odom, acc=acc, nis=nis,
-        snap_k=snap_k, snap_x=snap_x, snap_v=snap_v,
+        snap_k=snap_k, snap_x=snap_x, snap_v=snap_v, **_slip_args(kern, loc, log, t),
     )  # fmt: skip
     return kern, loc, streams, args
+
+
+def _slip_args(kern, loc, log, t) -> dict:
+    """Robust odometry's arguments of the kernel (``slip_g`` ... ``learn`` of
+    :func:`~.kernels.filter_offline`): each step's gyro heading change from the slip stream's
+    rates held as the Localizer holds them (``history.held_rate_integral``: every reading of
+    the stream, in time order, is known when the step ending at or after it runs); empty
+    arrays when robust odometry is off."""
+    N = len(t) - 1
+    stream = loc._slip_stream
+    if stream is None:
+        return dict(
+            slip_g=np.zeros(0), slip=np.zeros(3), bias_idx=-1,
+            slip_out=np.zeros(0), learn=np.zeros((0, 3)),
+        )  # fmt: skip
+    st = log.streams[stream]
+    order = np.argsort(st.t, kind="stable")
+    g = np.empty(N)
+    kern.held_rate_steps(st.t[order], np.ascontiguousarray(st["wz"][order]), t, g)
+    return dict(
+        slip_g=g,
+        slip=loc._slip_params,
+        bias_idx=-1 if loc._bias_idx is None else int(loc._bias_idx),
+        slip_out=np.ones(N),
+        learn=np.full((N, 3), np.nan),
+    )
+
+
+def _record_slip(loc, t, scale, learn) -> None:
+    """The Localizer's robust-odometry record after the kernel (``monitors.step_slip_scale``
+    step by step): the slipping steps, the longest run of consecutive ones (the first of
+    equal length) and the ``learning`` check's heading and bias covariance terms."""
+    slipping = scale > 1.0
+    loc.slip_steps += int(np.count_nonzero(slipping))
+    if slipping.any():
+        d = np.diff(np.concatenate([[0], slipping.astype(np.int8), [0]]))
+        first, end = np.flatnonzero(d == 1), np.flatnonzero(d == -1)  # steps [first, end)
+        length = t[end] - t[first]
+        k = int(np.argmax(length))
+        a, b = loc._slip_longest
+        if length[k] > b - a:
+            loc._slip_longest = (float(t[first[k]]), float(t[end[k]]))
+    if loc._bias_idx is not None:
+        for k in np.flatnonzero(~np.isnan(learn[:, 0])).tolist():
+            record_learning_terms(loc._bias_record, float(t[k]), *learn[k].tolist())
 
 
 def snapshot_steps(t, drift) -> np.ndarray:
@@ -313,6 +357,8 @@ def finish(loc, log, streams, args):
     drift = loc.monitor.drift
     for k, xs, vs in zip(args["snap_k"], args["snap_x"], args["snap_v"], strict=True):
         drift.observe(float(t[k + 1]), xs, vs)
+    if loc._slip_stream is not None:
+        _record_slip(loc, t, args["slip_out"], args["learn"])
     loc._track = Track.from_arrays(t, args["traj_x"], args["traj_P"])
     loc._odom = args["odom"]
     loc.t = float(t[-1])
@@ -320,6 +366,17 @@ def finish(loc, log, streams, args):
 
 
 # --------------------------------------------------------------------- the streaming path
+def slip_step(self, u, span, g, run, slip, bias_idx, learn) -> tuple[float, float]:
+    """A kernel backend's ``slip_step``: ``monitors.step_slip_scale``'s factor and run of one
+    step in the kernel :func:`run` uses (:func:`~.kernels.step_slip`), on the backend's
+    state; ``learn`` (3,) receives the ``learning`` terms when ``bias_idx`` is not None."""
+    _, M, K, floor, rate = self._motion_args[:5]
+    b = -1 if bias_idx is None else int(bias_idx)
+    u = np.ascontiguousarray(u, dtype=float)
+    kf = self.kf
+    return self._kern.step_slip(kf.x, kf.P, u, span, g, M, K, floor, rate, slip, b, run, learn)
+
+
 def compose_odom(self, odom, U) -> np.ndarray:
     """A kernel backend's ``compose_odom``: the ``odom`` pose (3,) after the steps ``U``
     (N, m), as :func:`run` composes it."""
@@ -341,18 +398,19 @@ def kernel_backend_class(base):
 
         A live Localizer on it (:func:`live`) computes what ``odofuse run`` computes with the
         compiled core, bit for bit, on every run that :func:`run` covers. What the kernels do
-        not cover runs the Python methods: a prediction with a gyro heading or a slip noise
-        scale, a row without the kernel's columns (a lat/lon fix, a range without ``id``), the
+        not cover runs the Python methods: a prediction with a gyro heading (gyrodometry),
+        a row without the kernel's columns (a lat/lon fix, a range without ``id``), the
         innovation a recovery reads.
         """
 
         def predict(self, u, dt, dtheta=None, var_dtheta=0.0, noise_scale=1.0) -> None:
-            if dtheta is not None or noise_scale != 1.0:
+            if dtheta is not None:
                 super().predict(u, dt, dtheta, var_dtheta, noise_scale)
                 return
             kf, (integ, M, K, floor, rate, cal, cidx) = self.kf, self._motion_args
             self._kern.ekf_predict_step(
-                kf.x, kf.P, u, dt, integ, M, K, floor, rate, cal, cidx, self.walk
+                kf.x, kf.P, u, dt, integ, M, K, floor, rate, cal, cidx, self.walk,
+                float(noise_scale),
             )  # fmt: skip
 
         def update(self, model, row) -> tuple[bool, float]:
@@ -366,6 +424,7 @@ def kernel_backend_class(base):
             return bool(ok), float(nis)
 
         compose_odom = compose_odom
+        slip_step = slip_step
 
         @property
         def last_innovation(self):

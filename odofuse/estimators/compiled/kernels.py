@@ -387,9 +387,10 @@ def _input_noise(integ, M, K, floor, rate, uc, dt, th, Jt, Fu, var):
 
 
 @njit(cache=True)
-def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work):
+def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work, scale):
     """``EkfBackend.predict`` (``cal == 0``) or ``_predict_calibrated`` (1: increments,
-    2: differential / skid-steer) of the fraction ``part`` of a step (input ``u * part``)."""
+    2: differential / skid-steer) of the fraction ``part`` of a step (input ``u * part``),
+    its input variances times ``scale`` (``noise_scale``: robust odometry, :func:`step_slip`)."""
     Jt, Fu, var, uc, v, F, FP = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     Jc = work[12]
     n = x.shape[0]
@@ -400,6 +401,9 @@ def _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, w
     _calibrated_input(x, up, dt, cal, cidx, uc)
     th = x[2]
     d0, d1, d2 = _input_noise(integ, M, K, floor, rate, uc, dt, th, Jt, Fu, var)
+    if scale != 1.0:
+        for j in range(m):
+            var[j] *= scale
     c, s = math.cos(th), math.sin(th)
     dxw = c * d0 - s * d1
     dyw = s * d0 + c * d1
@@ -715,12 +719,14 @@ def _symmetrise(P):
 
 @njit(cache=True)
 def _ukf_predict(
-    x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, Wm, Wc, c, angles, tol, work, uw
+    x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk,
+    Wm, Wc, c, angles, tol, work, uw, scale,
 ):  # fmt: skip
     """``UkfBackend.predict`` of the fraction ``part`` of a step: the sigma points of ``x``,
     ``P`` through ``pose (+) delta(u)`` (each with its own calibrated input when ``cal``),
     their circular mean and covariance (``unscented_transform``) plus ``Q = F_u Sigma_u
-    F_u^T`` at the mean's calibrated input and the random walk; ``P`` symmetrised."""
+    F_u^T`` at the mean's calibrated input (``Sigma_u`` times ``scale``) and the random walk;
+    ``P`` symmetrised."""
     Jt, Fu, var, uc, up = work[0], work[1], work[2], work[3], work[13]
     S, X, dx, ui = uw[0], uw[1], uw[6], uw[7]
     n = x.shape[0]
@@ -730,6 +736,9 @@ def _ukf_predict(
         up[j] = u[j] * part
     _calibrated_input(x, up, dt, cal, cidx, uc)
     d0, d1, d2 = _input_noise(integ, M, K, floor, rate, uc, dt, x[2], Jt, Fu, var)
+    if scale != 1.0:
+        for j in range(m):
+            var[j] *= scale
     _sigma_points(x, P, c, angles, tol, uw)
     for i in range(N):
         if cal != 0:  # UkfBackend._fx: the sigma point's own calibration
@@ -909,17 +918,87 @@ def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, ni
 
 
 @njit(cache=True)
-def _predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work, uk):
+def _predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work, uk, scale):
     """The EKF's prediction (``uk`` None: the UKF's kernels are pruned when compiling) or the
-    UKF's (``uk`` as :func:`_apply` takes it)."""
+    UKF's (``uk`` as :func:`_apply` takes it), input variances times ``scale``."""
     if uk is None:
-        _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work)
+        _ekf_predict(x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk, work, scale)
     else:
         Wm, Wc, c, angles, tol, uw = uk
         _ukf_predict(
             x, P, u, part, dt, integ, M, K, floor, rate, cal, cidx, walk,
-            Wm, Wc, c, angles, tol, work, uw,
+            Wm, Wc, c, angles, tol, work, uw, scale,
         )  # fmt: skip
+
+
+@njit(cache=True)
+def held_rate_steps(ts, ws, tt, out):
+    """``history.held_rate_integral`` of every step: ``out[k]`` (N,) the integral over
+    ``(tt[k], tt[k + 1]]`` of the rates ``ws`` at times ``ts`` (sorted), each held until the
+    next (the first also backwards), summed as that function sums it; NaN while the first
+    rate is after the step's end."""
+    S = ts.shape[0]
+    i = -1  # the last sample at or before the step's start
+    for k in range(tt.shape[0] - 1):
+        t0, t1 = tt[k], tt[k + 1]
+        if S == 0 or ts[0] > t1:
+            out[k] = np.nan
+            continue
+        while i + 1 < S and ts[i + 1] <= t0:
+            i += 1
+        rate = ws[i] if i >= 0 else ws[0]
+        total, cursor = 0.0, t0
+        q = i + 1
+        while q < S and ts[q] <= t1:
+            total += rate * (ts[q] - cursor)
+            cursor, rate = ts[q], ws[q]
+            q += 1
+        out[k] = total + rate * (t1 - cursor)
+
+
+@njit(cache=True)
+def _slip_scale(d, var_odo, var_ref, gate, run):
+    """``monitors.slip_scale``: the factor widening a step's wheel input noise."""
+    if not var_odo > 0.0:
+        return 1.0
+    d2 = d * d
+    if d2 <= gate * (var_odo + var_ref):
+        return 1.0
+    total = run + d
+    return max(d2, total * total - run * run) / var_odo
+
+
+@njit(cache=True)
+def step_slip(x, P, u, span, g, M, K, floor, rate, slip, bias_idx, run, learn):
+    """``monitors.step_slip_scale`` of one step (input ``u`` over ``span`` s, gyro heading
+    change ``g``, NaN when none): ``(scale, run)``, the step's input-noise factor and the
+    summed disagreement of its slip run (0 when it does not slip). ``slip`` is ``(gate,
+    gyro sigma, the bias variance when the bias is not a state)``; with a bias state
+    (``bias_idx`` >= 0) ``learn`` (3,) receives ``pose_checks.record_learning``'s terms of
+    the step's prior ``P``. The wheels' heading change is ``w = M[0] u`` (every integrator),
+    its variance ``sum_j M[0, j]^2 var_j`` with ``var = K |u| + floor + rate span``."""
+    if math.isnan(g) or not span > 0.0:
+        return 1.0, 0.0
+    m = u.shape[0]
+    w = 0.0
+    var_odo = 0.0
+    for j in range(m):
+        w += M[0, j] * u[j]
+        v = floor[j] + rate[j] * span
+        for i in range(m):
+            v += K[j, i] * abs(u[i])
+        var_odo += M[0, j] * M[0, j] * v
+    if bias_idx >= 0:
+        bias, var_b = x[bias_idx], P[bias_idx, bias_idx]
+        learn[0] = P[2, 2]
+        learn[1] = P[2, bias_idx] ** 2 / var_b if var_b > 0.0 else 0.0
+        learn[2] = var_b
+    else:
+        bias, var_b = 0.0, slip[2]
+    var_ref = (slip[1] * slip[1] + var_b) * span * span
+    d = g - bias * span - w
+    scale = _slip_scale(d, var_odo, var_ref, slip[0], run)
+    return scale, run + d if scale > 1.0 else 0.0
 
 
 @njit(cache=True)
@@ -927,13 +1006,15 @@ def ekf_offline(
     x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
     traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v,
+    slip_g, slip, bias_idx, slip_out, learn,
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend, over a whole log
     (:func:`filter_offline`)."""
     filter_offline(
         x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
         mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-        traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v, None,
+        traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v,
+        slip_g, slip, bias_idx, slip_out, learn, None,
     )  # fmt: skip
 
 
@@ -941,7 +1022,8 @@ def ekf_offline(
 def filter_offline(
     x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-    traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v, uk,
+    traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v,
+    slip_g, slip, bias_idx, slip_out, learn, uk,
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend (``uk`` None), or the UKF's,
     over a whole log (:func:`ekf_offline`; ``compiled.ukf.run``).
@@ -964,6 +1046,11 @@ def filter_offline(
     snap_k : (K,) increasing steps after which the state is copied to ``snap_x`` (K, n) and
         the covariance's diagonal to ``snap_v`` (K, n) (the calibration drift check's
         snapshots, :class:`odofuse.status.drift.Drift`).
+    slip_g : (N,) or (0,)
+        Robust odometry (``monitors.step_slip_scale``, :func:`step_slip`): each step's gyro
+        heading change (NaN: none); empty when it is off. ``slip`` (3,), ``bias_idx``: see
+        :func:`step_slip`; ``slip_out`` (N,) receives each step's noise factor, ``learn``
+        (N, 3) the ``learning`` terms of the steps that have them (else NaN).
     uk : None (the EKF; its specialisation compiles none of the UKF's kernels) or
         ``(Wm, Wc, c, angles, tol, ukf_work(n, m))``: the UKF's Merwe weights (2n+1,),
         ``c = lambda + n``, its circular states (theta, heading clones), the singular pivot
@@ -984,6 +1071,8 @@ def filter_offline(
     J = mt.shape[0]
     j = 0
     si = 0
+    run = 0.0  # the summed disagreement of the current slip run (robust odometry)
+    robust = slip_g.shape[0] > 0
     while j < J and mstep[j] == -1:
         _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
         j += 1
@@ -991,6 +1080,12 @@ def filter_offline(
         t0, t1 = tt[k], tt[k + 1]
         u = U[k]
         span = t1 - t0
+        scale = 1.0
+        if robust:
+            scale, run = step_slip(
+                x, P, u, span, slip_g[k], M, K, floor, rate, slip, bias_idx, run, learn[k]
+            )  # fmt: skip
+            slip_out[k] = scale
         done = 0.0
         due = False
         while j < J and mstep[j] == k:
@@ -1000,7 +1095,8 @@ def filter_offline(
             if f > done:
                 part = f - done
                 _predict(
-                    x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work, uk
+                    x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk,
+                    work, uk, scale,
                 )  # fmt: skip
                 done = f
             _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
@@ -1008,7 +1104,8 @@ def filter_offline(
         if done < 1.0 or not due:
             part = 1.0 - done
             _predict(
-                x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk, work, uk
+                x, P, u, part, span * part, integ, M, K, floor, rate, cal, cidx, walk,
+                work, uk, scale,
             )  # fmt: skip
         for a in range(3):
             traj_x[k + 1, a] = x[a]
@@ -1030,12 +1127,13 @@ def filter_offline(
 
 
 @njit(cache=True)
-def ekf_predict_step(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk):
-    """One odometry prediction of the streaming Localizer (input ``u`` (m,) over ``dt`` s), in
-    place on ``x`` (n,) and ``P`` (n, n): :func:`_ekf_predict` with ``part = 1`` (the
-    Localizer passes the step's part already scaled), as :func:`ekf_offline` applies it."""
+def ekf_predict_step(x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, scale):
+    """One odometry prediction of the streaming Localizer (input ``u`` (m,) over ``dt`` s,
+    input variances times ``scale``), in place on ``x`` (n,) and ``P`` (n, n):
+    :func:`_ekf_predict` with ``part = 1`` (the Localizer passes the step's part already
+    scaled), as :func:`ekf_offline` applies it."""
     work = _work(x.shape[0], u.shape[0])
-    _ekf_predict(x, P, u, 1.0, dt, integ, M, K, floor, rate, cal, cidx, walk, work)
+    _ekf_predict(x, P, u, 1.0, dt, integ, M, K, floor, rate, cal, cidx, walk, work, scale)
 
 
 @njit(cache=True)
@@ -1064,14 +1162,14 @@ def ekf_update_row(x, P, kind, z0, z1, a0, a1, r00, r01, r11, i0, i1, dt, gate):
 
 @njit(cache=True)
 def ukf_predict_step(
-    x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, Wm, Wc, c, angles, tol
+    x, P, u, dt, integ, M, K, floor, rate, cal, cidx, walk, scale, Wm, Wc, c, angles, tol
 ):
     """One odometry prediction of the streaming UKF Localizer, in place: :func:`_ukf_predict`
     with ``part = 1``, as :func:`filter_offline` applies it (see :func:`ekf_predict_step`)."""
     n, m = x.shape[0], u.shape[0]
     _ukf_predict(
         x, P, u, 1.0, dt, integ, M, K, floor, rate, cal, cidx, walk,
-        Wm, Wc, c, angles, tol, _work(n, m), ukf_work(n, m),
+        Wm, Wc, c, angles, tol, _work(n, m), ukf_work(n, m), scale,
     )  # fmt: skip
 
 

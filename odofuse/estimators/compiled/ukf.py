@@ -69,17 +69,19 @@ def kernel_backend_class(base):
         :func:`.kernels.ukf_update_row`), in place on ``kf.x`` and ``kf.P``: a live Localizer
         on it computes what ``odofuse run`` computes, bit for bit, on every run :func:`run`
         covers. What the kernels do not cover runs filterpy: a prediction with a gyro heading
-        or a slip noise scale, a row without the kernel's columns."""
+        (gyrodometry), a row without the kernel's columns."""
 
         compose_odom = compiled_ekf.compose_odom
+        slip_step = compiled_ekf.slip_step
 
         def predict(self, u, dt, dtheta=None, var_dtheta=0.0, noise_scale=1.0) -> None:
-            if dtheta is not None or noise_scale != 1.0:
+            if dtheta is not None:
                 super().predict(u, dt, dtheta, var_dtheta, noise_scale)
                 return
             kf = self.kf
             self._kern.ukf_predict_step(
-                kf.x, kf.P, u, dt, *self._motion_args, self.walk, *self._weights
+                kf.x, kf.P, u, dt, *self._motion_args, self.walk, float(noise_scale),
+                *self._weights,
             )  # fmt: skip
             self._fresh = False  # filterpy's update regenerates its sigma points
 
