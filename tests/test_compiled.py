@@ -212,6 +212,29 @@ def test_robust_odometry_equals_the_python_path_through_slip_bursts(odo_cal):
     _same(res, ref)
 
 
+def test_lat_lon_fixes_are_compiled_through_the_models_conversion():
+    """GPS rows of ``lat``, ``lon`` with a ``datum`` (a NavSatFix stream) are converted by
+    ``GpsPosition.z`` row by row and run in the kernel: equal to the Python path."""
+    import pymap3d
+
+    from odofuse.io.log import Stream
+
+    log, cfg = simulated_run(SCENARIO, 3, "ekf", {"compiled": "on"})
+    gps = log.streams["gps"]
+    datum = (45.0, 9.0, 120.0)
+    lat, lon, _ = pymap3d.enu2geodetic(gps["x"], gps["y"], datum[2], *datum)
+    rows = Stream("gps", gps.source, gps.t, ("lat", "lon"), np.column_stack([lat, lon]))
+    log = dataclasses.replace(log, streams={**log.streams, "gps": rows})
+    cfg = dataclasses.replace(
+        cfg, sensors={**cfg.sensors, "gps": dataclasses.replace(cfg.sensors["gps"], datum=datum)}
+    )
+    res = compiled_ekf.run(log, cfg)
+    assert res is not None, "lat/lon fixes with a datum are covered by the compiled core"
+    ref = _python(log, cfg)
+    assert ref.used["gps"] > 50
+    _same(res, ref)
+
+
 def test_held_rates_of_every_step_equal_the_localizers():
     """``kernels.held_rate_steps`` (the offline run's gyro heading change of each step) is
     ``history.held_rate_integral`` step by step: samples between, on and outside the step

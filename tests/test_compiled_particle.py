@@ -19,7 +19,7 @@ import pytest
 
 pytest.importorskip("numba")
 
-from compiled_checks import SCENARIO  # noqa: E402
+from compiled_checks import SCENARIO, SLIP_SCENARIO  # noqa: E402
 from compiled_checks import assert_same_run as _same  # noqa: E402
 from graph_sim import excerpt, simulated_run  # noqa: E402
 
@@ -65,6 +65,16 @@ def test_compiled_equals_numpy_with_a_gyro_ranges_gps_and_odometry_calibration(i
     res, ref = _both(log, cfg)
     assert ref.extra["resamples"] > 0 and ref.extra["relative_moves"] > 100
     assert ref.used["ranges"] > 50 and ref.used["gps"] > 5
+    _same(res, ref)
+
+
+def test_compiled_equals_numpy_through_slip_bursts():
+    """Robust odometry's factor in the filters' kernel (``ParticleBackend.slip_step``) on the
+    compiled path, the reference's on the numpy path: the same slipping steps and run."""
+    options = {"particles": 200, "seed": 3, "odometry_calibration": True}
+    log, cfg = simulated_run(SLIP_SCENARIO, 3, "particle", options)
+    res, ref = _both(excerpt(log, 25.0), cfg)
+    assert ref.extra["slip_steps"] > 100
     _same(res, ref)
 
 

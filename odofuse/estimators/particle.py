@@ -165,6 +165,8 @@ class ParticleBackend:
         options = coerce(ParticleOptions, options, "options.particle")
         self._kern = compiled_particle.kernels_for(options, events)
         self._terms = None  # the compiled predict's motion terms, at the first step (odo_cal)
+        # robust odometry's kernel (slip_step): the motion model's linear terms, if it has them
+        self._slip_terms = None if self._kern is None else compiled_particle.slip_terms(model)
         self.model = model
         self.increment = increment_function(model)  # MotionModel.increment, faster
         self.N = options.particles
@@ -258,6 +260,14 @@ class ParticleBackend:
             sd = np.sqrt(self.walk[3:] * dt)
             if np.any(sd > 0):
                 X[:, 3:] += self.rng.standard_normal((self.N, self.n - 3)) * sd
+
+    def slip_step(self, u, span, g, run, slip, bias_idx, learn):
+        """``monitors.step_slip_scale``'s factor and run of one step in the filters' kernel
+        (:func:`~odofuse.estimators.compiled.kernels.step_slip`) on the cloud's mean and
+        covariance; None on the numpy path or a drive the kernels do not cover."""
+        if self._slip_terms is None:
+            return None
+        return compiled_particle.slip_step(self, u, span, g, run, slip, bias_idx, learn)
 
     # -- update -----------------------------------------------------------------------------
     def _h(self, model, row) -> np.ndarray:

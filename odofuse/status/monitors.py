@@ -863,9 +863,9 @@ def recover(loc, stream, model, row) -> tuple[bool, float]:
 def step_slip_scale(loc, t0: float, t1: float, u) -> float:
     """Input-noise factor of one odometry step (robust odometry, :func:`slip_scale`).
 
-    A backend on the compiled kernels computes it in its kernel (``slip_step``: the offline
-    run's arithmetic, so a live run equals ``odofuse run`` bit for bit); this is the
-    reference it equals to 1e-9."""
+    A backend on the compiled kernels computes it in its kernel (``slip_step``, None where
+    it cannot: the offline run's arithmetic, so a live EKF or UKF equals ``odofuse run`` bit
+    for bit); this is the reference it equals to 1e-9."""
     g = loc._gyro_increment(t0, t1)
     if g is None or t1 <= t0:
         return 1.0
@@ -874,9 +874,10 @@ def step_slip_scale(loc, t0: float, t1: float, u) -> float:
     run = runs.get(t0, 0.0)
     gate, sigma, var_b = loc._slip_params
     kernel = getattr(loc.backend, "slip_step", None)
-    if kernel is not None:
-        learn = np.full(3, np.nan)
-        scale, after = kernel(u, span, g, run, loc._slip_params, loc._bias_idx, learn)
+    learn = np.full(3, np.nan)
+    out = kernel(u, span, g, run, loc._slip_params, loc._bias_idx, learn) if kernel else None
+    if out is not None:
+        scale, after = out
         if loc._bias_idx is not None:
             record_learning_terms(loc._bias_record, t0, *learn.tolist())
     else:

@@ -12,10 +12,10 @@ Covered (else :func:`unsupported` names the reason and the caller runs the Pytho
 drives with ``twist = F u`` (differential, skid-steer, increments, omni, ...) with the
 Siegwart error model (no ``alphas``), every integrator, odometry calibration of the
 increments/differential/skid-steer drives, and the built-in ``BeaconRange``,
-``GpsPosition`` (``x``, ``y`` columns), ``CompassHeading`` and ``GyroYawRate`` models (with
-their calibration and clone states, per-row ``sigma``). Not covered: gyrodometry, robust
-odometry (``slip`` with a gyro), landmark bearing and range-bearing, lat/lon GPS, plug-in
-models, duplicated readings. Recovery: the kernel does not re-open the filter; if the monitor
+``GpsPosition`` (``x``, ``y`` columns, or ``lat``, ``lon`` with a ``datum``, converted by
+the model), ``CompassHeading`` and ``GyroYawRate`` models (with their calibration and clone
+states, per-row ``sigma``), and robust odometry (``slip`` with a gyro). Not covered:
+gyrodometry, landmark bearing and range-bearing, plug-in models, duplicated readings. Recovery: the kernel does not re-open the filter; if the monitor
 says a recovery would have been triggered, the whole run falls back to Python (so the result
 is always the Python one).
 
@@ -100,6 +100,8 @@ def unsupported(loc, log, streams) -> str | None:
         cols = set(st.columns)
         kind = kinds[type(m)]
         need = {RANGE: {"id", "range"}, GPS: {"x", "y"}, COMPASS: {"heading"}, GYRO: {"wz"}}[kind]
+        if kind == GPS and not need <= cols and m.datum is not None:
+            need = {"lat", "lon"}  # converted by the model (_gps_values)
         if not need <= cols:
             return f"stream '{s}' lacks columns {sorted(need - cols)}"
         if kind == GYRO and "gyro_theta_ref" not in m.calib_index:
@@ -144,7 +146,7 @@ def _measurements(loc, log, streams, t, kinds):
             aux[:] = pos[np.searchsorted(keys, ids)] if n else aux
             sidx[si] = ci.get("range_scale", -1), ci.get("range_offset", -1)
         elif kind == GPS:
-            z[:, 0], z[:, 1] = st["x"], st["y"]
+            z[:] = _gps_values(m, st)
             aux[:] = m.lever_arm
         elif kind == COMPASS:
             z[:, 0] = se2.wrap(st["heading"])
@@ -171,6 +173,15 @@ def _measurements(loc, log, streams, t, kinds):
         mR,
         (skind, sidx, sgate, sR),
     )
+
+
+def _gps_values(model, st) -> np.ndarray:
+    """A GPS stream's east/north values (n, 2): its ``x``, ``y``, or each row's ``lat``,
+    ``lon`` through the model's own conversion (``GpsPosition.z``), as the Python path reads
+    them."""
+    if {"x", "y"} <= set(st.columns):
+        return np.column_stack([st["x"], st["y"]])
+    return np.array([model.z(st.row(i)) for i in range(len(st))]).reshape(-1, 2)
 
 
 def _record(mon, stream: str, t, ok, nis) -> bool:
@@ -399,7 +410,7 @@ def kernel_backend_class(base):
         A live Localizer on it (:func:`live`) computes what ``odofuse run`` computes with the
         compiled core, bit for bit, on every run that :func:`run` covers. What the kernels do
         not cover runs the Python methods: a prediction with a gyro heading (gyrodometry),
-        a row without the kernel's columns (a lat/lon fix, a range without ``id``), the
+        a row without the kernel's columns (a range without ``id``), the
         innovation a recovery reads.
         """
 
@@ -465,9 +476,10 @@ def _update_args(kind, model, row):
             return None
         i0, i1 = ci.get("range_scale", -1), ci.get("range_offset", -1)
         return RANGE, float(row["range"]), 0.0, b[0], b[1], r00, r01, r11, i0, i1, 0.0
-    if kind == GPS and "x" in row and "y" in row:
+    if kind == GPS and (("x" in row and "y" in row) or ("lat" in row and "lon" in row)):
         lx, ly = model.lever_arm
-        return GPS, float(row["x"]), float(row["y"]), lx, ly, r00, r01, r11, -1, -1, 0.0
+        e, n = model.z(row).tolist()
+        return GPS, e, n, lx, ly, r00, r01, r11, -1, -1, 0.0
     if kind == COMPASS and "heading" in row:
         z = float(se2.wrap(float(row["heading"])))
         i0 = ci.get("compass_offset", -1)

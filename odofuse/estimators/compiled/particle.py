@@ -65,6 +65,28 @@ def motion_terms(model, cal):
     return INTEGRATORS.index(model.integrator), M, K, floor, rate, code, C, cidx
 
 
+def slip_terms(model):
+    """``(M, K, floor, rate)`` of ``model`` for :func:`slip_step`, or None when its drive or
+    error model is not linear in the input (:func:`.dead_reckoning.linear_terms`)."""
+    terms = linear_terms(model)
+    return None if terms is None else tuple(np.ascontiguousarray(a, dtype=float) for a in terms)
+
+
+_NO_P = np.zeros((1, 1))
+
+
+def slip_step(backend, u, span, g, run, slip, bias_idx, learn) -> tuple[float, float]:
+    """``ParticleBackend.slip_step`` through :func:`~.kernels.step_slip`: the cloud's mean,
+    and its covariance when the gyro bias is a state (the kernel reads ``P`` only then)."""
+    M, K, floor, rate = backend._slip_terms
+    b = -1 if bias_idx is None else int(bias_idx)
+    P = _NO_P if b < 0 else backend.cov()
+    u = np.ascontiguousarray(u, dtype=float)
+    return backend._kern.step_slip(
+        backend.mean(), P, u, span, g, M, K, floor, rate, slip, b, run, learn
+    )  # fmt: skip
+
+
 def predict(backend, kern, terms, u, dt, dtheta, var_dtheta, noise_scale) -> None:
     """``backend.predict`` (same arguments, same draws) through :func:`~.kernels.pf_predict`."""
     integ, M, K, floor, rate, cal, C, cidx = terms
