@@ -5,7 +5,8 @@ Run from any directory: ``python /path/to/benchmarks/bench_compiled_ukf.py [--re
 [--hours H] [--python]``. Prints, for Plaza1 (the builtin default dataset, its packaged
 ``plaza1-ekf.yaml`` / ``plaza1-ukf.yaml``) and a simulated figure eight of ``H`` hours
 (differential drive at 50 Hz, a biased gyro at 25 Hz, GPS, compass, ranges to four beacons,
-odometry calibration on, ``slip: false`` so that both filters take the compiled core): the
+odometry calibration on, ``slip: false`` as when robust odometry was not compiled, so that
+the figures stay comparable; ``bench_slip.py`` times it on): the
 whole offline run of each filter (``odofuse.estimators.ekf.run`` / ``ukf.run``: assembly, the
 kernel, the result and its findings), best of ``R`` interleaved, and their ratio. The
 filterpy UKF (``compiled: off``) is timed once on Plaza1 and, with ``--python``, on the long
