@@ -15,9 +15,9 @@ increments/differential/skid-steer drives, and the built-in ``BeaconRange``,
 ``GpsPosition`` (``x``, ``y`` columns, or ``lat``, ``lon`` with a ``datum``, converted by
 the model), ``CompassHeading`` and ``GyroYawRate`` models (with their calibration and clone
 states, per-row ``sigma``), and robust odometry (``slip`` with a gyro). Not covered:
-gyrodometry, landmark bearing and range-bearing, plug-in models, duplicated readings. Recovery: the kernel does not re-open the filter; if the monitor
-says a recovery would have been triggered, the whole run falls back to Python (so the result
-is always the Python one).
+gyrodometry, landmark bearing and range-bearing, plug-in models, duplicated readings.
+Recovery: the kernel does not re-open the filter; if the monitor says a recovery would have
+been triggered, the whole run falls back to Python (so the result is always the Python one).
 
 The streaming path: :func:`live` gives a live EKF Localizer a backend on the same kernels
 (:func:`kernel_backend_class`), so online equals ``odofuse run`` bit for bit on the runs
@@ -283,13 +283,13 @@ def _slip_args(kern, loc, log, t) -> dict:
     """Robust odometry's arguments of the kernel (``slip_g`` ... ``learn`` of
     :func:`~.kernels.filter_offline`): each step's gyro heading change from the slip stream's
     rates held as the Localizer holds them (``history.held_rate_integral``: every reading of
-    the stream, in time order, is known when the step ending at or after it runs); empty
-    arrays when robust odometry is off."""
+    the stream, in time order, is known when the step ending at or after it runs); ``slip_g``
+    None when robust odometry is off."""
     N = len(t) - 1
     stream = loc._slip_stream
     if stream is None:
         return dict(
-            slip_g=np.zeros(0), slip=np.zeros(3), bias_idx=-1,
+            slip_g=None, slip=np.zeros(3), bias_idx=-1,
             slip_out=np.zeros(0), learn=np.zeros((0, 3)),
         )  # fmt: skip
     st = log.streams[stream]

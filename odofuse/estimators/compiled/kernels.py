@@ -1046,9 +1046,10 @@ def filter_offline(
     snap_k : (K,) increasing steps after which the state is copied to ``snap_x`` (K, n) and
         the covariance's diagonal to ``snap_v`` (K, n) (the calibration drift check's
         snapshots, :class:`odofuse.status.drift.Drift`).
-    slip_g : (N,) or (0,)
+    slip_g : (N,) or None
         Robust odometry (``monitors.step_slip_scale``, :func:`step_slip`): each step's gyro
-        heading change (NaN: none); empty when it is off. ``slip`` (3,), ``bias_idx``: see
+        heading change (NaN: none); None when it is off (that specialisation compiles none
+        of it). ``slip`` (3,), ``bias_idx``: see
         :func:`step_slip`; ``slip_out`` (N,) receives each step's noise factor, ``learn``
         (N, 3) the ``learning`` terms of the steps that have them (else NaN).
     uk : None (the EKF; its specialisation compiles none of the UKF's kernels) or
@@ -1072,7 +1073,6 @@ def filter_offline(
     j = 0
     si = 0
     run = 0.0  # the summed disagreement of the current slip run (robust odometry)
-    robust = slip_g.shape[0] > 0
     while j < J and mstep[j] == -1:
         _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
         j += 1
@@ -1081,7 +1081,7 @@ def filter_offline(
         u = U[k]
         span = t1 - t0
         scale = 1.0
-        if robust:
+        if slip_g is not None:  # pruned when compiling: a run without robust odometry
             scale, run = step_slip(
                 x, P, u, span, slip_g[k], M, K, floor, rate, slip, bias_idx, run, learn[k]
             )  # fmt: skip
