@@ -874,8 +874,10 @@ def step_slip_scale(loc, t0: float, t1: float, u) -> float:
     run = runs.get(t0, 0.0)
     gate, sigma, var_b = loc._slip_params
     kernel = getattr(loc.backend, "slip_step", None)
-    learn = np.full(3, np.nan)
-    out = kernel(u, span, g, run, loc._slip_params, loc._bias_idx, learn) if kernel else None
+    out = None
+    if kernel is not None:
+        learn = np.full(3, np.nan)
+        out = kernel(u, span, g, run, loc._slip_params, loc._bias_idx, learn)
     if out is not None:
         scale, after = out
         if loc._bias_idx is not None:
