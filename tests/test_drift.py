@@ -177,3 +177,80 @@ def test_the_live_localizer_finds_the_same_drift_as_the_offline_run(estimator):
     assert (got.t_start, got.t_end, got.message) == (want.t_start, want.t_end, want.message)
     assert h.run_status == status_of(assess(offline)) == "degraded"
     assert "degraded" in now  # at the snapshot that found it
+
+
+def test_odofuse_run_of_the_smoother_carries_an_ekfs_drift_finding(tmp_path):
+    # The batch smoother's calibration is not a martingale (it relinearises), so it has no
+    # drift check of its own; offline it carries an EKF's of the same log and config
+    # (odofuse.status.drift.COMPANION). Seed 1015: every check of the smoother says ok.
+    cfg = _bias_step_log(tmp_path / "log", 1015)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "odofuse", "run", str(cfg), "--estimator", "smoother"]
+    proc = subprocess.run(cmd + ["-o", str(out)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["status"] == "degraded"
+    (drift,) = [w for w in m["warnings"] if w.startswith("[calibration_drift]")]
+    assert "seen by an EKF of this log and config: wheel_radius_scale moved" in drift
+    assert m["alpha"]["checks"]["calibration_drift"] == 1e-3  # counted in the run's budget
+    assert m["alpha"]["total"] <= m["alpha"]["alpha_run"]
+
+
+def test_every_companion_estimator_carries_the_same_finding_from_one_shared_ekf(monkeypatch):
+    from odofuse.log_defaults import apply_log_defaults
+    from odofuse.rundir import checked_metrics, estimate, smoother_reference
+    from odofuse.status import drift
+
+    log, cfg, _ = bs.make_case(1015, "gyro_bias_step")
+    cfg, log = apply_log_defaults(cfg, log)
+    runs = []
+    real = drift.companion_findings
+
+    def counted(config, log):
+        runs.append(config.estimator)
+        return real(config, log)
+
+    monkeypatch.setattr("odofuse.status.cross_check.companion_findings", counted)
+    ekf = estimate(dataclasses.replace(cfg, estimator="ekf"), log)[0]
+    (want,) = [f.message for f in ekf.findings if f.check == "calibration_drift"]
+    ref = smoother_reference(cfg, log)
+    for est in sorted(drift.COMPANION):
+        run_cfg = dataclasses.replace(cfg, estimator=est)
+        result, runtime = estimate(run_cfg, log, ref)
+        m = checked_metrics(run_cfg, log, result, runtime, ref)
+        found = [f for f in m["findings"] if f["check"] == "calibration_drift"]
+        assert [f["message"] for f in found] == [f"seen by an EKF of this log and config: {want}"]
+        assert m["status"] == "degraded" and m["alpha"]["checks"]["calibration_drift"] == 1e-3
+    assert len(runs) == 1  # one EKF for the five runs of the log (the shared reference's)
+    # out of the second opinion's scope (switched off) there is no companion and no budget
+    off = dataclasses.replace(cfg, estimator="smoother")
+    off = dataclasses.replace(off, options={**off.options, "cross_check": {"smoother": "off"}})
+    result, runtime = estimate(off, log)
+    m = checked_metrics(off, log, result, runtime)
+    assert "calibration_drift" not in m["alpha"]["checks"]
+    assert not [f for f in m["findings"] if f["check"] == "calibration_drift"]
+
+
+def test_an_ekf_that_cannot_run_the_log_leaves_a_note_not_a_crash(monkeypatch):
+    import odofuse.estimators
+    from odofuse.log_defaults import apply_log_defaults
+    from odofuse.rundir import checked_metrics, estimate
+
+    log, cfg, _ = bs.make_case(1003, None)
+    cfg, log = apply_log_defaults(cfg, log)
+    cfg = dataclasses.replace(cfg, estimator="smoother")
+    result, runtime = estimate(cfg, log)
+    real = odofuse.estimators.run_estimator
+
+    def no_ekf(name, *args, **kw):
+        if name == "ekf":
+            raise ValueError("no EKF here")
+        return real(name, *args, **kw)
+
+    monkeypatch.setattr(odofuse.estimators, "run_estimator", no_ekf)
+    m = checked_metrics(cfg, log, result, runtime)
+    (note,) = [f for f in m["findings"] if f["check"] == "calibration_drift"]
+    assert not note["degrades"] and m["status"] == "ok"
+    assert note["message"].endswith(
+        "could not test the calibration's drift: ValueError: no EKF here"
+    )

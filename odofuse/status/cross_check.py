@@ -40,15 +40,18 @@ nothing); a check that does not apply is recorded as ``skipped: <reason>``, not 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from odofuse.errors import one_line
 from odofuse.estimators.common import absolute_streams, sensor_kind, slam_option
 from odofuse.status import latency
+from odofuse.status.drift import COMPANION, companion_findings
 from odofuse.status.findings import Finding, assess, status_of
 from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
 
@@ -112,6 +115,10 @@ class Reference:
     #: Its status without the findings of :data:`DATA_FAULTS` (a fault of the log that the
     #: smoother handled leaves it a yardstick); None: ``status``.
     yardstick_status: str | None = None
+    #: A function returning the companion findings of its log and config
+    #: (:func:`odofuse.status.drift.companion_findings`), run once on its first call; None: run
+    #: them with the checked run's config.
+    drift: Callable[[], tuple[Finding, ...]] | None = field(default=None, compare=False)
 
 
 def reference_of(config, log) -> Reference:
@@ -125,7 +132,9 @@ def reference_of(config, log) -> Reference:
     result = run_estimator("smoother", log, cfg, error_samples=ERROR_SAMPLES)
     found = assess(result)
     yardstick = status_of([f for f in found if f.check not in DATA_FAULTS])
-    return Reference(result, status_of(found), time.perf_counter() - t0, cfg.source, yardstick)
+    runtime = time.perf_counter() - t0
+    drift = functools.cache(lambda: companion_findings(cfg, log))
+    return Reference(result, status_of(found), runtime, cfg.source, yardstick, drift)
 
 
 def odometry_steps(log) -> int:
@@ -452,6 +461,8 @@ def alpha_budget(config, log) -> dict:
         drift = float(getattr(nis_opts, "drift_alpha", 0.0))
         if drift > 0.0 and fused:  # the EKF's and UKF's calibration drift check
             checks["calibration_drift"] = drift
+    if companion_applies(config, log):  # an EKF's, for the others (status.drift.COMPANION)
+        checks["calibration_drift"] = float(config.estimator_options("ekf").drift_alpha)
     elif est == "dead_reckoning" and "gyro" in streams and len(streams["gyro"]):
         checks["gyro_wheels"] = float(config.estimator_options(est).heading_alpha)
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
@@ -651,6 +662,10 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     if "variance_factor" in budget["checks"]:  # the smoother as the estimate (own_test)
         found = variance_factor_findings(result, budget["checks"]["variance_factor"])
         result = dataclasses.replace(result, findings=(*result.findings, *found))
+    if config.estimator == "smoother" and companion_applies(config, log):
+        # the run is the reference's own estimate when one is given (rundir.estimate)
+        own = None if reference is None else reference() if callable(reference) else reference
+        result = _with_companion(config, log, result, own)
     if reason is not None:
         return _skipped(result, reason, {"skipped": reason}, failed=False)
     try:  # a smoother that cannot run this log must not fail the run it only checks
@@ -660,7 +675,11 @@ def cross_check(config, log, result: EstimateResult, reference=None):
             ref = reference() if callable(reference) else reference
     except Exception as exc:
         why = f"the batch smoother failed: {one_line(exc)}"
+        if companion_applies(config, log):
+            result = _with_companion(config, log, result)
         return _skipped(result, why, {"skipped": why})
+    if companion_applies(config, log):
+        result = _with_companion(config, log, result, ref)
     # no wall-clock time here: metrics.json is the same for the same inputs (odofuse batch
     # equals odofuse run to the last digit); the config only when it is not the run's own
     about = {"smoother_status": ref.status}
@@ -692,6 +711,27 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     if found:
         result = dataclasses.replace(result, findings=(*result.findings, *found))
     return result, {**block, **about}, advice
+
+
+def companion_applies(config, log) -> bool:
+    """Whether the run carries the calibration drift check of an EKF of its log
+    (:func:`odofuse.status.drift.companion_findings`): an estimator of
+    :data:`odofuse.status.drift.COMPANION`, in the second opinion's scope (:func:`scope_reason`,
+    not switched off), with the EKF's ``drift_alpha`` above 0."""
+    return (
+        config.estimator in COMPANION
+        and config.estimator_options("cross_check").smoother != "off"
+        and float(config.estimator_options("ekf").drift_alpha) > 0.0
+        and scope_reason(config, log) is None
+    )
+
+
+def _with_companion(config, log, result: EstimateResult, ref: Reference | None = None):
+    """``result`` with the companion findings: the reference's (shared by the runs on one
+    log) when given, else those of an EKF of ``config``."""
+    drift = ref.drift if ref is not None and ref.drift is not None else None
+    found = drift() if drift is not None else companion_findings(config, log)
+    return dataclasses.replace(result, findings=(*result.findings, *found)) if found else result
 
 
 def with_reference_latency(result: EstimateResult, ref: Reference) -> EstimateResult:
