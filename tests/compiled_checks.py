@@ -1,5 +1,6 @@
-"""What the compiled-core tests share: one all-sensor figure-eight scenario and the check that
-a compiled run equals its reference run (``test_compiled``, ``test_compiled_particle``)."""
+"""What the compiled-core tests share: one all-sensor figure-eight scenario, the check that
+a compiled run equals its reference run (``test_compiled``, ``test_compiled_particle``), and
+feeding a live Localizer a log's rows, in order or some late (also ``test_localizer``)."""
 
 from __future__ import annotations
 
@@ -69,3 +70,49 @@ def assert_same_run(res, ref) -> None:
             g.check, g.message, g.sensor, g.t_start, g.t_end, g.degrades
         )  # fmt: skip
         assert f.figure == pytest.approx(g.figure, rel=1e-9, abs=1e-12)
+
+
+def feed(loc, log, t, U, streams, order=None, on_odometry=None):
+    """Feed ``loc`` the odometry inputs ``U`` (at ``t``) and the rows of ``streams`` of ``log``
+    in time order (``order``: a function reordering that list of
+    :func:`odofuse.estimators.common.events`, e.g. :func:`late`), calling ``on_odometry(loc)``
+    after each odometry step; then finish it. Returns ``loc``."""
+    from odofuse.estimators.common import events
+
+    evs = events(log, t, U, list(streams))
+    for te, kind, stream, i in evs if order is None else order(evs):
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+            if on_odometry is not None:
+                on_odometry(loc)
+        else:
+            loc.add_measurement(stream, log.streams[stream].row(i))
+    loc.finish()
+    return loc
+
+
+def late(stream, seconds, after=-np.inf):
+    """An ``order`` of :func:`feed`: the rows of ``stream`` stamped after ``after`` s arrive
+    ``seconds`` after their time stamp (a Localizer replays them)."""
+
+    def order(evs):
+        keyed = [
+            (te + seconds * (s == stream and te > after), kind, n)
+            for n, (te, kind, s, _) in enumerate(evs)
+        ]
+        return [evs[n] for _, _, n in sorted(keyed)]
+
+    return order
+
+
+def live_from_config(log, cfg, make_backend, delay=0.0):
+    """A Localizer built as a pipeline builds it (``Localizer.from_config``), fed the log's
+    rows with the GPS fixes after the first second ``delay`` s late (replays)."""
+    from odofuse.estimators.assembly import build
+    from odofuse.estimators.localizer import Localizer
+
+    _, t, U = build(cfg, log, cfg.estimator, make_backend)
+    loc = Localizer.from_config(
+        cfg, t0=t[0], landmarks=log.landmarks, initial_pose=log.initial_pose, keep_trajectory=True
+    )
+    return feed(loc, log, t, U, cfg.sensors, late("gps", delay, after=1.0))

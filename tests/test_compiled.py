@@ -21,13 +21,17 @@ import pytest
 
 pytest.importorskip("numba")
 
-from compiled_checks import SCENARIO, SLIP_SCENARIO  # noqa: E402
+from compiled_checks import (  # noqa: E402
+    SCENARIO,
+    SLIP_SCENARIO,
+    live_from_config,  # noqa: E402
+)
 from compiled_checks import assert_same_run as _same  # noqa: E402
 from graph_sim import excerpt, simulated_run  # noqa: E402
 
 from odofuse.config import RunConfig, config_from_dict  # noqa: E402
 from odofuse.estimators import compiled  # noqa: E402
-from odofuse.estimators.assembly import build, run_with  # noqa: E402
+from odofuse.estimators.assembly import run_with  # noqa: E402
 from odofuse.estimators.compiled import ekf as compiled_ekf  # noqa: E402
 from odofuse.estimators.compiled.dead_reckoning import dead_reckon  # noqa: E402
 from odofuse.estimators.ekf import make_backend  # noqa: E402
@@ -258,27 +262,12 @@ def test_live_ekf_with_robust_odometry_equals_odofuse_run_bit_for_bit():
     """A live EKF with a gyro computes robust odometry in the offline run's kernel
     (``KernelEkfBackend.slip_step``): bit for bit, also through replays of GPS fixes 0.3 s
     late."""
-    from odofuse.estimators.common import events
-    from odofuse.estimators.localizer import Localizer
-
     log, cfg = simulated_run(SLIP_SCENARIO, 3, "ekf", {"late_window": 0.5})
     log = excerpt(log, 32.0)
     offline = compiled_ekf.run(log, cfg)
     assert offline is not None and offline.extra["slip_steps"] > 100
-    _, t, U = build(cfg, log, "ekf", make_backend)
-    loc = Localizer.from_config(
-        cfg, t0=t[0], landmarks=log.landmarks, initial_pose=log.initial_pose, keep_trajectory=True
-    )
+    loc = live_from_config(log, cfg, make_backend, 0.3)
     assert type(loc.backend).__name__ == "KernelEkfBackend"
-    evs = events(log, t, U, list(cfg.sensors))
-    key = [(e[0] + 0.3 * (e[0] > 1.0 and e[2] == "gps"), e[1], n) for n, e in enumerate(evs)]
-    for _, _, n in sorted(key):
-        te, kind, stream, i = evs[n]
-        if kind == 1:
-            loc.add_odometry(te, U[i])
-        else:
-            loc.add_measurement(stream, log.streams[stream].row(i))
-    loc.finish()
     online = loc.result()
     np.testing.assert_array_equal(online.trajectory.poses, offline.trajectory.poses)
     np.testing.assert_array_equal(online.trajectory.covariances, offline.trajectory.covariances)

@@ -13,14 +13,18 @@ import pytest
 
 pytest.importorskip("numba")
 
-from compiled_checks import SCENARIO, SLIP_SCENARIO  # noqa: E402
+from compiled_checks import (  # noqa: E402
+    SCENARIO,
+    SLIP_SCENARIO,
+    live_from_config,  # noqa: E402
+)
 from compiled_checks import assert_same_run as _same  # noqa: E402
 from graph_sim import excerpt, simulated_run  # noqa: E402
 
 from odofuse.config import config_from_dict  # noqa: E402
 from odofuse.declarations import INTEGRATORS  # noqa: E402
 from odofuse.estimators import compiled  # noqa: E402
-from odofuse.estimators.assembly import build, run_with  # noqa: E402
+from odofuse.estimators.assembly import run_with  # noqa: E402
 from odofuse.estimators.compiled import ukf as compiled_ukf  # noqa: E402
 from odofuse.estimators.ukf import make_backend  # noqa: E402
 
@@ -109,26 +113,7 @@ def test_without_numba_the_fallback_gives_the_same_result(monkeypatch):
 
 
 def _live(log, cfg, delay=0.0):
-    """A live UKF Localizer (``from_config``) fed the log's rows, the GPS fixes after the
-    first second ``delay`` s after their time stamp (replays)."""
-    from odofuse.estimators.common import events
-    from odofuse.estimators.localizer import Localizer
-
-    _, t, U = build(cfg, log, "ukf", make_backend)
-    loc = Localizer.from_config(
-        cfg, t0=t[0], landmarks=log.landmarks, initial_pose=log.initial_pose, keep_trajectory=True
-    )
-    evs = events(log, t, U, list(cfg.sensors))
-    late = [te > 1.0 and s == "gps" for te, _, s, _ in evs]  # not the fix at the start
-    key = [(e[0] + delay * late[n], e[1], n) for n, e in enumerate(evs)]
-    for _, _, n in sorted(key):
-        te, kind, stream, i = evs[n]
-        if kind == 1:
-            loc.add_odometry(te, U[i])
-        else:
-            loc.add_measurement(stream, log.streams[stream].row(i))
-    loc.finish()
-    return loc
+    return live_from_config(log, cfg, make_backend, delay)
 
 
 @pytest.mark.parametrize("odo_cal", [False, True])

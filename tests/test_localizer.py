@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from compiled_checks import feed
+from compiled_checks import late as arrive_late
 from test_ekf import sim_config, simulate
 
 from odofuse import se2
@@ -54,17 +56,8 @@ def _stream(log, name, t, columns, values):
 
 def _feed_online(log, cfg, estimator, order=None):
     loc, t, U = build(cfg, log, estimator, BACKENDS[estimator].make_backend)
-    evs = events(log, t, U, ["ranges", "gyro"])
-    if order is not None:
-        evs = order(evs)
     poses = []
-    for te, kind, stream, i in evs:
-        if kind == 1:
-            loc.add_odometry(te, U[i])
-            poses.append(loc.pose())
-        else:
-            loc.add_measurement(stream, log.streams[stream].row(i))
-    loc.finish()
+    feed(loc, log, t, U, ["ranges", "gyro"], order, lambda loc: poses.append(loc.pose()))
     return loc, np.array(poses)
 
 
@@ -100,25 +93,12 @@ def test_measurement_inside_a_step_splits_the_odometry_increment():
     np.testing.assert_allclose(res.trajectory.covariances[2], b.cov()[:3, :3], atol=1e-15)
 
 
-def _delay(stream, seconds):
-    """Reorder events so rows of ``stream`` arrive ``seconds`` after their time stamp."""
-
-    def order(evs):
-        keyed = [
-            ((te + seconds) if s == stream else te, kind, n)
-            for n, (te, kind, s, _) in enumerate(evs)
-        ]
-        return [evs[n] for _, _, n in sorted(keyed)]
-
-    return order
-
-
 @pytest.mark.parametrize("estimator", ["ekf", "particle"])
 def test_late_measurements_inside_the_window_are_replayed(estimator):
     log, _ = simulate(23, steps=200)
     cfg = _cfg(estimator, options={"late_window": 1.0})
     offline = BACKENDS[estimator].run(log, cfg)
-    loc, _ = _feed_online(log, cfg, estimator, order=_delay("ranges", 0.45))
+    loc, _ = _feed_online(log, cfg, estimator, order=arrive_late("ranges", 0.45))
     late = loc.result()
     assert late.extra["dropped_late"] == {}
     assert late.used == offline.used
@@ -128,7 +108,7 @@ def test_late_measurements_inside_the_window_are_replayed(estimator):
 def test_measurements_older_than_the_window_are_counted_and_dropped():
     log, _ = simulate(24, steps=200)
     cfg = _cfg(options={"late_window": 0.3})
-    loc, _ = _feed_online(log, cfg, "ekf", order=_delay("ranges", 0.5))
+    loc, _ = _feed_online(log, cfg, "ekf", order=arrive_late("ranges", 0.5))
     res = loc.result()
     # Each range arrives 0.5 s late, when the filter is 0.4 s past it (odometry every 0.1 s),
     # except near the end of the log where the odometry stops earlier.
@@ -316,7 +296,7 @@ def test_gyro_zero_order_hold_integral_and_late_gyro_samples():
     assert loc._gyro_increment(0.5, 2.0) == pytest.approx(0.35)
     assert loc._gyro_increment(-1.0, 0.0) == pytest.approx(0.1)  # first rate held backwards
     in_order, _ = _feed_online(log, cfg, "ekf")
-    late, _ = _feed_online(log, cfg, "ekf", order=_delay("gyro", 0.25))
+    late, _ = _feed_online(log, cfg, "ekf", order=arrive_late("gyro", 0.25))
     a, b = in_order.result(), late.result()
     assert a.extra["gyrodometry_switches"] == b.extra["gyrodometry_switches"] == 1
     np.testing.assert_allclose(b.trajectory.poses, a.trajectory.poses, atol=1e-12)
