@@ -35,6 +35,10 @@ smoother's error is orthogonal to ``d`` (``e_f = d + e_s``), so
 
 The check needs the smoother's own ``status`` to be ``ok`` (a degraded yardstick measures
 nothing); a check that does not apply is recorded as ``skipped: <reason>``, not as a warning.
+
+The estimators without a calibration drift check of their own (:data:`odofuse.status.drift.
+COMPANION`) also carry an EKF's of the same log and config, run once per log with the
+reference (:attr:`Reference.drift`, :func:`companion_applies`).
 """
 
 from __future__ import annotations
@@ -417,7 +421,8 @@ def alpha_budget(config, log) -> dict:
     The in-run statistical checks keep their declared probabilities: the filters' NIS window
     test and run NIS test per fused stream (``nis_alpha`` each), dead reckoning's
     gyro-vs-wheels test (``heading_alpha``), the EKF's and UKF's calibration drift test
-    (``drift_alpha``, counted whenever they fuse a sensor), the batch smoother's residual
+    (``drift_alpha``, counted whenever they fuse a sensor; the other estimators carry an
+    EKF's in the second opinion's scope, :func:`companion_applies`), the batch smoother's residual
     windows per odometry and gyro stream (``WINDOW_ALPHA``), the time-stamp test per fused absolute
     stream (``options.status.latency_alpha``: a graph run's own, or the reference's that a
     filter takes, :func:`with_reference_latency`). What is left of ``alpha_run`` goes to the
