@@ -182,7 +182,7 @@ def test_the_live_localizer_finds_the_same_drift_as_the_offline_run(estimator):
 def test_odofuse_run_of_the_smoother_carries_an_ekfs_drift_finding(tmp_path):
     # The batch smoother's calibration is not a martingale (it relinearises), so it has no
     # drift check of its own; offline it carries an EKF's of the same log and config
-    # (odofuse.status.drift.COMPANION). Seed 1015: every check of the smoother says ok.
+    # (odofuse.status.cross_check.COMPANION). Seed 1015: every check of the smoother says ok.
     cfg = _bias_step_log(tmp_path / "log", 1015)
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "odofuse", "run", str(cfg), "--estimator", "smoother"]
@@ -199,12 +199,12 @@ def test_odofuse_run_of_the_smoother_carries_an_ekfs_drift_finding(tmp_path):
 def test_every_companion_estimator_carries_the_same_finding_from_one_shared_ekf(monkeypatch):
     from odofuse.log_defaults import apply_log_defaults
     from odofuse.rundir import checked_metrics, estimate, smoother_reference
-    from odofuse.status import drift
+    from odofuse.status import cross_check
 
     log, cfg, _ = bs.make_case(1015, "gyro_bias_step")
     cfg, log = apply_log_defaults(cfg, log)
     runs = []
-    real = drift.companion_findings
+    real = cross_check.companion_findings
 
     def counted(config, log):
         runs.append(config.estimator)
@@ -214,7 +214,7 @@ def test_every_companion_estimator_carries_the_same_finding_from_one_shared_ekf(
     ekf = estimate(dataclasses.replace(cfg, estimator="ekf"), log)[0]
     (want,) = [f.message for f in ekf.findings if f.check == "calibration_drift"]
     ref = smoother_reference(cfg, log)
-    for est in sorted(drift.COMPANION):
+    for est in sorted(cross_check.COMPANION):
         run_cfg = dataclasses.replace(cfg, estimator=est)
         result, runtime = estimate(run_cfg, log, ref)
         m = checked_metrics(run_cfg, log, result, runtime, ref)
@@ -253,4 +253,24 @@ def test_an_ekf_that_cannot_run_the_log_leaves_a_note_not_a_crash(monkeypatch):
     assert not note["degrades"] and m["status"] == "ok"
     assert note["message"].endswith(
         "could not test the calibration's drift: ValueError: no EKF here"
+    )
+
+
+def test_an_ekf_degraded_by_its_own_checks_cannot_judge_the_drift(monkeypatch):
+    # Plaza1's .mat with the minimal config: the EKF recovers and rejects ranges, and its
+    # calibration moves with its own failure, not the log's; that is a note, not a finding.
+    from odofuse.log_defaults import apply_log_defaults
+    from odofuse.status import cross_check
+    from odofuse.status.findings import Finding
+
+    log, cfg, _ = bs.make_case(1015, "gyro_bias_step")
+    cfg, log = apply_log_defaults(cfg, log)
+    (found,) = cross_check.companion_findings(cfg, log)
+    assert found.degrades and found.message.startswith("seen by an EKF")
+    also = Finding("nis", "mean NIS above its band", sensor="gps")
+    monkeypatch.setattr(cross_check, "assess", lambda result: [*result.findings, also])
+    (note,) = cross_check.companion_findings(cfg, log)
+    assert not note.degrades
+    assert note.message.endswith(
+        "it is degraded by nis itself, so its calibration's path is no evidence about the log"
     )

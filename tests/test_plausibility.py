@@ -295,12 +295,13 @@ def test_a_noisy_biased_gyro_beside_straight_wheels_is_no_unit_error(tmp_path):
 # ------------------------------------------------------------------- streams mostly unused
 def test_a_stream_mostly_dropped_as_late_degrades_the_run():
     # Issue 16: gps.csv in ns had 94 of 95 fixes dropped as late, and the run said ok.
+    from compiled_checks import late
     from test_ekf import simulate
-    from test_localizer import _cfg, _delay, _feed_online
+    from test_localizer import _cfg, _feed_online
 
     log, _ = simulate(24, steps=200)
     cfg = _cfg(options={"late_window": 0.3})
-    loc, _ = _feed_online(log, cfg, "ekf", order=_delay("ranges", 0.5))
+    loc, _ = _feed_online(log, cfg, "ekf", order=late("ranges", 0.5))
     (found,) = [f for f in loc.result().findings if f.check == "dropped"]
     assert found.sensor == "ranges" and found.figure > 0.9 and found.degrades
     assert loc.health().status == "degraded"

@@ -93,7 +93,7 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "calibration_drift",
-        ("status/drift.py",),
+        ("status/drift.py", "status/cross_check.py"),
         "EKF, UKF, Localizer (live), with calibration states; offline, every other estimator "
         "in the second opinion's scope carries an EKF's of the same log and config (COMPANION)",
         "a calibration estimate's change between snapshots drift_grid s apart (lags 1, 2, 4, "

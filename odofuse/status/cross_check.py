@@ -36,9 +36,9 @@ smoother's error is orthogonal to ``d`` (``e_f = d + e_s``), so
 The check needs the smoother's own ``status`` to be ``ok`` (a degraded yardstick measures
 nothing); a check that does not apply is recorded as ``skipped: <reason>``, not as a warning.
 
-The estimators without a calibration drift check of their own (:data:`odofuse.status.drift.
-COMPANION`) also carry an EKF's of the same log and config, run once per log with the
-reference (:attr:`Reference.drift`, :func:`companion_applies`).
+The estimators without a calibration drift check of their own (:data:`COMPANION`) also
+carry an EKF's of the same log and config, run once per log with the reference
+(:attr:`Reference.drift`, :func:`companion_applies`).
 """
 
 from __future__ import annotations
@@ -55,7 +55,6 @@ import numpy as np
 from odofuse.errors import one_line
 from odofuse.estimators.common import absolute_streams, sensor_kind, slam_option
 from odofuse.status import latency
-from odofuse.status.drift import COMPANION, companion_findings
 from odofuse.status.findings import Finding, assess, status_of
 from odofuse.trajectory import EstimateResult, Trajectory, pose_blocks
 
@@ -79,6 +78,14 @@ REFERENCE_SIGMA_RATIO = 2.0
 #: blind to an overconfident pose covariance. For every other estimator a second opinion that
 #: could not judge degrades.
 DRIFT_EVIDENCE = frozenset({"ekf", "ukf", "particle", "fixed_lag"})
+#: Estimators without a calibration drift check of their own that carry an EKF's, offline
+#: (:func:`companion_findings`): the batch smoother's, iSAM2's and fixed-lag's calibration
+#: estimates are not martingales (they revisit past linearisations; docs/trust.md, "iSAM2 was
+#: tried and not built"), the particle filter's carry Monte Carlo noise that its covariance does
+#: not hold, and dead reckoning estimates none. The check tests the log against the config's
+#: model (a calibration constant up to its declared walk), which every estimator of the same
+#: log and config shares.
+COMPANION = frozenset({"dead_reckoning", "particle", "smoother", "isam2", "fixed_lag"})
 #: Estimate times per block of the posterior's pass (temporaries ``K * block * 2`` floats).
 SAMPLE_BLOCK = 2048
 #: Estimators that fuse no absolute sensor: judged on their covariance alone (their drift from
@@ -120,7 +127,7 @@ class Reference:
     #: smoother handled leaves it a yardstick); None: ``status``.
     yardstick_status: str | None = None
     #: A function returning the companion findings of its log and config
-    #: (:func:`odofuse.status.drift.companion_findings`), run once on its first call; None: run
+    #: (:func:`companion_findings`), run once on its first call; None: run
     #: them with the checked run's config.
     drift: Callable[[], tuple[Finding, ...]] | None = field(default=None, compare=False)
 
@@ -466,7 +473,7 @@ def alpha_budget(config, log) -> dict:
         drift = float(getattr(nis_opts, "drift_alpha", 0.0))
         if drift > 0.0 and fused:  # the EKF's and UKF's calibration drift check
             checks["calibration_drift"] = drift
-    if companion_applies(config, log):  # an EKF's, for the others (status.drift.COMPANION)
+    if companion_applies(config, log):  # an EKF's, for the others (COMPANION)
         checks["calibration_drift"] = float(config.estimator_options("ekf").drift_alpha)
     elif est == "dead_reckoning" and "gyro" in streams and len(streams["gyro"]):
         checks["gyro_wheels"] = float(config.estimator_options(est).heading_alpha)
@@ -718,11 +725,43 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     return result, {**block, **about}, advice
 
 
+def companion_findings(config, log) -> tuple[Finding, ...]:
+    """The ``calibration_drift`` findings of an EKF of ``log`` with ``config`` (its estimator
+    replaced; the EKF's options are the config's ``options.ekf``), each saying that the EKF saw
+    it; () when the EKF has no calibration state to test or finds nothing.
+
+    The EKF's calibration path is the model's martingale only while the EKF itself is
+    consistent: an EKF degraded by any other check (NIS windows, recoveries, rejection runs)
+    cannot judge the drift (its own failure moves the calibration), and neither can an EKF
+    that does not run; both leave a note that does not degrade (the run's other checks stand)."""
+    from odofuse.estimators import run_estimator
+
+    def note(why: str) -> tuple[Finding, ...]:
+        msg = f"an EKF of this log could not test the calibration's drift: {why}"
+        return (Finding("calibration_drift", msg, degrades=False),)
+
+    try:
+        result = run_estimator("ekf", log, dataclasses.replace(config, estimator="ekf"))
+    except Exception as exc:  # noqa: BLE001 - a check that cannot run is a note, never a crash
+        return note(one_line(exc))
+    found = assess(result)
+    drift = [f for f in found if f.check == "calibration_drift"]
+    other = sorted({f.check for f in found if f.degrades and f.check != "calibration_drift"})
+    if drift and other:
+        return note(
+            f"it is degraded by {', '.join(other)} itself, so its calibration's path is "
+            "no evidence about the log"
+        )
+    return tuple(
+        dataclasses.replace(f, message=f"seen by an EKF of this log and config: {f.message}")
+        for f in drift
+    )
+
+
 def companion_applies(config, log) -> bool:
     """Whether the run carries the calibration drift check of an EKF of its log
-    (:func:`odofuse.status.drift.companion_findings`): an estimator of
-    :data:`odofuse.status.drift.COMPANION`, in the second opinion's scope (:func:`scope_reason`,
-    not switched off), with the EKF's ``drift_alpha`` above 0."""
+    (:func:`companion_findings`): an estimator of :data:`COMPANION`, in the second opinion's
+    scope (:func:`scope_reason`, not switched off), with the EKF's ``drift_alpha`` above 0."""
     return (
         config.estimator in COMPANION
         and config.estimator_options("cross_check").smoother != "off"

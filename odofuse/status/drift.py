@@ -151,35 +151,3 @@ def drift_of(loc) -> Drift | None:
         for s in getattr(m, "calib_states", ()):
             owners.setdefault(s, stream)
     return Drift(list(index), list(index.values()), walk, owners, opts.drift_alpha, opts.drift_grid)
-
-
-#: Estimators without a drift check of their own that carry an EKF's, offline
-#: (:func:`companion_findings`): the batch smoother's, iSAM2's and fixed-lag's calibration
-#: estimates are not martingales (they revisit past linearisations; docs/trust.md, "iSAM2 was
-#: tried and not built"), the particle filter's carry Monte Carlo noise that its covariance does
-#: not hold, and dead reckoning estimates none. The check tests the log against the config's
-#: model (a calibration that is constant up to its declared walk), which every estimator of the
-#: same log and config shares.
-COMPANION = frozenset({"dead_reckoning", "particle", "smoother", "isam2", "fixed_lag"})
-
-
-def companion_findings(config, log) -> tuple[Finding, ...]:
-    """The ``calibration_drift`` findings of an EKF of ``log`` with ``config`` (its estimator
-    replaced; the EKF's options are the config's ``options.ekf``), each saying that the EKF saw
-    it; () when the EKF has no calibration state to test or finds nothing; a note (not
-    degrading: the run's other checks stand) when the EKF cannot run the log."""
-    import dataclasses
-
-    from odofuse.errors import one_line
-    from odofuse.estimators import run_estimator
-
-    try:
-        result = run_estimator("ekf", log, dataclasses.replace(config, estimator="ekf"))
-    except Exception as exc:  # noqa: BLE001 - a check that cannot run is a note, never a crash
-        why = f"an EKF of this log could not test the calibration's drift: {one_line(exc)}"
-        return (Finding("calibration_drift", why, degrades=False),)
-    return tuple(
-        dataclasses.replace(f, message=f"seen by an EKF of this log and config: {f.message}")
-        for f in result.findings
-        if f.check == "calibration_drift"
-    )
