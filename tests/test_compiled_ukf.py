@@ -16,7 +16,7 @@ pytest.importorskip("numba")
 from compiled_checks import (  # noqa: E402
     SCENARIO,
     SLIP_SCENARIO,
-    live_from_config,  # noqa: E402
+    live_from_config,
 )
 from compiled_checks import assert_same_run as _same  # noqa: E402
 from graph_sim import excerpt, simulated_run  # noqa: E402

@@ -221,6 +221,8 @@ def test_every_companion_estimator_carries_the_same_finding_from_one_shared_ekf(
         found = [f for f in m["findings"] if f["check"] == "calibration_drift"]
         assert [f["message"] for f in found] == [f"seen by an EKF of this log and config: {want}"]
         assert m["status"] == "degraded" and m["alpha"]["checks"]["calibration_drift"] == 1e-3
+        if est == "dead_reckoning":  # its own check is still counted beside the companion
+            assert m["alpha"]["checks"]["gyro_wheels"] == 1e-3
     assert len(runs) == 1  # one EKF for the five runs of the log (the shared reference's)
     # out of the second opinion's scope (switched off) there is no companion and no budget
     off = dataclasses.replace(cfg, estimator="smoother")

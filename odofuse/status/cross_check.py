@@ -473,10 +473,10 @@ def alpha_budget(config, log) -> dict:
         drift = float(getattr(nis_opts, "drift_alpha", 0.0))
         if drift > 0.0 and fused:  # the EKF's and UKF's calibration drift check
             checks["calibration_drift"] = drift
-    if companion_applies(config, log):  # an EKF's, for the others (COMPANION)
-        checks["calibration_drift"] = float(config.estimator_options("ekf").drift_alpha)
     elif est == "dead_reckoning" and "gyro" in streams and len(streams["gyro"]):
         checks["gyro_wheels"] = float(config.estimator_options(est).heading_alpha)
+    if companion_applies(config, log):  # an EKF's, for the others (COMPANION)
+        checks["calibration_drift"] = float(config.estimator_options("ekf").drift_alpha)
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
     gyros = [n for n in fused if sensor_kind(config, n) == "gyro"]
     windows = {f"residual_windows:{n}": WINDOW_ALPHA for n in [odo, *gyros] if n}
@@ -674,7 +674,8 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     if "variance_factor" in budget["checks"]:  # the smoother as the estimate (own_test)
         found = variance_factor_findings(result, budget["checks"]["variance_factor"])
         result = dataclasses.replace(result, findings=(*result.findings, *found))
-    if config.estimator == "smoother" and companion_applies(config, log):
+    companion = companion_applies(config, log)  # an EKF's drift check (COMPANION)
+    if companion and config.estimator == "smoother":
         # the run is the reference's own estimate when one is given (rundir.estimate)
         own = None if reference is None else reference() if callable(reference) else reference
         result = _with_companion(config, log, result, own)
@@ -687,10 +688,10 @@ def cross_check(config, log, result: EstimateResult, reference=None):
             ref = reference() if callable(reference) else reference
     except Exception as exc:
         why = f"the batch smoother failed: {one_line(exc)}"
-        if companion_applies(config, log):
+        if companion:
             result = _with_companion(config, log, result)
         return _skipped(result, why, {"skipped": why})
-    if companion_applies(config, log):
+    if companion:
         result = _with_companion(config, log, result, ref)
     # no wall-clock time here: metrics.json is the same for the same inputs (odofuse batch
     # equals odofuse run to the last digit); the config only when it is not the run's own
