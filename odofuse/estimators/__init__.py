@@ -131,7 +131,7 @@ def run_estimator(name: str, log, config, **options):
     if name in latency.OWN:  # the time-stamp test on the graph's own residuals
         found, block = latency.findings(config, log, result)
         if block:
-            extra = {**(result.extra or {}), "latency": block}
+            extra = {**(result.extra or {}), "time_offset": block}
             result = dataclasses.replace(
                 result, findings=tuple(result.findings) + tuple(found), extra=extra
             )

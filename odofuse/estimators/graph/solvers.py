@@ -36,7 +36,12 @@ from odofuse.estimators.graph.isam2_slam import cholesky_suits, incremental_slam
 from odofuse.estimators.graph.keys import X
 from odofuse.estimators.graph.marginals import marginal_covariances
 from odofuse.estimators.graph.problem import GraphProblem, build_problem, convex_problem
-from odofuse.estimators.graph.variance import factor_groups, variance_components
+from odofuse.estimators.graph.time_offset import scores as time_offset_scores
+from odofuse.estimators.graph.variance import (
+    WhitenedSystem,
+    factor_groups,
+    variance_components,
+)
 from odofuse.status.graph_checks import (
     factor_residuals,
     graph_findings,
@@ -578,12 +583,22 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
     if opts.covariances and covs is not None:  # the scale of those covariances
         keys = [X(i) for i in range(len(problem.kt))]
         try:  # a normal matrix the sparse LU cannot factor: no scale, the run goes on
+            system = WhitenedSystem(graph, result, lin)
             vc = variance_components(
-                graph, result, factor_groups(fac, graph), keys, samples=error_samples, lin=lin
+                graph,
+                result,
+                factor_groups(fac, graph),
+                keys,
+                samples=error_samples,
+                system=system,
             )
             if error_samples > 0:
                 vc, extra["_error_samples"] = vc
             extra["variance_components"] = vc
+            # the time-stamp test's score in this system (status.latency reads it)
+            extra["_latency_scores"] = time_offset_scores(
+                problem, fac, graph, system, log, config, vc
+            )
         except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
             extra["variance_components"] = {"skipped": one_line(exc)}
     return finish(problem, fac, result, covs, "smoother", extra, findings)

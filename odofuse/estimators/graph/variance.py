@@ -130,6 +130,20 @@ def _whitened_system(graph, values, lin=None):
     return A, b, owner, cols
 
 
+class WhitenedSystem:
+    """A linearised graph's whitened system (:func:`_whitened_system`: ``A``, ``b``,
+    ``owner``, ``cols``) with the sparse factorisation of its normal matrix ``N_0 = A^T A``
+    made at the first use (:attr:`lu0`), so that the variance components and the time-stamp
+    test's score (:mod:`odofuse.estimators.graph.time_offset`) share one."""
+
+    def __init__(self, graph, values, lin=None):
+        self.A, self.b, self.owner, self.cols = _whitened_system(graph, values, lin)
+
+    @functools.cached_property
+    def lu0(self):
+        return _factor((self.A.T @ self.A).tocsc())
+
+
 def _rows(f) -> int:
     """Rows of a linear factor in ``sparseJacobian_`` (a Hessian factor: its Jacobian's)."""
     import gtsam
@@ -228,7 +242,7 @@ def _error_samples(A, lu0, row_scale, cols, values, position_keys, k, seed, meth
     return ErrorSamples(xy, int(seed), method)
 
 
-def _one_blas_thread(fn):
+def one_blas_thread(fn):
     """Run ``fn`` with BLAS on one thread: OpenBLAS's dot products and SuperLU's
     multi-right-hand-side solves sum in an order set by its thread count, so the last digit of
     these components moved between a process with two threads and a Dask worker with one
@@ -244,7 +258,7 @@ def _one_blas_thread(fn):
     return wrapped
 
 
-@_one_blas_thread
+@one_blas_thread
 def variance_components(
     graph,
     values,
@@ -255,6 +269,7 @@ def variance_components(
     samples: int = 0,
     seed: int = ERROR_SAMPLES_SEED,
     lin=None,
+    system: WhitenedSystem | None = None,
 ):
     """Variance components of a least-squares solution and the error covariance they imply.
 
@@ -305,6 +320,9 @@ def variance_components(
         Seed of those samples.
     lin : gtsam.GaussianFactorGraph, optional
         ``graph`` linearised at ``values``, when the caller has it (else linearised here).
+    system : WhitenedSystem, optional
+        That linearisation's whitened system, when the caller shares it (and its
+        factorisation of ``N_0``) with another computation; ``lin`` is then not used.
 
     Returns
     -------
@@ -325,7 +343,8 @@ def variance_components(
     """
     from scipy import sparse
 
-    A, b, owner, cols = _whitened_system(graph, values, lin)
+    system = system or WhitenedSystem(graph, values, lin)
+    A, b, owner, cols = system.A, system.b, system.owner, system.cols
     m, n = A.shape
     redundancy = m - n
     weighted = float(b @ b / redundancy) if redundancy > 0 else None
@@ -341,7 +360,7 @@ def variance_components(
         }
         if samples <= 0:
             return out
-        lu0 = _factor((A.T @ A).tocsc())
+        lu0 = system.lu0
         rs = np.full(m, c0)
         return out, _error_samples(A, lu0, rs, cols, values, position_keys, samples, seed, "global")
     label = np.array(groups, dtype=object)[owner]
@@ -350,8 +369,7 @@ def variance_components(
     free = {g for g in rows if g != PRIOR_GROUP}
     # the sandwich's position traces: sum_g c_g ||A_g y||^2 over tr(E^T N_0^-1 E), with
     # y = N_0^-1 E independent of the components (computed once, re-weighted each pass)
-    N0 = (A.T @ A).tocsc()
-    lu0 = _factor(N0)
+    lu0 = system.lu0
     pos = np.concatenate([np.arange(cols[int(k)][0], cols[int(k)][0] + 2) for k in position_keys])
     model, per_group = 0.0, dict.fromkeys(rows, 0.0)
     for k in range(0, pos.size, chunk):
