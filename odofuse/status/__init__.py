@@ -126,8 +126,10 @@ CHECKS: tuple[Check, ...] = (
     Check(
         "latency",
         ("status/latency.py",),
-        "smoother, iSAM2, fixed-lag (own residuals); filters take the smoother's",
-        "residuals regressed on the predicted measurement's rate: a reading stamped late or early",
+        "smoother, iSAM2, fixed-lag (own residuals); the others take the smoother's",
+        "the residuals' score on the predicted measurement's rate (the smoother: in its own "
+        "whitened system, exact variance; iSAM2, fixed-lag: a bound): a reading stamped late "
+        "or early",
         "options.status.latency_alpha per fused absolute stream (1e-3, two-sided)",
         ("latency",),
         ("tests/test_latency.py",),
