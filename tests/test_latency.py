@@ -80,10 +80,10 @@ def test_the_smoothers_score_has_the_variance_its_states_leave(monkeypatch):
 
     seen = {}
 
-    def spy(problem, fac, graph, system, log, config, components):
+    def spy(fac, graph, system, log, config, components):
         seen["system"] = system
-        seen["columns"] = time_offset.columns(problem, fac, graph, system, log, config)
-        return time_offset.scores(problem, fac, graph, system, log, config, components)
+        seen["columns"] = time_offset.columns(fac, graph, system, log, config)
+        return time_offset.scores(fac, graph, system, log, config, components)
 
     monkeypatch.setattr(solvers, "time_offset_scores", spy)
     log, cfg, _ = bs.make_case(504, "range_time_shift")

@@ -596,9 +596,7 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
                 vc, extra["_error_samples"] = vc
             extra["variance_components"] = vc
             # the time-stamp test's score in this system (status.latency reads it)
-            extra["_latency_scores"] = time_offset_scores(
-                problem, fac, graph, system, log, config, vc
-            )
+            extra["_latency_scores"] = time_offset_scores(fac, graph, system, log, config, vc)
         except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
             extra["variance_components"] = {"skipped": one_line(exc)}
     return finish(problem, fac, result, covs, "smoother", extra, findings)

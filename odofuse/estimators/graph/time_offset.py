@@ -38,7 +38,7 @@ from odofuse.estimators.graph.variance import one_blas_thread
 from odofuse.status import latency
 
 
-def columns(problem, fac, graph, system, log, config) -> dict:
+def columns(fac, graph, system, log, config) -> dict:
     """Per absolute stream that :func:`odofuse.status.latency.streams` tests and that has
     factors in ``graph``: its time offset's column ``h`` (m,) in ``system`` (``graph``'s
     :class:`~odofuse.estimators.graph.variance.WhitenedSystem` at the optimum) and the
@@ -81,12 +81,12 @@ def score(system, h) -> tuple[float, float, float]:
     return float(h @ system.b), naive - float(g @ system.lu0.solve(g)), naive
 
 
-def scores(problem, fac, graph, system, log, config, components: dict) -> dict:
+def scores(fac, graph, system, log, config, components: dict) -> dict:
     """Per stream of :func:`columns`: ``{"n", "a", "info", "naive", "scale"}`` (readings with
     a non-zero column, :func:`score`'s three numbers, and the variance scale: the stream's
     component of the smoother's ``variance_components`` block ``components`` when above 1)."""
     out = {}
-    for s, (h, n) in columns(problem, fac, graph, system, log, config).items():
+    for s, (h, n) in columns(fac, graph, system, log, config).items():
         a, info, naive = score(system, h)
         scale = max(1.0, _component(components, s))
         out[s] = {"n": n, "a": a, "info": info, "naive": naive, "scale": scale}
