@@ -184,13 +184,13 @@ def findings(config, log, result) -> tuple[list[Finding], dict]:
     alpha = float(config.estimator_options("status").latency_alpha)
     bound = NormalDist().inv_cdf(1.0 - alpha / 2.0)
     power = NormalDist().inv_cdf(float(FilterOptions().mde_power))
-    models = measurement_models(config, log)
     scores = (result.extra or {}).get("_latency_scores") or {}
-    dr = None
+    models = dr = None  # the bound's inputs, built only when a stream has no score
     out, block = [], {}
     for s in tested:
         st = score_statistic(scores.get(s))
         if st is None and s not in scores:
+            models = models or measurement_models(config, log)
             _, index = state_layout({s: models[s]})
             m = models[s].bind(index) if hasattr(models[s], "bind") else models[s]
             dr = dr if dr is not None else dead_reckoned(config, log)
