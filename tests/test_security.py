@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -383,6 +384,51 @@ def test_two_concurrent_runs_never_leave_a_mixed_folder(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     rows = len((out / "trajectory.csv").read_text().splitlines()) - 1
     assert metrics["poses"] == rows
+    assert _leftovers(tmp_path) == []
+
+
+CLAIM_AND_HOLD = """
+import os, sys, time
+from odofuse.errors import OdofuseError
+from odofuse.io.atomic import claim_folder
+folder, journal, go = sys.argv[1:4]
+while not os.path.exists(go):  # spin, so that all start within microseconds
+    pass
+try:
+    with claim_folder(folder):
+        with open(journal, "a") as fh:
+            fh.write("in\\n")
+        time.sleep(0.05)
+        with open(journal, "a") as fh:
+            fh.write("out\\n")
+except OdofuseError:
+    pass
+"""
+
+
+def test_runs_started_together_never_both_hold_a_folder(tmp_path):
+    """Six processes claim one folder at the same instant: never two inside at once.
+
+    A lock created empty and filled after used to be read as stale by a second run, which
+    removed it, so both held the folder and one deleted the other's temporary folder (CI,
+    session 26: ``test_two_concurrent_runs_never_leave_a_mixed_folder``). The old code
+    overlapped in 20 of 20 such rounds, this one in 0 of 20.
+    """
+    go, journal = tmp_path / "go", tmp_path / "journal"
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", CLAIM_AND_HOLD, str(tmp_path / "out"), str(journal), str(go)]
+        )
+        for _ in range(6)
+    ]
+    time.sleep(0.5)
+    go.touch()
+    assert [p.wait() for p in procs] == [0] * 6
+    depth = deepest = 0
+    for word in journal.read_text().split():
+        depth += 1 if word == "in" else -1
+        deepest = max(deepest, depth)
+    assert deepest == 1
     assert _leftovers(tmp_path) == []
 
 

@@ -89,6 +89,47 @@ def lock_path(folder: str | Path) -> Path:
     return folder.with_name(f".{folder.name}{_LOCK_SUFFIX}")
 
 
+def _create_lock(lock: Path) -> bool:
+    """Create ``lock`` holding this process's pid, atomically; False when it exists.
+
+    The pid is written to a private file first and hard-linked to ``lock`` (which fails when
+    ``lock`` exists), so no other run ever reads the lock empty and takes it for stale.
+    """
+    fd, tmp = tempfile.mkstemp(prefix=f"{lock.name}.", suffix=".new", dir=lock.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="ascii") as fh:
+            fh.write(f"{os.getpid()}\n")
+        os.chmod(tmp, 0o644)
+        try:
+            os.link(tmp, lock)
+        except FileExistsError:
+            return False
+        return True
+    finally:
+        os.unlink(tmp)
+
+
+def _take_stale(lock: Path, pid: int) -> None:
+    """Remove ``lock`` left by the dead run ``pid``, unless another run took it over meanwhile.
+
+    The lock is renamed aside (atomic) and read again: a lock that now holds another pid was
+    created after ours was read, and is put back.
+    """
+    aside = lock.with_name(f"{lock.name}.stale-{uuid.uuid4().hex[:8]}")
+    try:
+        os.replace(lock, aside)
+    except FileNotFoundError:
+        return
+    try:
+        now = int(aside.read_text(encoding="ascii").strip() or 0)
+    except (OSError, ValueError):
+        now = 0
+    if now != pid and now and _pid_alive(now):
+        with contextlib.suppress(FileExistsError):
+            os.link(aside, lock)
+    aside.unlink()
+
+
 @contextlib.contextmanager
 def claim_folder(folder: str | Path):
     """Hold ``folder`` for this run: a second run (another process) into it is an error.
@@ -109,24 +150,20 @@ def claim_folder(folder: str | Path):
     lock = lock_path(folder)
     lock.parent.mkdir(parents=True, exist_ok=True)
     for _ in range(3):
+        if _create_lock(lock):
+            break
         try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                pid = int(lock.read_text(encoding="ascii").strip() or 0)
-            except (OSError, ValueError):
-                pid = 0
-            if pid and _pid_alive(pid):
-                raise OdofuseError(
-                    f"output folder {folder} is in use by another run (pid {pid}); "
-                    f"wait for it or choose another -o (lock file {lock})"
-                ) from None
-            with contextlib.suppress(FileNotFoundError):
-                lock.unlink()  # stale: its run was killed
-            continue
-        with os.fdopen(fd, "w", encoding="ascii") as fh:
-            fh.write(f"{os.getpid()}\n")
-        break
+            pid = int(lock.read_text(encoding="ascii").strip() or 0)
+        except FileNotFoundError:
+            continue  # released between our attempt and the read: try again
+        except (OSError, ValueError):
+            pid = 0
+        if pid and _pid_alive(pid):
+            raise OdofuseError(
+                f"output folder {folder} is in use by another run (pid {pid}); "
+                f"wait for it or choose another -o (lock file {lock})"
+            ) from None
+        _take_stale(lock, pid)
     else:  # pragma: no cover - a race lost three times in a row
         raise OdofuseError(f"cannot claim output folder {folder} (lock file {lock})")
     _HELD.add(key)
