@@ -142,6 +142,22 @@ def test_odofuse_run_says_degraded_by_the_drift_check_on_a_gyro_bias_step(tmp_pa
     assert m["extra"]["calibration_drift"]["ratio"] > 1.0
 
 
+def _stream(loc, log, cfg, t, U):
+    """Feed ``log`` to the live ``loc`` in time order (odometry ``t``, ``U``), asking for its
+    health after every odometry step: ``(statuses, final health)``."""
+    from odofuse.estimators.assembly import events
+
+    now = []
+    for te, kind, stream, i in events(log, t, U, [s for s in cfg.sensors if s in log.streams]):
+        if kind == 1:
+            loc.add_odometry(te, U[i])
+            now.append(loc.health().status)
+        else:
+            loc.add_measurement(stream, log.streams[stream].row(i))
+    loc.finish()
+    return now, loc.health()
+
+
 @pytest.mark.parametrize(
     "estimator",
     ["ekf", pytest.param("ukf", marks=pytest.mark.slow)],  # the live UKF: 12 s
@@ -149,7 +165,6 @@ def test_odofuse_run_says_degraded_by_the_drift_check_on_a_gyro_bias_step(tmp_pa
 def test_the_live_localizer_finds_the_same_drift_as_the_offline_run(estimator):
 
     from odofuse.estimators import ekf, run_estimator, ukf
-    from odofuse.estimators.assembly import events
     from odofuse.estimators.common import odometry_inputs
     from odofuse.estimators.localizer import assemble
     from odofuse.log_defaults import apply_log_defaults
@@ -164,19 +179,39 @@ def test_the_live_localizer_finds_the_same_drift_as_the_offline_run(estimator):
     t, U = odometry_inputs(log, motion_model_from_config(cfg))
     make = {"ekf": ekf, "ukf": ukf}[estimator].make_backend
     loc = assemble(cfg, estimator, make, float(t[0]), log, keep_trajectory=False)
-    now = []
-    for te, kind, stream, i in events(log, t, U, [s for s in cfg.sensors if s in log.streams]):
-        if kind == 1:
-            loc.add_odometry(te, U[i])
-            now.append(loc.health().status)
-        else:
-            loc.add_measurement(stream, log.streams[stream].row(i))
-    loc.finish()
-    h = loc.health()
+    now, h = _stream(loc, log, cfg, t, U)
     (got,) = [f for f in h.findings if f.check == "calibration_drift"]
     assert (got.t_start, got.t_end, got.message) == (want.t_start, want.t_end, want.message)
     assert h.run_status == status_of(assess(offline)) == "degraded"
     assert "degraded" in now  # at the snapshot that found it
+
+
+def test_a_live_particle_filter_carries_an_ekfs_drift_as_its_offline_run_does():
+    # Offline a particle run carries the drift check of an EKF of its log and config
+    # (odofuse.status.cross_check.COMPANION); live (Localizer.from_config) the same EKF runs
+    # beside it on the same readings (seed 1015's gyro bias step).
+    from odofuse.estimators.common import odometry_inputs
+    from odofuse.estimators.localizer import Localizer
+    from odofuse.log_defaults import apply_log_defaults
+    from odofuse.motion import motion_model_from_config
+    from odofuse.status.cross_check import companion_findings
+
+    log, cfg, _ = bs.make_case(1015, "gyro_bias_step")
+    cfg, log = apply_log_defaults(cfg, log)
+    cfg = dataclasses.replace(cfg, estimator="particle")
+    (want,) = companion_findings(cfg, log)  # what the offline run carries
+    t, U = odometry_inputs(log, motion_model_from_config(cfg))
+    loc = Localizer.from_config(
+        cfg, float(t[0]), landmarks=log.landmarks, initial_pose=log.initial_pose
+    )
+    assert loc.companion is not None and loc.companion.name == "ekf"
+    now, h = _stream(loc, log, cfg, t, U)
+    (got,) = [f for f in h.findings if f.check == "calibration_drift"]
+    assert got == want and got.message.startswith("seen by an EKF of this log and config: ")
+    assert h.run_status == "degraded" and "degraded" in now
+    # with the second opinion off, neither the offline run nor the live one has a companion
+    off = dataclasses.replace(cfg, options={**cfg.options, "cross_check": {"smoother": "off"}})
+    assert Localizer.from_config(off, 0.0, landmarks=log.landmarks).companion is None
 
 
 def test_odofuse_run_of_the_smoother_carries_an_ekfs_drift_finding(tmp_path):

@@ -64,7 +64,7 @@ from odofuse.estimators.history import (
 )
 from odofuse.status import findings as H
 from odofuse.status import monitors
-from odofuse.status.drift import drift_of
+from odofuse.status.drift import drift_of, seen_by_ekf
 from odofuse.trajectory import EstimateResult, Trajectory
 
 #: Odometry inputs composed into the ``odom`` pose at once (vectorised dead reckoning).
@@ -169,6 +169,9 @@ class Localizer:
         self._version = 0  # readings applied or dropped: health() recomputes what they change
         # health(): (that version, its findings, failing streams, test and NIS ratios)
         self._fast = (None, [], [], {}, {})
+        #: A live particle filter's EKF of the same config, fed the same readings, whose
+        #: calibration drift check it carries (:meth:`from_config`); None otherwise.
+        self.companion: Localizer | None = None
 
     @classmethod
     def from_config(
@@ -214,6 +217,11 @@ class Localizer:
         loc = assemble(config, name, module.make_backend, t0, src, keep_trajectory)
         if hasattr(module, "live"):  # the EKF: the compiled core's kernels, as `odofuse run`'s
             module.live(loc)
+        if name == "particle" and config.estimator_options("cross_check").smoother != "off":
+            # Offline a particle run carries the drift check of an EKF of its log
+            # (odofuse.status.cross_check.COMPANION); live, an EKF runs beside it.
+            ekf = cls.from_config(config, t0, landmarks, "ekf", initial_pose)
+            loc.companion = ekf if ekf.monitor.drift is not None else None
         return loc
 
     # ----------------------------------------------------------------- queries
@@ -250,6 +258,13 @@ class Localizer:
         return self.add_measurement(stream, row)
 
     def add_measurement(self, stream: str, row: Mapping[str, float]) -> str:
+        """:meth:`_add_measurement`, and the same row to the :attr:`companion`."""
+        fate = self._add_measurement(stream, row)
+        if self.companion is not None:
+            self.companion.add_measurement(stream, row)
+        return fate
+
+    def _add_measurement(self, stream: str, row: Mapping[str, float]) -> str:
         """Queue one measurement row; it is applied once odometry reaches its time.
 
         A measurement at or before the filter time triggers a replay from the step that covers
@@ -320,6 +335,8 @@ class Localizer:
             )
         if self._duplicates.odometry(t, u):
             return inputs.DUPLICATE
+        if self.companion is not None:
+            self.companion.add_odometry(t, u)
         due = []
         while self._pending and self._pending[0][0] <= t:
             due.append(self._pending.pop(0))
@@ -534,6 +551,8 @@ class Localizer:
             self.dropped_late[stream] += 1
         self._pending.clear()
         self._version += 1
+        if self.companion is not None:
+            self.companion.finish()
 
     def trajectory(self) -> Trajectory:
         """Filtered poses at the initial time and after every odometry step.
@@ -575,20 +594,26 @@ class Localizer:
         The offline run's checks, from the same code (docs/filters.md, "Live health"): the
         streaming checks of every sensor (test ratio, NIS windows with persistence and
         hysteresis, rejection runs, outage; O(1) per reading), recoveries, calibration
-        bounds, the calibration drift check (EKF, UKF: a snapshot every ``drift_grid`` s),
-        rejected and dropped fractions, the current pose covariance; and the checks
-        over the kept poses (covariance conditioning and growth, collapse, gyro-bias
-        learning, inert gates), re-run every :data:`HEALTH_TRACK_EVERY` steps (a live
-        Localizer keeps the late window's poses: a fixed cost). ``status`` is degraded
+        bounds, the calibration drift check (EKF, UKF: a snapshot every ``drift_grid`` s; a
+        particle filter carries its :attr:`companion` EKF's), rejected and dropped
+        fractions, the current pose covariance; and the checks over the kept poses
+        (covariance conditioning and growth, collapse, gyro-bias learning, inert gates),
+        re-run every :data:`HEALTH_TRACK_EVERY` steps (a live Localizer keeps the late
+        window's poses: a fixed cost). ``status`` is degraded
         while a check is failing now, ``run_status`` when any check failed in the run.
         """
         mon = self.monitor
         span = (self.t_start, self.t)
         drift = mon.drift
         key = (self._version, self.slip_steps, len(drift) if drift is not None else 0)
+        comp = self.companion
+        if comp is not None:  # the companion EKF's drift (a particle filter's, live)
+            key += (comp._version, comp.slip_steps, len(comp.monitor.drift))
         if key != self._fast[0]:  # what only a reading, a slip or a drift snapshot changes
             fast = mon.stream_findings(span, outage=False) + monitors.slip_note(self)
             fast += drift.findings() if drift is not None else []
+            if comp is not None and comp.monitor.drift.ratio() > 1.0:
+                fast += seen_by_ekf(comp.health().findings)
             if mon._priors:
                 fast += mon._calibration_findings(self.calibration())
             fast += inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)

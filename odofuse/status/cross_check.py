@@ -736,27 +736,13 @@ def companion_findings(config, log) -> tuple[Finding, ...]:
     cannot judge the drift (its own failure moves the calibration), and neither can an EKF
     that does not run; both leave a note that does not degrade (the run's other checks stand)."""
     from odofuse.estimators import run_estimator
-
-    def note(why: str) -> tuple[Finding, ...]:
-        msg = f"an EKF of this log could not test the calibration's drift: {why}"
-        return (Finding("calibration_drift", msg, degrades=False),)
+    from odofuse.status.drift import cannot_judge, seen_by_ekf
 
     try:
         result = run_estimator("ekf", log, dataclasses.replace(config, estimator="ekf"))
     except Exception as exc:  # noqa: BLE001 - a check that cannot run is a note, never a crash
-        return note(one_line(exc))
-    found = assess(result)
-    drift = [f for f in found if f.check == "calibration_drift"]
-    other = sorted({f.check for f in found if f.degrades and f.check != "calibration_drift"})
-    if drift and other:
-        return note(
-            f"it is degraded by {', '.join(other)} itself, so its calibration's path is "
-            "no evidence about the log"
-        )
-    return tuple(
-        dataclasses.replace(f, message=f"seen by an EKF of this log and config: {f.message}")
-        for f in drift
-    )
+        return (cannot_judge(one_line(exc)),)
+    return seen_by_ekf(assess(result))
 
 
 def companion_applies(config, log) -> bool:

@@ -22,6 +22,7 @@ Measured: ``benchmarks/bench_calibration_drift.py`` and ``bench_status.py``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from statistics import NormalDist
 
@@ -151,3 +152,34 @@ def drift_of(loc) -> Drift | None:
         for s in getattr(m, "calib_states", ()):
             owners.setdefault(s, stream)
     return Drift(list(index), list(index.values()), walk, owners, opts.drift_alpha, opts.drift_grid)
+
+
+def seen_by_ekf(found) -> tuple[Finding, ...]:
+    """What an EKF of the same log and config, with findings ``found``, tells another
+    estimator about the calibration's drift (the companion of
+    :data:`odofuse.status.cross_check.COMPANION`, offline and live): its ``calibration_drift``
+    findings, each saying the EKF saw them.
+
+    The EKF's calibration path is the model's martingale only while the EKF itself is
+    consistent: an EKF that is also degraded by another check (NIS windows, recoveries,
+    rejection runs) cannot judge (its own failure moved the calibration), and says so in a
+    note that does not degrade."""
+    drift = [f for f in found if f.check == "calibration_drift" and f.degrades]
+    other = sorted({f.check for f in found if f.degrades and f.check != "calibration_drift"})
+    if drift and other:
+        return (
+            cannot_judge(
+                f"it is degraded by {', '.join(other)} itself, so its calibration's path is "
+                "no evidence about the log"
+            ),
+        )
+    return tuple(
+        dataclasses.replace(f, message=f"seen by an EKF of this log and config: {f.message}")
+        for f in drift
+    )
+
+
+def cannot_judge(why: str) -> Finding:
+    """The companion EKF's note when it cannot test the calibration's drift (no degrading)."""
+    msg = f"an EKF of this log could not test the calibration's drift: {why}"
+    return Finding("calibration_drift", msg, degrades=False)
