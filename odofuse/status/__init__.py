@@ -93,9 +93,10 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "calibration_drift",
-        ("status/drift.py", "status/cross_check.py"),
+        ("status/drift.py",),
         "EKF, UKF, Localizer (live), with calibration states; offline, every other estimator "
-        "in the second opinion's scope carries an EKF's of the same log and config (COMPANION)",
+        "in the second opinion's scope carries an EKF's of the same log and config "
+        "(COMPANION), and so does a live particle Localizer (Localizer.companion)",
         "a calibration estimate's change between snapshots drift_grid s apart (lags 1, 2, 4, "
         "... snapshots) over the variance its updates and random walk explain, Bonferroni "
         "over the comparisons and states, alpha spent over the run's snapshots",

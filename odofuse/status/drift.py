@@ -69,6 +69,7 @@ class Drift:
         # the largest comparison up to each snapshot: ratio, t_j, t_k, state, z, bound
         self._worst = np.zeros((_CAP, 6))
         self._n = 0  # snapshots taken; snapshot a (0-based) is row a % _CAP
+        self._ratio = 0.0  # the newest snapshot's largest ratio (a float: health() asks)
         self.next_t = -math.inf  # odometry time of the next snapshot
 
     def __len__(self) -> int:
@@ -98,6 +99,7 @@ class Drift:
                 if z[s] / bound > worst[0]:
                     worst = (z[s] / bound, self._t[j], t, s, z[s], bound)
         self._worst[row] = worst
+        self._ratio = float(worst[0])
         self._n = k
         self.next_t = float(t) + self.grid
 
@@ -108,10 +110,11 @@ class Drift:
             raise ValueError(f"snapshot {n} is no longer held (taken: {self._n})")
         self._n = min(self._n, n)
         self.next_t = self._t[(n - 1) % _CAP] + self.grid if self._n else -math.inf
+        self._ratio = float(self._worst[(self._n - 1) % _CAP, 0]) if self._n else 0.0
 
     def ratio(self) -> float:
         """The largest ``|z|`` over its bound so far (above 1: the check failed)."""
-        return float(self._worst[(self._n - 1) % _CAP, 0]) if self._n else 0.0
+        return self._ratio
 
     def findings(self) -> list[Finding]:
         """A ``calibration_drift`` finding when a comparison exceeded its bound."""

@@ -640,6 +640,8 @@ class FilterMonitor:
         return [f for s, st in self.live.items() for f in _outage(s, st, *span, reject_run)]
 
     def _recovery_findings(self) -> list[Finding]:
+        if not self.recoveries:  # the usual answer, asked at every health() call
+            return []
         out = []
         for s in sorted({r.stream for r in self.recoveries}):
             rs = [r for r in self.recoveries if r.stream == s]

@@ -10,6 +10,7 @@ from ground truth.
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -216,16 +217,23 @@ def gyro_wheel_findings(t, dtheta_odo, var_odo, gyro_t, gyro_wz, gyro_sigma, opt
 COLLAPSE_RATIO = 0.1
 
 
-def _accepted_times(mon, streams) -> np.ndarray:
-    """Times (s) of the accepted readings of ``streams`` in the monitor's record (stream by
-    stream, each in arrival order); copies of the record's arrays, which keep growing (a
-    numpy view would lock them), in a few microseconds where a Python loop over a 20 Hz
-    gyro's kept readings took 50."""
-    parts = [
-        np.array(mon._t[s], dtype=float)[np.array(mon._ok[s], dtype=np.int8) == 1]
-        for s in streams
-        if s in mon._t
-    ]
+def _accepted_times(mon, streams, after: float = -math.inf) -> np.ndarray:
+    """Times (s) after ``after`` of the accepted readings of ``streams`` in the monitor's
+    record (stream by stream, each in time order); copies of the record's arrays, which keep
+    growing (a numpy view would lock them), in a few microseconds where a Python loop over a
+    20 Hz gyro's kept readings took 50.
+
+    Each stream's record is in time order (a late reading replays from its step, cutting the
+    record back first), so the readings after ``after`` are a suffix found by bisection: the
+    live health's pass over its kept poses then copies what they span, not the whole run's
+    record (which grows with the run)."""
+    parts = []
+    for s in streams:
+        if s not in mon._t:
+            continue
+        times = mon._t[s]
+        i = bisect.bisect_right(times, after)
+        parts.append(np.array(times[i:], dtype=float)[np.array(mon._ok[s][i:]) == 1])
     return np.concatenate(parts) if parts else np.empty(0)
 
 
@@ -243,11 +251,10 @@ def _troughs(loc, t, log_v) -> np.ndarray:
     collapses stays low, and its troughs fall with it.
     """
     mon = loc.monitor
-    rel = _accepted_times(
-        mon, [s for s, m in loc.models.items() if hasattr(m, "clones") and m.clones()]
-    )
-    if not rel.size:
-        return log_v
+    streams = [s for s, m in loc.models.items() if hasattr(m, "clones") and m.clones()]
+    rel = _accepted_times(mon, streams, t[0])  # those up to t[0] shift every index alike
+    if not rel.size and not any(1 in mon._ok[s] for s in streams if s in mon._ok):
+        return log_v  # no relative reading in the run: no intervals
     interval = np.searchsorted(np.unique(rel), t, side="right")
     starts = np.flatnonzero(np.r_[True, np.diff(interval) != 0])
     low = np.minimum.reduceat(log_v, starts)
@@ -284,7 +291,8 @@ def collapse_findings(loc, t, P) -> list[Finding]:
         for s, m in loc.models.items()
         if not (m.clones() if hasattr(m, "clones") else {}) and s in mon._t
     ]
-    seg = np.searchsorted(np.sort(_accepted_times(mon, absolute)), t, side="right")
+    # the span of each pose (readings up to t[0] would add the same count to every pose)
+    seg = np.searchsorted(np.sort(_accepted_times(mon, absolute, t[0])), t, side="right")
     v = P[:, 2, 2]
     log_v = np.log(np.minimum(np.fmax(v, 1e-300), 1e300))  # nan and -inf: 1e-300
     offset = seg * 2000.0  # larger than any spread of log_v: a running max per span
