@@ -99,3 +99,28 @@ def test_collapse_check_restarts_at_every_accepted_absolute_reading():
     mon._ok["gps"] = [0]  # rejected: nothing absolute was used
     (f,) = pose_checks.collapse_findings(loc, t, P)
     assert (f.t_start, f.t_end, f.figure) == (3.0, 5.0, pytest.approx(1e-3))
+
+
+@pytest.mark.parametrize("first", [0, 2, 4, 7])
+def test_collapse_over_a_window_reads_only_the_record_after_its_first_pose(first, monkeypatch):
+    # The live pass over the kept poses copies only the readings after the first kept pose
+    # (pose_checks._accepted_times' ``after``): earlier ones add the same count to every
+    # pose's span. The findings equal those from the whole record, for windows that start
+    # before, between and after the readings (the gyro's all before the last window).
+    t = np.arange(10.0)
+    v = np.array([1.0, 2.0, 1e-3, 1e-3, 4.0, 8.0, 1e-4, 1e-4, 2.0, 1e-5])
+    P = np.tile(np.eye(3), (10, 1, 1)) * v[:, None, None]
+    gps = SimpleNamespace(clones=lambda: {})
+    gyro = SimpleNamespace(clones=lambda: {"gyro_theta_ref": 2})
+    mon = SimpleNamespace(
+        _t={"gps": [1.5, 3.5, 5.5, 8.5], "gyro": [0.5, 2.5, 4.5, 6.5]},
+        _ok={"gps": [1, 0, 1, 0], "gyro": [1, 1, 0, 1]},
+    )
+    loc = SimpleNamespace(models={"gps": gps, "gyro": gyro}, monitor=mon)
+    window = pose_checks.collapse_findings(loc, t[first:], P[first:])
+    whole = pose_checks._accepted_times
+    monkeypatch.setattr(pose_checks, "_accepted_times", lambda m, s, after=None: whole(m, s))
+    assert window == pose_checks.collapse_findings(loc, t[first:], P[first:])
+    # a fall to report, except in the last window: the gyro's readings are all before it,
+    # so its poses are one interval between gyro readings, whose trough is its lowest pose
+    assert bool(window) == (first < 7)
