@@ -226,3 +226,23 @@ def test_filters_calibrate_two_wheels_a_side(estimator):
     for name, true in (("wheel_radius_ratio", 1.01), ("track_width_scale", 1.05)):
         assert abs(got[name]["value"] - true) < 3 * got[name]["sigma"], (name, got[name])
     assert runs[True][1]["ate_rmse_m"] < 0.5 * runs[False][1]["ate_rmse_m"]
+
+
+@pytest.mark.parametrize("estimator", ["ekf", "ukf", "particle"])
+def test_every_filter_calibrates_a_two_sided_drives_wheel_radius_by_default(estimator):
+    # Issue 25: the odometry's scale is calibrated by default in every back end where an
+    # absolute sensor makes it observable; the particle filter left it out until session 27
+    # (docs/trust.md, "The particle filter calibrates the wheel radius").
+    from odofuse.estimators.localizer import Localizer
+
+    cfg = RunConfig(
+        log="live",
+        robot={"drive": "differential", "wheel_radius": 0.04, "track_width": 0.3},
+        estimator=estimator,
+        sensors={"gps": {"sigma": 1.0}},
+        source="diff.yaml",
+    )
+    loc = Localizer.from_config(cfg, t0=0.0, initial_pose=[0.0, 0.0, 0.0])
+    names = ("wheel_radius_ratio", "track_width_scale", "wheel_radius_scale")
+    assert set(names) <= set(loc.calibration())
+    assert loc.calibration()["wheel_radius_scale"]["sigma"] == pytest.approx(0.02, rel=0.05)

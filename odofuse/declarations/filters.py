@@ -114,7 +114,7 @@ class FilterOptions:
         doc=(
             "estimate the odometry's systematic errors online (increments: ds_scale, "
             "dtheta_scale, dtheta_bias; differential, skid_steer: wheel_radius_ratio, "
-            "track_width_scale); auto: when an absolute sensor is fused"
+            "track_width_scale, wheel_radius_scale); auto: when an absolute sensor is fused"
         ),
         parse=odometry_calibration_mode,
         type_name="auto, true or false",

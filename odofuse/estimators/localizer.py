@@ -723,9 +723,7 @@ def assemble(
     filt = {s: m for s, m in models.items() if gyro is None or s != gyro[0]}
     _one_gyro(filt, config.source)
     # Odometry calibration states (odofuse.estimators.odocal) are laid out after the sensors'.
-    odo = filter_odometry_calibration(
-        motion, opts, f"options.{estimator}", config.source, scale=estimator != "particle"
-    )
+    odo = filter_odometry_calibration(motion, opts, f"options.{estimator}", config.source)
     extra = {} if odo is None else {ODOMETRY_CALIBRATION: odo}
     names, index = state_layout({**filt, **extra})
     filt = {s: (m.bind(index) if hasattr(m, "bind") else m) for s, m in filt.items()}

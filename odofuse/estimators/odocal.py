@@ -44,10 +44,6 @@ DEFAULT_WALK = {
 }
 
 
-#: Two-sided drives: ``E_d, E_b`` and the optional ``wheel_radius_scale``.
-TWO_SIDED = ("differential", "skid_steer")
-
-
 @dataclass(frozen=True)
 class FilterOdometryCalibration:
     """Odometry-calibration states of one filter run.
@@ -134,26 +130,19 @@ def _split_radii(u, E, n: int) -> np.ndarray:
     return u * np.where(right, 2.0 * E / (1.0 + E), 2.0 / (1.0 + E))
 
 
-def filter_odometry_calibration(model, options, key: str, source: str, scale: bool = True):
+def filter_odometry_calibration(model, options, key: str, source: str):
     """The run's :class:`FilterOdometryCalibration`, or None when it is off.
 
     ``options`` are the filter's typed options (``odometry_calibration``,
     ``odometry_calibration_sigma``, ``odometry_calibration_walk``), or dead reckoning's (no
-    walk: the default walk is set and not used). ``scale=False`` leaves a two-sided drive's
-    ``wheel_radius_scale`` out of the default states (the particle filter's: sampled with a 5 %
-    prior it spread 200-1000 particles along the track until precise ranges left one, a
-    nominal skid steer's NEES 609, ``bench_status.py`` seed 3010); sigmas given in the config
-    decide for themselves.
+    walk: the default walk is set and not used). Every filter, the particle filter included,
+    carries a two-sided drive's ``wheel_radius_scale`` by default (docs/filters.md).
     """
     if not getattr(options, "odometry_calibration", False):
         return None
     from odofuse.estimators.graph.calibration import odometry_calibration_for
 
     sig = options.odometry_calibration_sigma
-    if sig is None and not scale and model.drive.name in TWO_SIDED:
-        from odofuse.estimators.graph.calibration import default_sigmas
-
-        sig = default_sigmas(model.drive.name)[:2]
     base = odometry_calibration_for(
         model, True if sig is None else list(sig), f"{key}.odometry_calibration_sigma", source
     )
