@@ -292,6 +292,21 @@ def test_judge_holds_fused_estimators_to_the_smoother_and_dead_reckoning_to_its_
     )
 
 
+def test_run_config_overrides_a_typed_block_of_a_config_read_from_a_file():
+    # bench_trust.py --particles 1000 on Plaza2 (plaza1-particle.yaml, whose options block is
+    # typed) crashed with "'ParticleOptions' object is not iterable" (session 28)
+    from odofuse.config import load_config
+
+    cfg = load_config(ts.ROOT / "configs" / "plaza1-particle.yaml")
+    before = cfg.estimator_options("particle")
+    run = ts.run_config(cfg, "particle", {"particles": 200})
+    after = run.estimator_options("particle")
+    assert after.particles == 200 and before.particles == 1000
+    assert dataclasses.replace(after, particles=before.particles) == before  # the rest kept
+    with pytest.raises(ConfigError, match="particles"):
+        ts.run_config(cfg, "particle", {"particles": 0})
+
+
 def test_localizer_health_is_live():
     from odofuse.estimators.assembly import build
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from odofuse.declarations import estimator_options
 from odofuse.io.log import Stream
 from odofuse.status.cross_check import HOLD_NEES, HOLD_RMSE_RATIO, UNAIDED
 
@@ -217,10 +218,18 @@ def run(
 
 
 def run_config(config, estimator: str, options: dict | None = None, check: bool = True):
-    """``config`` for a run of ``estimator`` (:func:`run`'s ``options`` and ``check``)."""
+    """``config`` for a run of ``estimator`` (:func:`run`'s ``options`` and ``check``).
+
+    ``options`` override the estimator's block, a mapping or, in a config read from a file,
+    its typed options."""
     opts = dict(config.options or {})
     if options:
-        opts[estimator] = {**dict(opts.get(estimator) or {}), **options}
+        block = opts.get(estimator)
+        if dataclasses.is_dataclass(block):  # the overrides validated alone, then merged
+            given = estimator_options(estimator, options, config.source)
+            opts[estimator] = dataclasses.replace(block, **{k: getattr(given, k) for k in options})
+        else:
+            opts[estimator] = {**dict(block or {}), **options}
     if not check:
         opts["cross_check"] = {"smoother": "off"}
     return dataclasses.replace(config, estimator=estimator, options=opts)
