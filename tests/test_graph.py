@@ -639,7 +639,7 @@ def test_plaza1_known_beacons_rmse(plaza1):
 def test_one_plaza_smoother_config_serves_both_runs(log_name):
     # configs/plaza1-smoother.yaml with only log: changed (issue 11). Plaza1: within 1.2x of
     # the hand-written Plaza1-only config. Plaza2 has no hand-tuned reference (tuning on it
-    # would be the one-log pattern again): pinned near its measured 0.226 m, against 6.5 m
+    # would be the one-log pattern again): pinned near its measured 0.226 m, against 4.64 m
     # for the Plaza1-only config there. Position NEES within 0.5-2x its dimension.
     from odofuse.evaluation import metrics
 
