@@ -8,6 +8,9 @@ share of the collection and an idle worker steals from the end of another's, so 
 collected late would run alone at the end of the run (the million-step particle test did: the
 suite took 14 min with its 4 min at the end; longest first, 14 min 31 s: the other slow
 tests then wait in that worker's share). The order is otherwise the files' own.
+
+GTSAM's reference optima (``benchmarks/gtsam_reference.best``, 47 s for all files) are shared
+between the workers through a folder of the run (:func:`pytest_configure`).
 """
 
 from __future__ import annotations
@@ -20,3 +23,25 @@ def _order(item) -> tuple[bool, float]:
 
 def pytest_collection_modifyitems(config, items):
     items.sort(key=_order)
+
+
+def pytest_configure(config):
+    """One folder per test run where ``benchmarks/gtsam_reference.best`` shares GTSAM's
+    reference optima between the xdist workers (set before they start, so they inherit it):
+    a file's reference is then computed once per run, not once per worker that asks."""
+    import os
+    import tempfile
+
+    if hasattr(config, "workerinput"):  # a worker: the controller has set it
+        return
+    folder = tempfile.mkdtemp(prefix="odofuse-gtsam-best-")
+    os.environ["ODOFUSE_GTSAM_BEST_DIR"] = folder
+    config._gtsam_best_dir = folder
+
+
+def pytest_unconfigure(config):
+    import shutil
+
+    folder = getattr(config, "_gtsam_best_dir", None)
+    if folder:
+        shutil.rmtree(folder, ignore_errors=True)
