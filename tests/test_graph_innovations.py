@@ -1,4 +1,4 @@
-"""The fixed-lag smoother's predicted innovations (issue 31: drift evidence of its own).
+"""The incremental graphs' predicted innovations (issue 31: drift evidence of their own).
 
 ``predicted_nis`` must be the Kalman filter's NIS of the same prediction: checked on a pose
 chain where the textbook formulas give it in closed form, then through ``odofuse run`` on a
@@ -13,7 +13,7 @@ import pytest
 
 gtsam = pytest.importorskip("gtsam")
 
-from odofuse.estimators.graph.innovations import predicted_nis  # noqa: E402
+from odofuse.estimators.graph.innovations import current_values, predicted_nis  # noqa: E402
 
 X0, X1, L9 = gtsam.symbol("x", 0), gtsam.symbol("x", 1), gtsam.symbol("l", 9)
 
@@ -65,6 +65,63 @@ def test_predicted_nis_is_the_kalman_filters_on_a_pose_chain():
     want = float(y @ np.linalg.solve(S, y))
     got = predicted_nis(isam, kf, new, {1: row}, {X0: 3, X1: 3})
     assert got[1] == pytest.approx(want, rel=1e-9)
+    # iSAM2's read of the old keys alone (no whole-estimate query) gives the same prediction
+    got = predicted_nis(isam, kf, new, {1: row}, {X0: 3, X1: 3}, current_values)
+    assert got[1] == pytest.approx(want, rel=1e-9)
+
+
+def test_current_values_is_isam2s_best_estimate_at_those_keys():
+    """iSAM2 with poses, a calibration vector (``c``) and a point (``l``), updated pose by pose
+    with relinearisation: ``current_values`` (linearisation point plus each key's marginal
+    mean) equals ``calculateBestEstimate`` (a full back-substitution) at every key."""
+    rng = np.random.default_rng(3)
+    C0 = gtsam.symbol("c", 0)
+    params = gtsam.ISAM2Params()
+    params.relinearizeSkip = 1
+    isam = gtsam.ISAM2(params)
+    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    g.add(gtsam.PriorFactorPose2(X0, gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    g.add(gtsam.PriorFactorVector(C0, np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)))
+    g.add(
+        gtsam.PriorFactorPoint2(
+            L9, gtsam.Point2(5.0, 2.0), gtsam.noiseModel.Isotropic.Sigma(2, 3.0)
+        )
+    )
+    v.insert(X0, gtsam.Pose2())
+    v.insert(C0, np.zeros(2))
+    v.insert(L9, gtsam.Point2(4.0, 3.0))
+    isam.update(g, v)
+    pose = gtsam.Pose2()
+    for i in range(1, 30):
+        xi = gtsam.symbol("x", i)
+        step = gtsam.Pose2(1.0, 0.0, 0.2)
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        noise = gtsam.noiseModel.Isotropic.Sigma(3, 0.05)
+        g.add(gtsam.BetweenFactorPose2(gtsam.symbol("x", i - 1), xi, step, noise))
+        g.add(
+            gtsam.RangeFactor2D(
+                xi, L9, 4.0 + rng.normal(0, 0.1), gtsam.noiseModel.Isotropic.Sigma(1, 0.1)
+            )
+        )
+        # a calibration vector read again at each step
+        g.add(
+            gtsam.PriorFactorVector(
+                C0, rng.normal(0.3, 0.1, 2), gtsam.noiseModel.Isotropic.Sigma(2, 0.5)
+            )
+        )
+        pose = pose.compose(step)
+        v.insert(xi, pose.retract(rng.normal(0, 0.05, 3)))
+        isam.update(g, v)
+        keys = [gtsam.symbol("x", i - 1), xi, C0, L9]
+        got, best = current_values(isam, keys), isam.calculateBestEstimate()
+        for k in keys:
+            if gtsam.Symbol(k).chr() == ord("x"):
+                a, b = got.atPose2(k), best.atPose2(k)
+                assert np.allclose([a.x(), a.y(), a.theta()], [b.x(), b.y(), b.theta()], atol=1e-9)
+            elif k == C0:
+                assert np.allclose(got.atVector(k), best.atVector(k), atol=1e-9)
+            else:
+                assert np.allclose(got.atPoint2(k), best.atPoint2(k), atol=1e-9)
 
 
 def test_a_row_that_nothing_predicts_is_not_tested():
@@ -99,12 +156,15 @@ def lap(tmp_path_factory):
     return clean, root / "fault" / "config.yaml"
 
 
-def test_fixed_lag_gps_innovations_are_chi_square_on_a_matching_log(lap, tmp_path):
+@pytest.mark.parametrize("estimator", ["fixed_lag", "isam2"])
+def test_incremental_graph_gps_innovations_are_chi_square_on_a_matching_log(
+    lap, estimator, tmp_path
+):
     from test_cross_check_skipped import _run
 
     from odofuse import chi2
 
-    m = _run(lap[0], "fixed_lag", tmp_path / "out")
+    m = _run(lap[0], estimator, tmp_path / "out")
     nis = m["extra"]["nis"]
     assert set(nis) == {"gps"}  # the gyro is a factor between poses, not a tested row
     n = nis["gps"]["readings"] - nis["gps"]["beyond_gate"]
@@ -116,16 +176,40 @@ def test_fixed_lag_gps_innovations_are_chi_square_on_a_matching_log(lap, tmp_pat
     assert m["alpha"]["total"] <= m["alpha"]["alpha_run"]
 
 
-def test_fixed_lag_says_a_gps_offset_itself_when_the_second_opinion_cannot(lap, tmp_path):
+@pytest.mark.parametrize("estimator", ["fixed_lag", "isam2"])
+def test_incremental_graph_says_a_gps_offset_itself_when_the_second_opinion_cannot(
+    lap, estimator, tmp_path
+):
     """Issue 31: fixed-lag's status rested on the second opinion alone (``ok`` at NEES 8-17
-    when it was skipped). With the filters' NIS checks on its own innovations, a skip is a note
-    and the GPS fault degrades the run through fixed-lag's own findings."""
+    when it was skipped), and iSAM2's on the skip rule. With the filters' NIS checks on their
+    own innovations, a skip is a note and the GPS fault degrades the run through the
+    estimator's own findings."""
     from test_cross_check_skipped import _run
 
-    m = _run(lap[1], "fixed_lag", tmp_path / "out")
+    m = _run(lap[1], estimator, tmp_path / "out")
     assert m["status"] == "degraded"
     own = {f["check"] for f in m["findings"] if f["degrades"] and f.get("sensor") == "gps"}
     assert own & {"nis", "nis_run", "rejection_run"}, m["warnings"]
     (skip,) = [f for f in m["findings"] if f["check"] == "cross_check_skipped"]
     assert not skip["degrades"] and "rests on the run's own checks" in skip["message"]
-    assert "warning: fixed_lag: [nis" in m["_stdout"]
+    assert f"warning: {estimator}: [nis" in m["_stdout"]
+
+
+def test_current_values_reads_the_whole_estimate_where_a_marginal_is_indeterminate():
+    """GTSAM's Cholesky can find a key's marginal indeterminate (a calibration vector beside
+    pinned landmarks, at the start of Plaza1): then the whole estimate is read, never a
+    traceback and never a row left without its prediction."""
+    isam, kf, new, pred = _chain(
+        np.eye(3) * 0.01, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), np.eye(3) * 1e-3
+    )
+
+    class Indeterminate:
+        def __getattr__(self, name):
+            return getattr(isam, name)
+
+        def marginalFactor(self, key):
+            raise RuntimeError("Indeterminate linear system detected")
+
+    got = current_values(Indeterminate(), [X0])
+    assert got.keys() == isam.calculateEstimate().keys()
+    assert got.atPose2(X0).equals(isam.calculateEstimate().atPose2(X0), 1e-12)

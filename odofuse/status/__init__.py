@@ -13,7 +13,7 @@ The modules, by role (lowest import layer first; ``tests/test_layering.py``):
   trajectory;
 * :mod:`~odofuse.status.monitors`: the streaming innovation checks (NIS windows with
   persistence and hysteresis, the run's NIS, rejection runs, outages, minimal detectable
-  errors) of the filters, the fixed-lag smoother and the live ``Localizer.health()``;
+  errors) of the filters, the fixed-lag smoother, iSAM2 and the live ``Localizer.health()``;
 * :mod:`~odofuse.status.pose_checks`: the checks of a filter's track (covariance conditioning
   and growth, collapse, gyro-bias learning, dead reckoning's gyro-vs-wheels test);
 * :mod:`~odofuse.status.latency`: the time-stamp test on a smoother's residuals;
@@ -74,7 +74,8 @@ CHECKS: tuple[Check, ...] = (
     Check(
         "nis",
         ("status/monitors.py",),
-        f"{_FILTERS}; fixed-lag (its predicted innovations, estimators/graph/innovations.py)",
+        f"{_FILTERS}; fixed-lag and iSAM2 (their predicted innovations, "
+        "estimators/graph/innovations.py)",
         "mean NIS over nis_window accepted readings against its chi-square band, alpha spent "
         "over the run's windows, health_persist windows in a row (below the band: a note)",
         "nis_alpha per fused stream (1e-3)",
@@ -159,7 +160,7 @@ CHECKS: tuple[Check, ...] = (
     Check(
         "variance_factor",
         ("status/cross_check.py",),
-        "batch smoother (own residuals); filters and fixed-lag take the smoother's",
+        "batch smoother (own residuals); filters, fixed-lag and iSAM2 take the smoother's",
         "global variance factor v^T v / (m - n) above its chi-square band (Koch's test)",
         "the reference_variance share (the smoother: half of what is left)",
         ("variance_factor", "reference_variance"),
@@ -169,7 +170,7 @@ CHECKS: tuple[Check, ...] = (
     Check(
         "rejection_run",
         ("status/monitors.py",),
-        f"{_FILTERS}; fixed-lag",
+        f"{_FILTERS}; fixed-lag, iSAM2",
         "reject_run consecutive readings beyond the sensor's gate",
         f"{_NOT} ((1 - gate)^5 = 1e-15 per reading)",
         (),

@@ -72,12 +72,16 @@ ALPHA = 0.05
 REFERENCE_SIGMA_RATIO = 2.0
 #: Estimators whose in-run checks see a drift their covariance does not cover: the filters'
 #: NIS windows test each absolute sensor's innovations against the *predicted* covariance
-#: (docs/trust.md, "The promise"), and so do the fixed-lag smoother's
+#: (docs/trust.md, "The promise"), and so do the fixed-lag smoother's and iSAM2's
 #: (:mod:`odofuse.estimators.graph.innovations`). Dead reckoning has no absolute sensor; the
-#: batch smoother's and iSAM2's residual checks test residuals against the sensor noise alone,
-#: blind to an overconfident pose covariance. For every other estimator a second opinion that
-#: could not judge degrades.
-DRIFT_EVIDENCE = frozenset({"ekf", "ukf", "particle", "fixed_lag"})
+#: batch smoother's residual checks test residuals against the sensor noise alone, blind to
+#: an overconfident pose covariance. For every other estimator a second opinion that could
+#: not judge degrades.
+DRIFT_EVIDENCE = frozenset({"ekf", "ukf", "particle", "fixed_lag", "isam2"})
+#: The incremental graph estimators, whose NIS checks run at :data:`NIS_OPTIONS
+#: <odofuse.estimators.graph.innovations.NIS_OPTIONS>` on their sensor rows (not the gyro's, a
+#: factor between poses).
+GRAPH_NIS = frozenset({"fixed_lag", "isam2"})
 #: Estimators without a calibration drift check of their own that carry an EKF's, offline
 #: (:func:`companion_findings`): the batch smoother's, iSAM2's and fixed-lag's calibration
 #: estimates are not martingales (they revisit past linearisations; docs/trust.md, "iSAM2 was
@@ -463,10 +467,11 @@ def alpha_budget(config, log) -> dict:
     fused = [str(n) for n in (config.sensors or {}) if n in streams and len(streams[n])]
     checks: dict[str, float] = {}
     if est in DRIFT_EVIDENCE:
-        # the fixed-lag smoother tests its sensor rows (not the gyro, a factor between poses)
+        # fixed-lag and iSAM2 test their sensor rows (not the gyro, a factor between poses)
         # at the filters' defaults
-        nis_opts = NIS_OPTIONS if est == "fixed_lag" else config.estimator_options(est)
-        tested = [n for n in fused if est != "fixed_lag" or sensor_kind(config, n) != "gyro"]
+        graph = est in GRAPH_NIS
+        nis_opts = NIS_OPTIONS if graph else config.estimator_options(est)
+        tested = [n for n in fused if not graph or sensor_kind(config, n) != "gyro"]
         nis = float(nis_opts.nis_alpha)
         checks.update({f"nis:{n}": nis for n in sorted(tested)})
         checks.update({f"nis_run:{n}": nis for n in sorted(tested)})

@@ -1,4 +1,4 @@
-"""Predicted innovations of an incremental graph: the filters' NIS, for the fixed-lag smoother.
+"""Predicted innovations of an incremental graph: the filters' NIS, for fixed-lag and iSAM2.
 
 Before keyframe ``i``'s factors go into the smoother, each of its sensor rows is tested
 against the prediction that everything before it makes: the smoother's joint marginal of the
@@ -22,9 +22,10 @@ import numpy as np
 
 from odofuse.declarations import FilterOptions
 
-#: The fixed-lag smoother's NIS checks run at the filters' defaults (window, ``nis_alpha``,
-#: persistence, hysteresis, ``reject_run``), without recovery: its robust loss already bounds
-#: a gross row's pull. ``cross_check.alpha_budget`` counts them at this ``nis_alpha``.
+#: The fixed-lag smoother's and iSAM2's NIS checks run at the filters' defaults (window,
+#: ``nis_alpha``, persistence, hysteresis, ``reject_run``), without recovery: their robust
+#: loss already bounds a gross row's pull. ``cross_check.alpha_budget`` counts them at this
+#: ``nis_alpha``.
 NIS_OPTIONS = dataclasses.replace(FilterOptions(), recovery=False)
 
 
@@ -40,7 +41,38 @@ def _jacobian(lin, index: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
     return out, np.asarray(b, dtype=float)
 
 
-def predicted_nis(isam, graph, new_values, rows: dict, dims: dict) -> dict[int, float]:
+def current_values(isam, keys):
+    """iSAM2's current estimate of ``keys`` (``gtsam.Values``) without bringing its whole
+    delta up to date, as ``calculateEstimate`` does at O(n) a call (``tests/test_graph.py``):
+    each key's linearisation point moved by the mean of its marginal (``marginalFactor``,
+    the solution of iSAM2's linear system at that key), as
+    :func:`odofuse.estimators.graph.isam2._newest_estimate` reads the newest pose: iSAM2's
+    ``calculateBestEstimate`` at those keys. Keys are poses ``x``, calibration vectors ``c``,
+    ``o``, ``w`` or points (:mod:`odofuse.estimators.graph.keys`). Where a key's marginal is
+    indeterminate for GTSAM's Cholesky (a calibration vector before the readings fix it,
+    beside landmarks pinned at 1e-6 m: 6 of 3,526 reads on Plaza1, all at the start), the
+    whole estimate (``calculateEstimate``) is returned instead."""
+    import gtsam
+
+    lin = isam.getLinearizationPoint()
+    none = gtsam.VectorValues()
+    out = gtsam.Values()
+    for k in keys:
+        try:
+            step = isam.marginalFactor(k).solve(none).at(k)
+        except RuntimeError:  # indeterminate for Cholesky: the whole estimate, once
+            return isam.calculateEstimate()
+        kind = gtsam.Symbol(k).chr()
+        if kind == ord("x"):
+            out.insert(k, lin.atPose2(k).retract(step))
+        elif kind in (ord("c"), ord("o"), ord("w")):
+            out.insert(k, lin.atVector(k) + step)
+        else:
+            out.insert(k, gtsam.Point2(*(np.asarray(lin.atPoint2(k)) + step)))
+    return out
+
+
+def predicted_nis(isam, graph, new_values, rows: dict, dims: dict, read=None) -> dict[int, float]:
     """NIS of one keyframe's sensor factors against the smoother's prediction.
 
     Parameters
@@ -57,6 +89,9 @@ def predicted_nis(isam, graph, new_values, rows: dict, dims: dict) -> dict[int, 
         prediction.
     dims : dict
         Key -> tangent dimension of every variable of ``graph``.
+    read : callable, optional
+        ``read(isam, keys)``: the estimate of the old ``keys`` (:func:`current_values` for
+        iSAM2); None reads ``isam.calculateEstimate()`` (the fixed-lag window's, bounded).
 
     Returns
     -------
@@ -75,7 +110,7 @@ def predicted_nis(isam, graph, new_values, rows: dict, dims: dict) -> dict[int, 
     for k in old + [k for k in keys if k in new]:
         index[k] = (n, int(dims[k]))
         n += int(dims[k])
-    values = isam.calculateEstimate()
+    values = isam.calculateEstimate() if read is None else read(isam, old)
     values.insert(new_values)
     info = np.zeros((n, n))
     eta = np.zeros(n)
@@ -111,10 +146,10 @@ def monitor(problem):
     return FilterMonitor(NIS_OPTIONS, problem.models)
 
 
-def observe(mon, isam, fac, graph, new_values) -> None:
+def observe(mon, isam, fac, graph, new_values, read=None) -> None:
     """Feed ``mon`` the NIS of the sensor rows of the keyframe ``fac`` just made (``graph``,
     ``new_values``; :attr:`Factors.rows`) against ``isam``'s prediction, each accepted when
-    within its stream's gate (as a filter's gate would)."""
+    within its stream's gate (as a filter's gate would); ``read`` as :func:`predicted_nis`."""
     rows, streams = {}, {}
     for pos, meas, f in fac.rows:
         twin = f if meas.stream not in fac.p.robust else fac.with_loss(meas, f, ("none", 0.0))
@@ -122,7 +157,7 @@ def observe(mon, isam, fac, graph, new_values) -> None:
             rows[pos], streams[pos] = twin, meas
     if not rows:
         return
-    for pos, nis in predicted_nis(isam, graph, new_values, rows, fac.dims).items():
+    for pos, nis in predicted_nis(isam, graph, new_values, rows, fac.dims, read).items():
         if not math.isfinite(nis):
             continue
         meas = streams[pos]

@@ -428,11 +428,14 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
     current = gtsam.Pose2(*problem.pose0)
     online = np.empty((len(problem.kt), 3))  # each keyframe's estimate right after its update
     findings: list[Finding] = []
+    monitor = innovations.monitor(problem)  # the filters' NIS checks, as fixed-lag's
     for i in range(len(problem.kt)):
         t_step = _clock()
         if i > 0:
             current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
         g, v = fac.keyframe(i, current)
+        if i > 0 and fac.rows:
+            innovations.observe(monitor, isam, fac, g, v, innovations.current_values)
         graph.push_back(g)
         values.insert(v)
         window.add(graph, values)
@@ -512,6 +515,9 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
         result = _with_poses(window.estimate(isam), online, fac.dims)
     if groups:
         extra["calibration_freeze"] = freeze_info
+    extra["nis"] = innovations.summary(monitor)
+    span = (float(problem.kt[0]), float(problem.kt[-1]))
+    findings += monitor.stream_findings(span, outage=False)  # the graph has its own outage
     return finish(problem, fac, result, covs, "isam2", extra, findings)
 
 
