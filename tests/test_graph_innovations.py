@@ -213,3 +213,27 @@ def test_current_values_reads_the_whole_estimate_where_a_marginal_is_indetermina
     got = current_values(Indeterminate(), [X0])
     assert got.keys() == isam.calculateEstimate().keys()
     assert got.atPose2(X0).equals(isam.calculateEstimate().atPose2(X0), 1e-12)
+
+
+def test_the_alpha_split_counts_isam2s_nis_checks_only_where_they_run():
+    """iSAM2's NIS checks run on the localisation path; iSAM2 SLAM (``slam: true``) has none,
+    so its ``alpha`` lists none (the budget states only checks that can fire)."""
+    from pathlib import Path
+
+    import yaml
+
+    from odofuse.config import config_from_dict
+    from odofuse.io.loader import load_log_for
+    from odofuse.status.cross_check import alpha_budget
+
+    configs = Path(__file__).resolve().parents[1] / "configs"
+    d = yaml.safe_load((configs / "plaza1-slam.yaml").read_text(encoding="utf-8"))
+    d["estimator"] = "isam2"
+    d["options"]["isam2"] = d["options"].pop("smoother")  # slam: true
+    slam = config_from_dict(d, "slam.yaml")
+    log = load_log_for(slam)
+    assert slam.estimator_options("isam2").slam
+    assert not [c for c in alpha_budget(slam, log)["checks"] if c.startswith("nis")]
+    d["options"]["isam2"]["slam"] = False
+    checks = alpha_budget(config_from_dict(d, "local.yaml"), log)["checks"]
+    assert checks["nis:ranges"] == checks["nis_run:ranges"] == 1e-3
