@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from odofuse.declarations import FilterOptions
+from odofuse.estimators.graph.keys import is_vector
 
 #: The fixed-lag smoother's and iSAM2's NIS checks run at the filters' defaults (window,
 #: ``nis_alpha``, persistence, hysteresis, ``reject_run``), without recovery: their robust
@@ -62,10 +63,9 @@ def current_values(isam, keys):
             step = isam.marginalFactor(k).solve(none).at(k)
         except RuntimeError:  # indeterminate for Cholesky: the whole estimate, once
             return isam.calculateEstimate()
-        kind = gtsam.Symbol(k).chr()
-        if kind == ord("x"):
+        if gtsam.Symbol(k).chr() == ord("x"):
             out.insert(k, lin.atPose2(k).retract(step))
-        elif kind in (ord("c"), ord("o"), ord("w")):
+        elif is_vector(k):
             out.insert(k, lin.atVector(k) + step)
         else:
             out.insert(k, gtsam.Point2(*(np.asarray(lin.atPoint2(k)) + step)))

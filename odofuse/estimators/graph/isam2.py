@@ -22,7 +22,7 @@ from odofuse.estimators.graph import innovations
 from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.isam2_slam import cholesky_suits, incremental_slam
 from odofuse.estimators.graph.isam2_window import KeyframeWindow
-from odofuse.estimators.graph.keys import X, model_kind
+from odofuse.estimators.graph.keys import X, is_vector, model_kind
 from odofuse.estimators.graph.problem import GraphProblem, build_problem, convex_problem
 from odofuse.estimators.graph.solvers import (
     finish,
@@ -82,8 +82,7 @@ def _with_poses(est, poses: np.ndarray, keys):
     for key in keys:
         if gtsam.Symbol(key).chr() != ord("x") and est.exists(key):
             # calibration vectors (c<n>, o0) and landmark / beacon points (l<id>, b<n>)
-            is_vector = gtsam.Symbol(key).chr() in (ord("c"), ord("o"), ord("w"))
-            out.insert(key, est.atVector(key) if is_vector else est.atPoint2(key))
+            out.insert(key, est.atVector(key) if is_vector(key) else est.atPoint2(key))
     for i in range(len(poses)):
         out.insert(X(i), gtsam.Pose2(*poses[i]))
     return out

@@ -44,6 +44,14 @@ def W(n: int, j: int) -> int:
     return gtsam.symbol("w", (int(n) << 32) | int(j))
 
 
+def is_vector(key: int) -> bool:
+    """Whether ``key`` is a calibration vector (``c``, ``w`` or ``o``: ``gtsam.Values.atVector``);
+    the other keys are poses (``x``) and points (``l``, ``b``)."""
+    import gtsam
+
+    return gtsam.Symbol(key).chr() in (ord("c"), ord("o"), ord("w"))
+
+
 def model_kind(model) -> str:
     """The measurement model's class name (``"BeaconRange"``, ``"GyroYawRate"``, ...)."""
     return type(model).__name__
