@@ -771,7 +771,7 @@ def test_newest_estimate_equals_calculate_estimate(threshold, skip):
     options = {"relinearize_threshold": threshold, "relinearize_skip": skip}
     problem = graph.build_problem(log, _config("isam2", sensors, options), "isam2")
     fac = factors.Factors(problem)
-    isam = gtsam.ISAM2(isam2._isam2_params(problem.options))
+    isam = gtsam.ISAM2(isam2._isam2_params(problem))
     new_factors, new_values = fac.static()
     current, worst = gtsam.Pose2(*problem.pose0), []
     for i in range(len(problem.kt)):

@@ -241,11 +241,12 @@ def angle_states(models) -> np.ndarray:
 
 
 def sensor_kind(config, name) -> str | None:
-    """The model kind of the config's sensor ``name``: its ``model``, else its name's default
-    (:func:`~odofuse.declarations.stream_kind`)."""
+    """The model kind of the config's sensor ``name``: its ``model``, else its block's kind
+    (``loop_closures``), else its name's default (:func:`~odofuse.declarations.stream_kind`)."""
     from odofuse.declarations import stream_kind
 
-    return getattr(config.sensors[name], "model", None) or stream_kind(str(name))
+    block = config.sensors[name]
+    return getattr(block, "model", None) or getattr(block, "kind", None) or stream_kind(str(name))
 
 
 def absolute_streams(config, log) -> list[str]:

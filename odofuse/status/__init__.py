@@ -74,8 +74,8 @@ CHECKS: tuple[Check, ...] = (
     Check(
         "nis",
         ("status/monitors.py",),
-        f"{_FILTERS}; fixed-lag and iSAM2 (their predicted innovations, "
-        "estimators/graph/innovations.py)",
+        f"{_FILTERS}; fixed-lag and iSAM2 (their predicted innovations, with slam: true the "
+        "re-sightings of landmarks already mapped; estimators/graph/innovations.py)",
         "mean NIS over nis_window accepted readings against its chi-square band, alpha spent "
         "over the run's windows, health_persist windows in a row (below the band: a note)",
         "nis_alpha per fused stream (1e-3)",
@@ -151,7 +151,7 @@ CHECKS: tuple[Check, ...] = (
         ("status/cross_check.py",),
         "the estimators of cross_check_nees",
         "the second opinion could not judge (reason given); degrades only estimators without "
-        "drift evidence of their own (dead reckoning, iSAM2) when the reference failed",
+        "drift evidence of their own (dead reckoning) when the reference failed",
         "the smoother's window and latency shares (reference_status) and the other half "
         "(reference_variance)",
         ("reference_status", "reference_variance"),

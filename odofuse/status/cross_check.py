@@ -80,7 +80,7 @@ REFERENCE_SIGMA_RATIO = 2.0
 DRIFT_EVIDENCE = frozenset({"ekf", "ukf", "particle", "fixed_lag", "isam2"})
 #: The incremental graph estimators, whose NIS checks run at :data:`NIS_OPTIONS
 #: <odofuse.estimators.graph.innovations.NIS_OPTIONS>` on their sensor rows (not the gyro's, a
-#: factor between poses); not iSAM2 with ``slam: true``.
+#: factor between poses; with ``slam: true``, iSAM2's re-sightings of landmarks in its graph).
 GRAPH_NIS = frozenset({"fixed_lag", "isam2"})
 #: Estimators without a calibration drift check of their own that carry an EKF's, offline
 #: (:func:`companion_findings`): the batch smoother's, iSAM2's and fixed-lag's calibration
@@ -467,11 +467,12 @@ def alpha_budget(config, log) -> dict:
     fused = [str(n) for n in (config.sensors or {}) if n in streams and len(streams[n])]
     checks: dict[str, float] = {}
     graph = est in GRAPH_NIS
-    if est in DRIFT_EVIDENCE and not (graph and slam_option(config, est)):
-        # fixed-lag and iSAM2 test their sensor rows (not the gyro, a factor between poses)
-        # at the filters' defaults; iSAM2 SLAM (graph.isam2_slam) has no such checks
+    if est in DRIFT_EVIDENCE:
+        # fixed-lag and iSAM2 (also with slam: graph.isam2_slam) test their sensor rows (not
+        # the gyro's or the loop closures', factors between poses) at the filters' defaults
         nis_opts = NIS_OPTIONS if graph else config.estimator_options(est)
-        tested = [n for n in fused if not graph or sensor_kind(config, n) != "gyro"]
+        between = ("gyro", "loop_closures")
+        tested = [n for n in fused if not graph or sensor_kind(config, n) not in between]
         nis = float(nis_opts.nis_alpha)
         checks.update({f"nis:{n}": nis for n in sorted(tested)})
         checks.update({f"nis_run:{n}": nis for n in sorted(tested)})

@@ -39,6 +39,7 @@ import numpy as np
 from odofuse.errors import ConfigError
 from odofuse.estimators.graph import isam2_window
 from odofuse.estimators.graph.factors import Factors
+from odofuse.estimators.graph.innovations import current_values, observe
 from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, model_kind
 from odofuse.estimators.graph.landmarks import from_sighting, multilaterate
@@ -107,7 +108,7 @@ def resighting_loops(landmark_rows: dict[int, list], keep: int) -> list[tuple[in
     return out
 
 
-def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
+def incremental_slam(problem: GraphProblem, params, source: str = "<config>", monitor=None):
     """Run iSAM2 over the keyframes of a SLAM problem (module docstring).
 
     Parameters
@@ -117,6 +118,11 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     params : gtsam.ISAM2Params
     source : str
         Config file, for errors.
+    monitor : FilterMonitor, optional
+        Fed the NIS of each keyframe's sensor rows against iSAM2's prediction before its
+        update (:func:`odofuse.estimators.graph.innovations.observe`, as on the localisation
+        path): the rows of absolute sensors and the sightings of landmarks already in the
+        graph (a landmark's first fix has nothing that predicts it).
 
     Returns
     -------
@@ -174,7 +180,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
     window = KeyframeWindow()
     latency, step = [], []
 
-    def add(meas) -> None:
+    def add(meas):
         f = fac.measurement(meas)
         graph.add(f)
         if fac.final is not None:  # the factor with the configured loss, for the final pass
@@ -183,6 +189,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
             fac.final.add(fac.with_loss(meas, f, loss) if twin else f)
         fac.created.append((meas, f))
         fac.used[meas.stream] = fac.used.get(meas.stream, 0) + 1
+        return f
 
     def pose_now(k: int, i: int, current) -> np.ndarray:
         if k == i and i > 0:  # the current estimate of the previous pose, plus the odometry
@@ -197,11 +204,15 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
         if i > 0:
             current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
         fac.keyframe(i, current, graph, values)
+        known = set(placed)  # landmarks in iSAM2 before this keyframe: their sightings are tested
         for meas in landmark_rows.get(i, ()):
             lid, kind = meas.landmark, model_kind(problem.models[meas.stream])
             key = fac.landmark_keys[lid]
             if lid in placed:
-                add(meas)
+                pos = graph.size()
+                f = add(meas)
+                if lid in known:
+                    fac.rows.append((pos, meas, f))
             elif kind == "LandmarkRangeBearing":
                 lm = from_sighting(pose_now(i, i, current), meas.row["range"], meas.row["bearing"])
                 values.insert(key, gtsam.Point2(*lm))
@@ -225,6 +236,8 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>"):
                     add(r)
             else:
                 held.setdefault(lid, []).append(meas)
+        if monitor is not None and i > 0 and fac.rows:
+            observe(monitor, isam, fac, graph, values, current_values)
         window.add(graph, values)
         window.hold = 0 if unwindowed else hold(i)
         t0 = _clock()
