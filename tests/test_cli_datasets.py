@@ -62,7 +62,7 @@ DEGRADED = {
     # it): 56 windows of 2747-3456 s above their chi-square bound at GTSAM's optimum
     ("victoria_park.txt", "smoother"): "residual_windows",
     # iSAM2 SLAM's predicted landmark sightings (graph.isam2_slam): NIS windows above their
-    # band over 878-2865 s (worst 7.94 of 2), the smoother's finding seen from the other side
+    # band over 878-2865 s (worst 7.93 of 2), the smoother's finding seen from the other side
     ("victoria_park.txt", "isam2"): "nis",
     # Plaza2's ranges at the minimal config's sigma (as its .mat says, "residuals"): mean NIS
     # of the predicted ranges 2.1 of 1 over the whole run (Plaza1's: 0.73); the smoother's

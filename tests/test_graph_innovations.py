@@ -220,7 +220,6 @@ def test_the_alpha_split_counts_isam2s_nis_checks_where_they_run():
     re-sightings of mapped landmarks (``graph.isam2_slam``); loop closures are factors
     between poses, never a tested row, so a pose graph's ``alpha`` lists none for them (the
     budget states only checks that can fire)."""
-    import os
     import sys
     from pathlib import Path
 
@@ -247,7 +246,6 @@ def test_the_alpha_split_counts_isam2s_nis_checks_where_they_run():
 
     path = gtsam.findExampleDataFile("w100.graph")
     cfg = config_from_dict(yaml.safe_load(ref.minimal_config(path, "isam2")), "w100.yaml")
-    assert os.path.exists(path)
     assert not [c for c in alpha_budget(cfg, load_log_for(cfg))["checks"] if "loop" in c]
 
 

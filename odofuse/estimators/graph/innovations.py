@@ -174,3 +174,9 @@ def summary(mon) -> dict:
             mean = st.tsum / st.tn if st.tn else None
             out[s] = {"readings": st.n, "beyond_gate": st.n - st.tn, "mean_nis": mean}
     return out
+
+
+def findings(mon, problem) -> list:
+    """The findings of ``mon``'s streaming checks over ``problem``'s keyframe span, without
+    their outage check (the graph has its own)."""
+    return mon.stream_findings((float(problem.kt[0]), float(problem.kt[-1])), outage=False)

@@ -207,7 +207,8 @@ def _threshold_map(problem: GraphProblem, special: dict, default: float):
 def _isam2_params(problem: GraphProblem, factorization: str = "QR"):
     """iSAM2 parameters. Relinearisation is kept coarse (0.1 m / rad every 10 updates by
     default) because a calibration variable touches every range factor: relinearising it
-    re-runs all their Python callbacks. ``factorization`` QR by default: pinned landmarks
+    re-runs all their Python callbacks; with ``slam`` the unknown landmarks take a finer
+    threshold (:data:`SLAM_LANDMARK_RELINEARIZE`). ``factorization`` QR by default: pinned landmarks
     (sigma 1e-6 m) and 0.1 mm odometry floors make the normal equations too ill-conditioned
     for iSAM2's Cholesky (``"CHOLESKY"`` where
     :func:`~odofuse.estimators.graph.isam2_slam.cholesky_suits` says it may be tried)."""
@@ -411,8 +412,7 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
                 "nis": innovations.summary(monitor),
                 **polished,
             }
-            span = (float(problem.kt[0]), float(problem.kt[-1]))
-            bad = list(bad) + monitor.stream_findings(span, outage=False)
+            bad = list(bad) + innovations.findings(monitor, problem)
             return _slam_result(problem, isam, fac, extra, bad)
         except RuntimeError as exc:
             if cholesky:
@@ -552,8 +552,7 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
     if groups:
         extra["calibration_freeze"] = freeze_info
     extra["nis"] = innovations.summary(monitor)
-    span = (float(problem.kt[0]), float(problem.kt[-1]))
-    findings += monitor.stream_findings(span, outage=False)  # the graph has its own outage
+    findings += innovations.findings(monitor, problem)
     return finish(problem, fac, result, covs, "isam2", extra, findings)
 
 
@@ -595,7 +594,6 @@ def _fixed_lag_params(problem: GraphProblem):
         With a per-variable-type threshold map: ``relinearize_threshold`` for poses
         (``x``) and points (``l``, ``b``), 0 for ``c``, ``w`` and ``o``.
     """
-
     params = _isam2_params(problem)
     r = problem.options.relinearize_threshold
     params.setRelinearizeThreshold(_threshold_map(problem, {"c": 0.0, "w": 0.0, "o": 0.0}, r))
@@ -689,6 +687,5 @@ def run_fixed_lag(log, config) -> EstimateResult:
         "lag_s": lag,
         "nis": innovations.summary(monitor),
     }
-    span = (float(problem.kt[0]), float(problem.kt[-1]))
-    findings += monitor.stream_findings(span, outage=False)  # the graph has its own outage
+    findings += innovations.findings(monitor, problem)
     return finish(problem, fac, final_values, covs, "fixed_lag", extra, findings, stitched=True)
