@@ -206,8 +206,15 @@ def landmark_covariances(fac: Factors, values, cov_of) -> dict:
     return out
 
 
+#: Called as ``on_solution(problem, graph, values, estimator)`` by :func:`finish` with the
+#: graph a run solved and its solution (the batch smoother's, iSAM2's final graph), never for
+#: stitched poses (the fixed-lag smoother's): ``benchmarks/bench_status.py`` sets it to compute
+#: the NEES bound that the solution's joint covariance implies. None in every run of odofuse.
+on_solution = None
+
+
 def finish(
-    problem, fac, values, covs, estimator, extra, findings=(), stitched=False
+    problem, fac, values, covs, estimator, extra, findings=(), stitched=False, graph=None
 ) -> EstimateResult:
     """The :class:`EstimateResult` of a solution, with the graph's own findings.
 
@@ -215,8 +222,11 @@ def finish(
     ``outliers`` (per stream, factors beyond the model's gate) and ``residuals`` (per stream:
     factors, chi-square per dimension, median ratio, fraction beyond 0.999); ``findings``
     (solver, covariance) are followed by :func:`~odofuse.status.graph_checks.graph_findings`
-    (``stitched``: poses from several solutions, the fixed-lag smoother's).
+    (``stitched``: poses from several solutions, the fixed-lag smoother's; ``graph``: the graph
+    ``values`` solves, for :data:`on_solution`).
     """
+    if on_solution is not None and graph is not None and not stitched:
+        on_solution(problem, graph, values, estimator)
     poses = pose_array(values, len(problem.kt))
     extra = {**_extra(problem, fac, values, estimator), **extra}
     residuals = factor_residuals(problem, fac, values)
@@ -403,8 +413,13 @@ def _gtsam_lm(graph, values, opts) -> LMOutcome:
     the damping held or rose, i.e. a larger step did not help. GTSAM's tolerances are set
     to 0: with them, ``iterate()`` itself abandons the lambda search when a trial step
     lowers the error by less than them and returns the values unchanged, a stall that
-    looked like a minimum 34 m away from it. ``reason`` is ``"max_iterations"`` when the
-    cap comes first.
+    looked like a minimum 34 m away from it. GTSAM's lambda search also gives up at its
+    ``lambdaUpperBound`` (1e5 by default) without trying it; the bound is raised to 1e10, as
+    :func:`levenberg_marquardt`'s: at 1e5 an iSAM2 SLAM polish (``bench_slam_status.py
+    --real-wheels``, seed 2019) met a failed search in its second iteration, took it for a
+    minimum and stopped at error 2,516.3, where the next iteration's step (at lambda 1e5)
+    went on to the optimum, 2,411.76. ``reason`` is ``"max_iterations"`` when the cap comes
+    first.
     """
     import gtsam
 
@@ -412,6 +427,7 @@ def _gtsam_lm(graph, values, opts) -> LMOutcome:
     params.setMaxIterations(opts.max_iterations)
     params.setRelativeErrorTol(0.0)  # the rule is applied here; inside ``iterate()`` GTSAM
     params.setAbsoluteErrorTol(0.0)  # gives up its lambda search below these tolerances
+    params.setlambdaUpperBound(1e10)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     err, lam = float(optimizer.error()), float(optimizer.lambda_())
     reason = "max_iterations"
@@ -599,4 +615,4 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
             extra["_latency_scores"] = time_offset_scores(fac, graph, system, log, config, vc)
         except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
             extra["variance_components"] = {"skipped": one_line(exc)}
-    return finish(problem, fac, result, covs, "smoother", extra, findings)
+    return finish(problem, fac, result, covs, "smoother", extra, findings, graph=graph)
