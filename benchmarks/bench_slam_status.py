@@ -18,9 +18,10 @@ config a user writes: geometry, the wheel error model, each sensor's sigma, ``sl
 * **slip_burst**: the same logs without a gyro, the left wheel slipping 40 % over 30-33 s
   (:mod:`bench_status`'s fault): only the landmarks can see it.
 * For every run that says ``ok``: its position NEES against the chi-square 99.9 % bound of
-  its run (:func:`bench_status.nees_bound`). The map frame is the run's own, anchored by
-  the first pose's prior (the config's initial pose, the simulator's start), as its
-  covariance is; ground truth only scores.
+  its run (:func:`bench_status.nees_bound`), and against the bound its solution's joint
+  covariance implies (:func:`bench_status.model_nees_bound`). The map frame is the run's
+  own, anchored by the first pose's prior (the config's initial pose, the simulator's
+  start), as its covariance is; ground truth only scores.
 
 Serial on purpose (the machine's two cores are shared).
 """

@@ -39,6 +39,41 @@ def test_binomial_bound_and_effective_count():
     assert 2.0 < bound < 2.3 and ne > 2500
 
 
+def test_generalised_chi_square_quantile_reference_values():
+    from scipy.stats import chi2
+
+    # equal weights: a scaled chi-square (5 independent positions: chi-square(10) / 5)
+    assert bs.generalised_chi2_ppf(np.full(10, 0.2)) == pytest.approx(chi2.ppf(0.999, 10) / 5)
+    # one position (two equal weights, an exponential) and a single chi-square(1) value
+    assert bs.generalised_chi2_ppf(np.ones(2)) == pytest.approx(chi2.ppf(0.999, 2), rel=1e-7)
+    assert bs.generalised_chi2_ppf(np.array([3.0])) == pytest.approx(3 * chi2.ppf(0.999, 1))
+    many = np.full(400, 0.005)  # 200 independent positions
+    assert bs.generalised_chi2_ppf(many) == pytest.approx(chi2.ppf(0.999, 400) / 200)
+    # unequal weights against a seeded Monte Carlo of 2e6 draws (its 99.9 % point to ~1 %)
+    lam = np.array([1.2, 0.5, 0.2, 0.05, 0.05])
+    rng = np.random.default_rng(7)
+    draws = (rng.standard_normal((2_000_000, lam.size)) ** 2) @ lam
+    assert bs.generalised_chi2_ppf(lam) == pytest.approx(np.quantile(draws, 0.999), rel=0.02)
+
+
+def test_the_model_bound_reads_the_solutions_own_joint_covariance():
+    # a SLAM log of bench_slam_status (seed 2002, nominal): run_log checks that the mean NEES
+    # of the joint covariance's blocks is the run's; the solution says its positions' errors
+    # hold about two independent values (the map's common drift; 9.97 is the 99.9 % point of
+    # a mean of 2.1), which Sokal's window on the NEES series overstated (bound 3.22)
+    import bench_slam_status as bss
+    from scipy.stats import chi2
+
+    from odofuse.estimators.graph import solvers
+
+    log, cfg, _ = bss.make_case(2002)
+    status, mean, bound, _w, _rmse, model = bs.run_log(log, cfg, ["isam2"])["isam2"]
+    assert status == "ok" and solvers.on_solution is None
+    assert 0 < mean < bound < model
+    # between two and three independent positions' bound and a single one's
+    assert chi2.ppf(0.999, 6) / 3 < model < chi2.ppf(0.999, 2)
+
+
 @pytest.fixture(scope="module")
 def table():
     return bs.measure(NOMINAL_SEEDS, ESTIMATORS, FAULTS, FAULT_SEEDS, log_lines=lambda _l: None)
