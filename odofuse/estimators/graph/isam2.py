@@ -538,16 +538,15 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
             )
             extra.update(polished)
             findings.extend(bad)
-            solved = final_graph
             if problem.options.covariances:
                 poses = pose_array(result, len(problem.kt))
                 covs = world_covs(problem, poses, isam.marginalCovariance)
+            solved = final_graph
         except RuntimeError as exc:
             if cholesky:
                 raise _CholeskyFailed from exc
             findings.append(_failure("iSAM2 (final relinearisation)", problem, len(online), exc))
             covs, result = None, _with_poses(window.estimate(isam), online, fac.dims)
-            solved = None
     else:
         failed = int(findings[-1].figure)
         _dead_reckoned_from(problem, online, failed)
@@ -559,16 +558,15 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
     return finish(problem, fac, result, covs, "isam2", extra, findings, graph=solved)
 
 
-def _slam_result(problem, isam, fac, extra, findings, graph, optimum) -> EstimateResult:
-    """The final iSAM2 SLAM estimate: ``optimum`` of ``graph`` (the polish's), with the pose
-    and landmark covariances of ``isam`` (linearised there).
+def _slam_result(problem, isam, fac, extra, findings, graph, result) -> EstimateResult:
+    """The final iSAM2 SLAM estimate: ``result``, the optimum of ``graph`` (the polish's), with
+    the pose and landmark covariances of ``isam`` (linearised there).
 
     Not ``isam.calculateEstimate()``: that is one undamped Gauss-Newton step beyond the
     linearisation point, nothing where the polish converged, but after a polish that stopped
     short (``bench_slam_status.py --real-wheels``, seed 2019, before the LM's lambda bound
     was raised) a step to graph error 4,281.7 from the optimum's 2,516.3, reported with the
     latter as ``final_error``."""
-    result = optimum
     covs = None
     if problem.options.covariances:
         covs = world_covs(problem, pose_array(result, len(problem.kt)), isam.marginalCovariance)

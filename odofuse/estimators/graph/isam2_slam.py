@@ -165,7 +165,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>", mo
         frozen.push_back(key)
     if problem.odometry_calibration is not None:
         frozen.push_back(problem.odometry_key)
-    placed: set[int] = set()
+    placed: dict[int, int] = {}  # landmark id -> the keyframe that placed it in the graph
     # range-only landmarks: no window (module docstring)
     range_only = any(
         model_kind(problem.models[m.stream]) == "BeaconRange"
@@ -204,19 +204,18 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>", mo
         if i > 0:
             current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
         fac.keyframe(i, current, graph, values)
-        known = set(placed)  # landmarks in iSAM2 before this keyframe: their sightings are tested
         for meas in landmark_rows.get(i, ()):
             lid, kind = meas.landmark, model_kind(problem.models[meas.stream])
             key = fac.landmark_keys[lid]
             if lid in placed:
                 pos = graph.size()
                 f = add(meas)
-                if lid in known:
+                if placed[lid] < i:  # in iSAM2 before this keyframe: the sighting is tested
                     fac.rows.append((pos, meas, f))
             elif kind == "LandmarkRangeBearing":
                 lm = from_sighting(pose_now(i, i, current), meas.row["range"], meas.row["bearing"])
                 values.insert(key, gtsam.Point2(*lm))
-                placed.add(lid)
+                placed[lid] = i
                 add(meas)
             elif kind == "BeaconRange":
                 held.setdefault(lid, []).append(meas)
@@ -231,7 +230,7 @@ def incremental_slam(problem: GraphProblem, params, source: str = "<config>", mo
                 if lm is None:
                     continue
                 values.insert(key, gtsam.Point2(*lm))
-                placed.add(lid)
+                placed[lid] = i
                 for r in held.pop(lid):
                     add(r)
             else:
