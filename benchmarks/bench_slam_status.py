@@ -29,6 +29,7 @@ Serial on purpose (the machine's two cores are shared).
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import tempfile
 import time
@@ -122,20 +123,14 @@ def main(argv=None) -> int:
         help="wheels with bench_status's systematic errors, which SLAM does not calibrate",
     )
     args = p.parse_args(argv)
-    table: dict = {"nominal": {e: [] for e in args.estimators}}
-    table["slip_burst"] = {e: [] for e in args.estimators}
     t0 = time.perf_counter()
-    for kind, n in (("nominal", args.seeds), ("slip_burst", args.fault_seeds)):
-        for seed in range(args.first, args.first + n):
-            t1 = time.perf_counter()
-            fault = None if kind == "nominal" else kind
-            log, cfg, what = make_case(seed, fault, args.real_wheels)
-            rows = bs.run_log(log, cfg, args.estimators)
-            for est, row in rows.items():
-                table[kind][est].append((seed, what, *row))
-            brief = " ".join(f"{e}:{r[0][:3]}/{r[1]:.3g}" for e, r in rows.items())
-            print(f"  {kind} seed {seed} {what} ({time.perf_counter() - t1:.0f} s): {brief}")
-            sys.stdout.flush()
+    table = bs.measure(
+        range(args.first, args.first + args.seeds),
+        args.estimators,
+        ["slip_burst"],
+        range(args.first, args.first + args.fault_seeds),
+        case=functools.partial(make_case, real_wheels=args.real_wheels),
+    )
     print(
         f"\n{time.perf_counter() - t0:.0f} s; alpha_run {bs.ALPHA_RUN}, bounds at "
         f"{bs.BOUND_CONFIDENCE:.0%} (binomial), NEES at {bs.NEES_PROBABILITY} (chi-square, n_eff)"

@@ -317,9 +317,9 @@ def generalised_chi2_ppf(lam: np.ndarray, p: float = NEES_PROBABILITY) -> float:
     return float(brentq(lambda x: sf(x) - (1.0 - p), mean, hi, xtol=1e-7 * hi))
 
 
-def model_nees_bound(problem, graph, values, gt) -> tuple[float, float, float]:
-    """``(bound, n_eff, mean NEES)`` of a graph solution's keyframe positions against ``gt``,
-    the bound the solution's own *joint* covariance implies.
+def model_nees_bound(problem, graph, values, gt) -> tuple[float, float]:
+    """``(bound, mean NEES)`` of a graph solution's keyframe positions against ``gt``, the
+    bound the solution's own *joint* covariance implies.
 
     :func:`nees_bound` estimates how many independent values a run's NEES series holds from
     the series itself; a graph solution states it. Under its model the keyframe positions'
@@ -327,18 +327,17 @@ def model_nees_bound(problem, graph, values, gt) -> tuple[float, float, float]:
     matrix of ``graph``, the graph the run solved, at its solution ``values``; world frame),
     so the run's mean NEES ``e^T B e`` (``B`` the blocks ``P_i^-1 / n``, ``P_i`` the
     diagonal blocks of ``S``) is a weighted sum of chi-square(1) values whose weights are the
-    eigenvalues of ``L^T B L`` (``S = L L^T``):
-    :func:`generalised_chi2_ppf` gives its 99.9 % point exactly, and ``n_eff`` is their
-    Satterthwaite count, ``(sum lam)^2 / sum lam^2 / 2`` positions."""
+    eigenvalues of ``L^T B L`` (``S = L L^T``): :func:`generalised_chi2_ppf` gives its
+    99.9 % point exactly."""
     import gtsam
+    from scipy.linalg import block_diag
 
     from odofuse import se2
     from odofuse.estimators.graph.keys import X
     from odofuse.evaluation import associate
     from odofuse.trajectory import Trajectory
 
-    n = len(problem.kt)
-    xs = [X(i) for i in range(n)]
+    xs = [X(i) for i in range(len(problem.kt))]
     order = gtsam.Ordering()
     for k in xs + sorted(set(graph.keys()) - set(xs)):
         order.push_back(k)
@@ -347,24 +346,17 @@ def model_nees_bound(problem, graph, values, gt) -> tuple[float, float, float]:
         [[values.atPose2(k).x(), values.atPose2(k).y(), values.atPose2(k).theta()] for k in xs]
     )
     idx, g = associate(Trajectory(problem.kt.copy(), poses, None), gt)
-    cols = np.ravel([[3 * i, 3 * i + 1] for i in idx])
-    S = np.linalg.inv(info)[np.ix_(cols, cols)]  # body-frame (GTSAM tangent) positions
-    R = se2._frame_jacobian(poses[idx])[:, :2, :2]
     m = len(idx)
-    J = np.zeros((2 * m, 2 * m))
-    for i in range(m):
-        J[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = R[i]
-    S = J @ S @ J.T
+    cols = np.ravel([[3 * i, 3 * i + 1] for i in idx])
+    body = np.linalg.inv(info)[np.ix_(cols, cols)].reshape(m, 2, m, 2)  # GTSAM tangent
+    R = se2.rot(poses[idx, 2])  # body -> world position blocks: R_i S_ij R_j^T
+    S = np.einsum("iab,ibjc,jdc->iajd", R, body, R).reshape(2 * m, 2 * m)
     S = 0.5 * (S + S.T)
-    B = np.zeros_like(S)
-    for i in range(m):
-        b = slice(2 * i, 2 * i + 2)
-        B[b, b] = np.linalg.inv(S[b, b]) / m
+    P_inv = np.linalg.inv(S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :])
+    B = block_diag(*P_inv) / m
     e = (poses[idx, :2] - g[:, :2]).ravel()
     L = np.linalg.cholesky(S)
-    lam = np.linalg.eigvalsh(L.T @ B @ L)
-    n_eff = float(lam.sum() ** 2 / (lam**2).sum() / 2.0)
-    return generalised_chi2_ppf(lam), n_eff, float(e @ B @ e)
+    return generalised_chi2_ppf(np.linalg.eigvalsh(L.T @ B @ L)), float(e @ B @ e)
 
 
 def _keep(solutions: list, problem, graph, values, estimator: str) -> None:
@@ -403,7 +395,7 @@ def run_log(log, cfg, estimators):
         model = math.nan
         mine = [(p, graph, values) for e, p, graph, values in solutions if e == est]
         if mine and v.size and est in ("smoother", "isam2"):
-            model, _n_eff, joint_mean = model_nees_bound(*mine[-1], gt)
+            model, joint_mean = model_nees_bound(*mine[-1], gt)
             if not abs(joint_mean - mean) <= 1e-3 * max(mean, 1.0):  # the same poses and blocks
                 raise AssertionError(f"{est}: joint NEES {joint_mean} != {mean}")
         warn = next(
@@ -415,17 +407,19 @@ def run_log(log, cfg, estimators):
 
 
 # ------------------------------------------------------------------------------- the table
-def measure(seeds, estimators, faults, fault_seeds=None, log_lines=print, base=None):
+def measure(seeds, estimators, faults, fault_seeds=None, log_lines=print, base=None, case=None):
     """Run the benchmark: ``{"nominal": {est: [row...]}, fault: {est: [row...]}}`` (the
     faults on ``fault_seeds``, default ``seeds``); ``base`` :data:`REAL_ROBOT`: the
-    "nominal" logs are the real robot's."""
+    "nominal" logs are the real robot's. ``case(seed, fault)`` makes each ``(log, config,
+    description)``: :func:`make_case` by default (``bench_slam_status.py`` gives its own)."""
+    case = case or make_case
     table: dict = {"nominal": {e: [] for e in estimators}}
     for f in faults:
         table[f] = {e: [] for e in estimators}
     for kind in ("nominal", *faults):
         for seed in seeds if kind == "nominal" or fault_seeds is None else fault_seeds:
             t0 = time.perf_counter()
-            log, cfg, what = make_case(seed, base if kind == "nominal" else kind)
+            log, cfg, what = case(seed, base if kind == "nominal" else kind)
             rows = run_log(log, cfg, estimators)
             for est, row in rows.items():
                 table[kind][est].append((seed, what, *row))
