@@ -249,6 +249,18 @@ def test_the_alpha_split_counts_isam2s_nis_checks_where_they_run():
     assert not [c for c in alpha_budget(cfg, load_log_for(cfg))["checks"] if "loop" in c]
 
 
+def _slam_log(seed: int, fault, folder, real_wheels: bool = False):
+    """A log of ``benchmarks/bench_slam_status.py`` (seed, fault, ``--real-wheels``) written to
+    ``folder`` with the user's config: that config's path."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_slam_status
+
+    return bench_slam_status.write_case(seed, fault, folder, real_wheels)
+
+
 @pytest.mark.parametrize(("seed", "fault"), [(2002, None), (2003, None), (2000, "slip_burst")])
 def test_isam2_slam_tests_its_landmark_resightings(seed, fault, tmp_path):
     """iSAM2 with ``slam: true`` tests each sighting of a landmark already in its graph
@@ -258,17 +270,11 @@ def test_isam2_slam_tests_its_landmark_resightings(seed, fault, tmp_path):
     said ``ok`` at NEES 61 while the batch smoother of the same log said ``degraded``
     (docs/graph.md, "iSAM2 SLAM tests its re-sightings"). The logs and config are
     ``benchmarks/bench_slam_status.py``'s (seeds of its nominal column, 2000-2099)."""
-    import sys
-    from pathlib import Path
-
     from test_cross_check_skipped import _run
 
     from odofuse import chi2
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import bench_slam_status
-
-    cfg = bench_slam_status.write_case(seed, fault, tmp_path / "log")
+    cfg = _slam_log(seed, fault, tmp_path / "log")
     m = _run(cfg, "isam2", tmp_path / "out")
     nis = m["extra"]["nis"]["landmarks"]
     assert m["alpha"]["checks"]["nis:landmarks"] == 1e-3
@@ -292,16 +298,9 @@ def test_isam2_slam_reports_the_optimum_it_polished(tmp_path):
     wrote iSAM2's ``calculateEstimate()`` there, an undamped Gauss-Newton step beyond it (graph
     error 4,281.7, up to 5.8 cm away) while ``final_error`` said 2,516.3 (docs/graph.md, "GTSAM's
     LM, iterated by odofuse")."""
-    import sys
-    from pathlib import Path
-
-    import numpy as np
     from test_cross_check_skipped import _run
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import bench_slam_status
-
-    cfg = bench_slam_status.write_case(2019, None, tmp_path / "log", real_wheels=True)
+    cfg = _slam_log(2019, None, tmp_path / "log", real_wheels=True)
     runs = {e: _run(cfg, e, tmp_path / e) for e in ("isam2", "smoother")}
     errors = {e: m["extra"]["final_error"] for e, m in runs.items()}
     assert errors["isam2"] == pytest.approx(errors["smoother"], rel=1e-9), errors
@@ -314,15 +313,9 @@ def test_the_smoother_does_not_take_a_failed_lambda_search_for_a_minimum(tmp_pat
     found no decrease below its default lambda bound (1e5) in its first iteration, and the
     smoother stopped there at graph error 100,972 (0 iterations), `degraded` by its gyro and
     landmark residuals; with the bound at 1e10 it goes on to 2,305.38 in 9 iterations, `ok`."""
-    import sys
-    from pathlib import Path
-
     from test_cross_check_skipped import _run
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import bench_slam_status
-
-    cfg = bench_slam_status.write_case(2053, None, tmp_path / "log")
+    cfg = _slam_log(2053, None, tmp_path / "log")
     m = _run(cfg, "smoother", tmp_path / "out")
     assert m["extra"]["iterations"] > 0
     assert m["extra"]["final_error"] == pytest.approx(2305.38, rel=1e-5)
