@@ -283,6 +283,59 @@ def test_isam2_result_is_the_optimum_of_its_graph_at_default_relinearisation():
         assert not [f for f in inc.findings if f.check == "solver"]
 
 
+def _chain(tight: float, loose: float, n: int = 30):
+    """A Pose2 chain: a prior of sigma ``tight`` on pose 0, odometry sigmas alternating
+    ``loose`` / ``tight`` (information up to ``tight**-2 / loose**-2`` apart)."""
+    import gtsam
+
+    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    g.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, tight)))
+    v.insert(0, gtsam.Pose2())
+    step = gtsam.Pose2(1.0, 0.0, 0.1)
+    for i in range(1, n):
+        sigma = loose if i % 2 else tight
+        g.add(gtsam.BetweenFactorPose2(i - 1, i, step, gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+        v.insert(i, v.atPose2(i - 1).compose(step))
+    return g, v
+
+
+def _propagated_covariance(tight: float, loose: float, key: int):
+    """The marginal covariance of pose ``key`` of :func:`_chain` (a chain: no loop, so the
+    marginal is the prior propagated through each step, ``Ad(d^-1) P Ad(d^-1)^T + Q``,
+    GTSAM's body-frame tangent), free of the chain's ill-conditioning."""
+    import gtsam
+
+    ad = gtsam.Pose2(1.0, 0.0, 0.1).inverse().AdjointMap()
+    P = np.eye(3) * tight**2
+    for i in range(1, key + 1):
+        P = ad @ P @ ad.T + np.eye(3) * (loose if i % 2 else tight) ** 2
+    return P
+
+
+def test_isam2_covariances_at_the_optimum_with_and_without_gtsams_cholesky():
+    """``solvers.optimum_marginals`` (iSAM2's covariances at its polished optimum): GTSAM's
+    batch ``Marginals`` when its Cholesky elimination works, a fresh QR iSAM2 when it does
+    not (information 1e18 apart: GTSAM's ``Marginals`` raises), both equal to the prior
+    propagated along the chain."""
+    import gtsam
+
+    from odofuse.estimators.graph.solvers import optimum_marginals
+
+    params = gtsam.ISAM2Params()
+    params.setFactorization("QR")
+    for tight, loose, cholesky in ((0.1, 1.0, True), (1e-6, 1e3, False)):
+        g, v = _chain(tight, loose)
+        if not cholesky:
+            with pytest.raises(RuntimeError):
+                gtsam.Marginals(g, v)
+        cov_of = optimum_marginals(g, v, params)
+        for key in (1, 29):
+            ref = _propagated_covariance(tight, loose, key)
+            # QR's rounding at sigmas 1e9 apart: a few 1e-6 of the largest entry
+            tol = 1e-9 if cholesky else 1e-5
+            np.testing.assert_allclose(cov_of(key), ref, rtol=tol, atol=tol * ref.max())
+
+
 def test_isam2_private_beacon_copies_give_the_shared_beacon_optimum():
     """Issue 17: without range calibration iSAM2 sends each range to a private pinned copy
     of its beacon (a shared pinned beacon sits at the root and every update gathers all its

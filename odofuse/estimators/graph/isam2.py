@@ -26,6 +26,7 @@ from odofuse.estimators.graph.problem import GraphProblem, build_problem, convex
 from odofuse.estimators.graph.solvers import (
     finish,
     landmark_covariances,
+    optimum_marginals,
     polish_isam2,
     pose_array,
     world_covs,
@@ -152,16 +153,16 @@ class _PrivateBeaconFactors(Factors):
         return super().measurement(meas, loss)
 
 
-def _polish(isam, params, fac, options, graph=None, values=None):
+def _polish(isam, fac, options, graph=None, values=None):
     """:func:`~odofuse.estimators.graph.solvers.polish_isam2` with what a run reports of it
     (``graph`` / ``values``: the whole graph and a start when iSAM2 no longer holds them).
 
-    Returns ``(isam, values, extra, findings)``: the iSAM2 at the optimum of its own final
-    graph, that optimum, ``{"final_iterations", "final_gauss_newton", "final_error",
-    "final_s"}`` and the ``solver`` findings of the final LM (its iteration cap, no decrease).
+    Returns ``(values, extra, findings)``: the optimum of iSAM2's own final graph,
+    ``{"final_iterations", "final_gauss_newton", "final_error", "final_s"}`` and the
+    ``solver`` findings of the final LM (its iteration cap, no decrease).
     """
     t0 = time.perf_counter()
-    isam, out = polish_isam2(isam, params, fac, options, graph, values)
+    out = polish_isam2(isam, fac, options, graph, values)
     extra = {
         "final_iterations": int(out.iterations),
         "final_gauss_newton": int(out.gauss_newton),  # steps after the LM (polish_isam2)
@@ -169,7 +170,6 @@ def _polish(isam, params, fac, options, graph=None, values=None):
         "final_s": time.perf_counter() - t0,
     }
     return (
-        isam,
         out.values,
         extra,
         solver_findings("final Levenberg-Marquardt", out.reason, out.iterations),
@@ -332,8 +332,8 @@ def run_isam2(log, config) -> EstimateResult:
     forced relinearising updates, batch LM from iSAM2's estimate
     (:func:`~odofuse.estimators.graph.solvers.polish_isam2`, as on the SLAM path;
     ``extra["final_iterations"]``, ``final_gauss_newton``, ``final_error``, ``final_s``, and a
-    ``solver`` finding if it stops at ``max_iterations``), with the covariances of a fresh
-    iSAM2 there. iSAM2 itself
+    ``solver`` finding if it stops at ``max_iterations``), with the covariances of that
+    optimum (:func:`~odofuse.estimators.graph.solvers.optimum_marginals`). iSAM2 itself
     relinearises a variable only once its update exceeds ``relinearize_threshold``, so its
     own last estimate is that of a graph linearised at stale points (on Plaza2 0.257 m
     against 0.232 m at the optimum of the same graph). ``extra["latency"]`` summarises the
@@ -402,8 +402,8 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
             isam, fac, window, lat = incremental_slam(problem, params, source, monitor)
             # with the configured losses (fac.final) when iSAM2 had convex ones online
             final_graph = window.graph if fac.final is None else fac.final
-            isam, optimum, polished, bad = _polish(
-                isam, params, fac, problem.options, final_graph, window.estimate(isam)
+            optimum, polished, bad = _polish(
+                isam, fac, problem.options, final_graph, window.estimate(isam)
             )
             extra = {
                 "latency": _latency_summary(lat[0]),
@@ -413,7 +413,7 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
                 **polished,
             }
             bad = list(bad) + innovations.findings(monitor, problem)
-            return _slam_result(problem, isam, fac, extra, bad, final_graph, optimum)
+            return _slam_result(problem, params, fac, extra, bad, final_graph, optimum)
         except RuntimeError as exc:
             if cholesky:
                 raise _CholeskyFailed from exc
@@ -533,14 +533,14 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
             # result is the optimum of iSAM2's own final graph, batch LM from its estimate
             # (with the configured losses: fac.final, when iSAM2 had convex ones online)
             final_graph = window.graph if fac.final is None else fac.final
-            isam, result, polished, bad = _polish(
-                isam, params, fac, problem.options, final_graph, window.estimate(isam)
+            result, polished, bad = _polish(
+                isam, fac, problem.options, final_graph, window.estimate(isam)
             )
             extra.update(polished)
             findings.extend(bad)
             if problem.options.covariances:
-                poses = pose_array(result, len(problem.kt))
-                covs = world_covs(problem, poses, isam.marginalCovariance)
+                cov_of = optimum_marginals(final_graph, result, params)
+                covs = world_covs(problem, pose_array(result, len(problem.kt)), cov_of)
             solved = final_graph
         except RuntimeError as exc:
             if cholesky:
@@ -558,9 +558,10 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
     return finish(problem, fac, result, covs, "isam2", extra, findings, graph=solved)
 
 
-def _slam_result(problem, isam, fac, extra, findings, graph, result) -> EstimateResult:
+def _slam_result(problem, params, fac, extra, findings, graph, result) -> EstimateResult:
     """The final iSAM2 SLAM estimate: ``result``, the optimum of ``graph`` (the polish's), with
-    the pose and landmark covariances of ``isam`` (linearised there).
+    the pose and landmark covariances there (:func:`~odofuse.estimators.graph.solvers.
+    optimum_marginals`, ``params`` the run's iSAM2 parameters for its fallback).
 
     Not ``isam.calculateEstimate()``: that is one undamped Gauss-Newton step beyond the
     linearisation point, nothing where the polish converged, but after a polish that stopped
@@ -569,8 +570,9 @@ def _slam_result(problem, isam, fac, extra, findings, graph, result) -> Estimate
     latter as ``final_error``."""
     covs = None
     if problem.options.covariances:
-        covs = world_covs(problem, pose_array(result, len(problem.kt)), isam.marginalCovariance)
-        extra["landmark_covariances"] = landmark_covariances(fac, result, isam.marginalCovariance)
+        cov_of = optimum_marginals(graph, result, params)
+        covs = world_covs(problem, pose_array(result, len(problem.kt)), cov_of)
+        extra["landmark_covariances"] = landmark_covariances(fac, result, cov_of)
     return finish(problem, fac, result, covs, "isam2", extra, findings, graph=graph)
 
 
