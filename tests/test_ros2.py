@@ -199,6 +199,24 @@ def test_log_defaults_precedence(bags):
     assert apply_log_defaults(cfg, log)[0].sensors["gps"].robust == ("none", 0.0)
 
 
+def test_log_defaults_applied_twice_change_nothing(bags):
+    # benchmarks/bench_status.py applied them twice to its second opinion's config: a CSV
+    # log's empty ``ros`` had become ``{"message_noise": {}, "defaults": {}}`` after one pass,
+    # so the second took it for a bag and gave its GPS Huber's loss (session 32)
+    from odofuse.teaching import trust_scenarios as ts
+
+    csv_log, csv_cfg = ts.simulated("gps_outage", laps=1)
+    assert "gps" in csv_cfg.sensors and not csv_log.ros
+    for cfg, log in (
+        (load_config_text(bags["mcap"], "ekf"), read_bag(bags["mcap"], TOPICS, JOINTS)),
+        (csv_cfg, csv_log),
+    ):
+        c1, l1 = apply_log_defaults(cfg, log)
+        c2, l2 = apply_log_defaults(c1, l1)
+        assert c2 == c1 and l2.ros == l1.ros and l2.repairs == l1.repairs
+        assert c1.sensors["gps"].robust == (("huber", 1.345) if log.ros else None)
+
+
 def test_increments_take_odometry_covariance(bags):
     log = read_bag(bags["mcap"], {"gyro": "/imu/data"}, JOINTS)
     cfg = dataclasses.replace(
