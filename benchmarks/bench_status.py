@@ -376,9 +376,11 @@ def run_log(log, cfg, estimators):
     ref = smoother_reference(cfg, log)
     gt = trajectory_from_stream(log.groundtruth)
     out = {}
+    # one list for the log: the shared smoother reference is solved inside whichever
+    # estimator's second opinion asks first, and filed under "smoother" for the smoother row
+    solutions: list = []
     for est in estimators:
         run_cfg = dataclasses.replace(cfg, estimator=est)
-        solutions: list = []
         solvers.on_solution = functools.partial(_keep, solutions)
         try:
             result, runtime = estimate(run_cfg, log, ref)
