@@ -313,13 +313,13 @@ def _propagated_covariance(tight: float, loose: float, key: int):
 
 
 def test_isam2_covariances_at_the_optimum_with_and_without_gtsams_cholesky():
-    """``solvers.optimum_marginals`` (iSAM2's covariances at its polished optimum): GTSAM's
+    """``marginals.optimum_marginals`` (iSAM2's covariances at its polished optimum): GTSAM's
     batch ``Marginals`` when its Cholesky elimination works, a fresh QR iSAM2 when it does
     not (information 1e18 apart: GTSAM's ``Marginals`` raises), both equal to the prior
     propagated along the chain."""
     import gtsam
 
-    from odofuse.estimators.graph.solvers import optimum_marginals
+    from odofuse.estimators.graph.marginals import optimum_marginals
 
     params = gtsam.ISAM2Params()
     params.setFactorization("QR")

@@ -22,11 +22,11 @@ from odofuse.estimators.graph.factors import Factors
 from odofuse.estimators.graph.isam2_slam import cholesky_suits, incremental_slam
 from odofuse.estimators.graph.isam2_window import KeyframeWindow
 from odofuse.estimators.graph.keys import X, is_vector, model_kind
+from odofuse.estimators.graph.marginals import optimum_marginals
 from odofuse.estimators.graph.problem import GraphProblem, build_problem, convex_problem
 from odofuse.estimators.graph.solvers import (
     finish,
     landmark_covariances,
-    optimum_marginals,
     polish_isam2,
     pose_array,
     world_covs,
@@ -153,16 +153,16 @@ class _PrivateBeaconFactors(Factors):
         return super().measurement(meas, loss)
 
 
-def _polish(isam, fac, options, graph=None, values=None):
+def _polish(graph, values, fac, options):
     """:func:`~odofuse.estimators.graph.solvers.polish_isam2` with what a run reports of it
-    (``graph`` / ``values``: the whole graph and a start when iSAM2 no longer holds them).
+    (``graph`` / ``values``: iSAM2's whole final graph and its estimate).
 
     Returns ``(values, extra, findings)``: the optimum of iSAM2's own final graph,
     ``{"final_iterations", "final_gauss_newton", "final_error", "final_s"}`` and the
     ``solver`` findings of the final LM (its iteration cap, no decrease).
     """
     t0 = time.perf_counter()
-    out = polish_isam2(isam, fac, options, graph, values)
+    out = polish_isam2(graph, values, fac, options)
     extra = {
         "final_iterations": int(out.iterations),
         "final_gauss_newton": int(out.gauss_newton),  # steps after the LM (polish_isam2)
@@ -333,7 +333,7 @@ def run_isam2(log, config) -> EstimateResult:
     (:func:`~odofuse.estimators.graph.solvers.polish_isam2`, as on the SLAM path;
     ``extra["final_iterations"]``, ``final_gauss_newton``, ``final_error``, ``final_s``, and a
     ``solver`` finding if it stops at ``max_iterations``), with the covariances of that
-    optimum (:func:`~odofuse.estimators.graph.solvers.optimum_marginals`). iSAM2 itself
+    optimum (:func:`~odofuse.estimators.graph.marginals.optimum_marginals`). iSAM2 itself
     relinearises a variable only once its update exceeds ``relinearize_threshold``, so its
     own last estimate is that of a graph linearised at stale points (on Plaza2 0.257 m
     against 0.232 m at the optimum of the same graph). ``extra["latency"]`` summarises the
@@ -403,7 +403,7 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
             # with the configured losses (fac.final) when iSAM2 had convex ones online
             final_graph = window.graph if fac.final is None else fac.final
             optimum, polished, bad = _polish(
-                isam, fac, problem.options, final_graph, window.estimate(isam)
+                final_graph, window.estimate(isam), fac, problem.options
             )
             extra = {
                 "latency": _latency_summary(lat[0]),
@@ -534,7 +534,7 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
             # (with the configured losses: fac.final, when iSAM2 had convex ones online)
             final_graph = window.graph if fac.final is None else fac.final
             result, polished, bad = _polish(
-                isam, fac, problem.options, final_graph, window.estimate(isam)
+                final_graph, window.estimate(isam), fac, problem.options
             )
             extra.update(polished)
             findings.extend(bad)
@@ -560,7 +560,7 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
 
 def _slam_result(problem, params, fac, extra, findings, graph, result) -> EstimateResult:
     """The final iSAM2 SLAM estimate: ``result``, the optimum of ``graph`` (the polish's), with
-    the pose and landmark covariances there (:func:`~odofuse.estimators.graph.solvers.
+    the pose and landmark covariances there (:func:`~odofuse.estimators.graph.marginals.
     optimum_marginals`, ``params`` the run's iSAM2 parameters for its fallback).
 
     Not ``isam.calculateEstimate()``: that is one undamped Gauss-Newton step beyond the

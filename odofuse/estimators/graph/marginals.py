@@ -5,8 +5,8 @@ system (``IndeterminantLinearSystemException``: a gauge-free or numerically sing
 information matrix), the marginals of the same graph linearised with a weak prior on every
 variable, and when that fails too, no covariances. Each fallback is reported as a
 :class:`~odofuse.status.findings.Finding` (:func:`~odofuse.status.graph_checks.marginals_finding`)
-instead of a traceback. The batch smoother uses it (iSAM2 and the fixed-lag smoother read
-their own Bayes tree's marginals).
+instead of a traceback. The batch smoother uses it; iSAM2 takes the marginals at its polished
+optimum from :func:`optimum_marginals` (the fixed-lag smoother reads its own Bayes tree's).
 """
 
 from __future__ import annotations
@@ -50,3 +50,22 @@ def marginal_covariances(graph, values, keys, dims, lin=None) -> tuple[dict, lis
         return {k: marginals.marginalCovariance(k) for k in keys}, [marginals_finding(detail, True)]
     except RuntimeError:
         return {}, [marginals_finding(detail, False)]
+
+
+def optimum_marginals(graph, values, params):
+    """``key -> marginal covariance`` (GTSAM tangent) of ``graph`` linearised at ``values``
+    (an iSAM2 run's polished optimum): GTSAM's batch ``Marginals`` (multifrontal Cholesky,
+    as :func:`marginal_covariances`), or, when that elimination is indeterminate, a fresh
+    ``gtsam.ISAM2(params)`` updated once with the whole graph there (QR unless ``params``
+    say otherwise: the exact covariances, where :func:`marginal_covariances` adds a weak
+    prior). The fresh iSAM2 was the only way until session 32: the same covariances to 3e-8
+    relative on Plaza1's ``.mat``, but 8.5 s of its 33 s ``odofuse run`` against 0.4 s
+    (docs/speed.md)."""
+    import gtsam
+
+    try:
+        return gtsam.Marginals(graph, values).marginalCovariance
+    except RuntimeError:
+        fresh = gtsam.ISAM2(params)
+        fresh.update(graph, values)
+        return fresh.marginalCovariance

@@ -332,19 +332,18 @@ def loop_initial_values(problem: GraphProblem, graph, values):
     return (chordal if start == "chordal" else values), info
 
 
-def polish_isam2(isam, fac: Factors, opts, graph=None, values=None) -> LMOutcome:
-    """Batch LM on an iSAM2 run's whole graph from its estimate.
+def polish_isam2(graph, values, fac: Factors, opts) -> LMOutcome:
+    """Batch LM on an iSAM2 run's whole graph ``graph`` from its estimate ``values``.
 
     iSAM2 relinearises only the variables whose update exceeds ``relinearize_threshold``,
     even in a forced relinearisation, so its final estimate is the solution of a graph
     linearised at stale points: on Victoria Park its poses were 1.3 cm from the optimum
     but its graph error 17.5 % above it (bearing factors at headings up to 0.1 rad old).
     Every path of ``estimator: isam2`` therefore ends with :func:`_solve` (LM, at most
-    ``max_iterations``, ``relative_tolerance``) on ``isam.getFactorsUnsafe()``; its
-    covariances are then those of that optimum (:func:`optimum_marginals`).
-
-    ``graph`` and ``values`` replace ``isam.getFactorsUnsafe()`` and its estimate when iSAM2
-    has marginalised part of the run (odofuse.estimators.graph.isam2_window).
+    ``max_iterations``, ``relative_tolerance``) on every factor given to iSAM2 (the
+    marginalised keyframes at their estimate when they left:
+    odofuse.estimators.graph.isam2_window); its covariances are then those of that optimum
+    (:func:`~odofuse.estimators.graph.marginals.optimum_marginals`).
 
     A graph of built-in factors then takes GTSAM Gauss-Newton steps (QR) while they lower
     the error (:func:`_gauss_newton_steps`). iSAM2's estimate starts the LM so near the
@@ -353,30 +352,10 @@ def polish_isam2(isam, fac: Factors, opts, graph=None, values=None) -> LMOutcome
     after 4 iterations at 2e-9 relative above GTSAM's best graph error but 0.51 m (pose RMS)
     from its poses; three Gauss-Newton steps from iSAM2's estimate reach 3.3 mm.
     """
-    if graph is None:
-        graph, values = isam.getFactorsUnsafe(), isam.calculateEstimate()
     out = _solve(graph, values, fac, opts)
     if not fac.python_factors:
         out = _gauss_newton_steps(graph, out)
     return out
-
-
-def optimum_marginals(graph, values, params):
-    """``key -> marginal covariance`` (GTSAM tangent) of ``graph`` linearised at ``values``
-    (an iSAM2 run's polished optimum): GTSAM's batch ``Marginals`` (multifrontal Cholesky,
-    the batch smoother's), or, when that elimination is indeterminate, a fresh
-    ``gtsam.ISAM2(params)`` updated once with the whole graph there (QR unless ``params``
-    say otherwise). The fresh iSAM2 was the only way until session 32: the same covariances
-    to 3e-8 relative on Plaza1's ``.mat``, but 8.5 s of its 33 s ``odofuse run`` against 0.4 s
-    (docs/speed.md)."""
-    import gtsam
-
-    try:
-        return gtsam.Marginals(graph, values).marginalCovariance
-    except RuntimeError:
-        fresh = gtsam.ISAM2(params)
-        fresh.update(graph, values)
-        return fresh.marginalCovariance
 
 
 def _gauss_newton_steps(graph, out: LMOutcome, max_steps: int = 10) -> LMOutcome:
