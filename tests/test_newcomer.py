@@ -413,7 +413,7 @@ def test_4_every_packaged_config_is_the_repository_one(name):
 @pytest.mark.slow
 def test_4_run_estimator_particle_without_config_uses_its_packaged_config(tmp_path):
     """Before: the dead-reckoning defaults, 8.4 m off, ``degraded`` with 10 warnings;
-    configs/plaza1-particle.yaml gives 0.308 m (README). Now the same figure."""
+    configs/plaza1-particle.yaml gives 0.306 m (README). Now the same figure."""
     proc = odofuse("run", "--estimator", "particle", "-o", tmp_path / "default")
     assert proc.returncode == 0, proc.stderr
     m = json.loads((tmp_path / "default" / "particle" / "metrics.json").read_text())

@@ -178,17 +178,16 @@ def test_figure_eight_filters_recover_within_2x_of_the_smoother():
 #: E_b 1.005 are now estimated) the EKF holds: 0.214 m, NEES 1.34, 4.2x the smoother's
 #: 0.0508 m (its strict xfail passed unexpectedly, so it left this set); with the wheel radius
 #: scale calibrated too (issue 25, prior sigma 0.02) 0.2185 m, NEES 1.03, 3.6x the smoother's
-#: 0.0613 m. Still silent: the particle filter, 0.382 m, NEES 6.5, 6.2x: its covariance
-#: covers its error (``status: ok`` keeps its promise), but it is beyond the judge's
-#: divergence ratio; the bias is learnt from the wheels while the heading runs off inside the
-#: filter's own covariance, where the smoother, which sees the whole log, knows it throughout.
-KNOWN_SILENT = {
-    ("gyro_bias_walk", "particle"),
-}
-#: Runs whose second opinion must advise the smoother (the test asserts it): what the filter
-#: alone missed (:data:`KNOWN_SILENT`), and the gyro_bias_walk EKF, which holds but stays
-#: about 2.1x less accurate than the smoother (posterior probability 0.70 of more than 2x).
-SMOOTHER_ADVISED = KNOWN_SILENT | {("gyro_bias_walk", "ekf")}
+#: 0.0613 m. The particle filter (200 particles) was the last one silent there, 0.382 m, NEES
+#: 6.5, 6.2x: its calibration states' Liu-West kernel (``roughening`` 0.1) let the cloud settle
+#: on seed-dependent values; at the default 0.3 (session 33, chosen without ground truth:
+#: benchmarks/bench_particle_seeds.py) it holds, 0.234 m, NEES 1.11, 3.8x the smoother, and its
+#: strict xfail passed unexpectedly.
+KNOWN_SILENT: set = set()
+#: Runs whose second opinion must advise the smoother (the test asserts it): the gyro_bias_walk
+#: EKF and particle filter, which hold but stay about 1.9x and 2.1x less accurate than the
+#: smoother (posterior probability 0.52 and 0.63 of more than 2x).
+SMOOTHER_ADVISED = {("gyro_bias_walk", "ekf"), ("gyro_bias_walk", "particle")}
 
 _TRUST_ESTIMATORS = (("dead_reckoning", None), ("ekf", None), ("particle", {"particles": 200}))
 _SCENARIO_CACHE: dict = {}
@@ -239,14 +238,11 @@ def test_scenarios_have_no_silent_failure(name, est, opts):
     assert ts.judge(m, ref) != "SILENT", (m["ate_rmse_m"], ref, m["nees_position_mean"])
 
 
-#: Pairs that are silent through ``odofuse run`` too (measured, strict xfails; docs/trust.md
-#: section 6). Since issue 25 the second opinion's accuracy ratio is advice, not a finding:
-#: the gyro_bias_walk particle run of :data:`KNOWN_SILENT` is consistent (departure NEES 3.25
-#: against the bound 9.46: its covariance covers its departure from the smoother) and ``ok``,
-#: with the advice that the smoother is more accurate (the test asserts it, for every run of
-#: :data:`SMOOTHER_ADVISED`: particle about 3.3x, posterior probability 0.95 of more than 2x;
-#: EKF about 2.1x, 0.70). Under the issue-10 rule the second opinion flagged them, with 30
-#: false alarms among 42 holding fused runs (docs/trust.md 6.4).
+#: Pairs that are silent through ``odofuse run`` too (strict xfails; docs/trust.md section 6):
+#: none since session 33. The accuracy ratio is advice, never a finding (issue 25): every run of
+#: :data:`SMOOTHER_ADVISED` holds and gets the advice (the test asserts it). Under the issue-10
+#: rule the second opinion flagged such runs, with 30 false alarms among 42 holding fused runs
+#: (docs/trust.md 6.4).
 KNOWN_SILENT_CHECKED: set = set(KNOWN_SILENT)
 
 
