@@ -410,19 +410,20 @@ def test_4_every_packaged_config_is_the_repository_one(name):
     assert [getattr(a, f) for f in fields] == [getattr(b, f) for f in fields]
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # one particle filter run of Plaza1 (1000 particles) through the CLI: 10-12 s
 def test_4_run_estimator_particle_without_config_uses_its_packaged_config(tmp_path):
     """Before: the dead-reckoning defaults, 8.4 m off, ``degraded`` with 10 warnings;
-    configs/plaza1-particle.yaml gives 0.306 m (README). Now the same figure."""
+    configs/plaza1-particle.yaml gives README's figure (its configs table, measured by
+    benchmarks/bench_configs.py). Now the same figure, printed in the row."""
     proc = odofuse("run", "--estimator", "particle", "-o", tmp_path / "default")
     assert proc.returncode == 0, proc.stderr
     m = json.loads((tmp_path / "default" / "particle" / "metrics.json").read_text())
-    ref = odofuse("run", ROOT / "configs" / "plaza1-particle.yaml", "-o", tmp_path / "config")
-    assert ref.returncode == 0, ref.stderr
-    r = json.loads((tmp_path / "config" / "metrics.json").read_text())
-    assert m["ate_rmse_m"] == r["ate_rmse_m"] and m["status"] == r["status"] == "ok"
+    readme = (ROOT / "README.md").read_text().splitlines()
+    cells = next(line for line in readme if line.startswith("| `plaza1-particle.yaml` |"))
+    figure = cells.split("|")[2].split()[0]  # "0.306 m (1.24)" -> "0.306"
+    assert f"{m['ate_rmse_m']:.3f}" == figure and m["status"] == "ok"
     row = next(line for line in proc.stdout.splitlines() if line.startswith("particle "))
-    assert f"{r['ate_rmse_m']:.3f}" in row
+    assert figure in row
 
 
 def test_4_the_slam_row_is_the_aligned_figure_with_a_note(capsys):
