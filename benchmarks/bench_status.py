@@ -207,6 +207,13 @@ def inject(log, fault: str | None, seed: int = 0):
     return _with_stream(log, Stream(st.name, st.source, t, st.columns, v))
 
 
+def nominal_combination(seed: int) -> tuple[str, str, int]:
+    """``(drive, sensor set, noise level index)`` of nominal seed ``seed`` (module docstring)."""
+    drive = DRIVES[seed % len(DRIVES)]
+    sensors = SENSOR_SETS[(seed // len(DRIVES)) % len(SENSOR_SETS)]
+    return drive, sensors, (seed // (len(DRIVES) * len(SENSOR_SETS))) % len(NOISE)
+
+
 def make_case(seed: int, fault: str | None = None):
     """``(log, config, description)`` of one nominal log (``fault=None``) or one fault log."""
     import yaml
@@ -218,9 +225,7 @@ def make_case(seed: int, fault: str | None = None):
     from odofuse.teaching.simulate import simulate
 
     if fault is None:
-        drive = DRIVES[seed % len(DRIVES)]
-        sensors = SENSOR_SETS[(seed // len(DRIVES)) % len(SENSOR_SETS)]
-        level = (seed // (len(DRIVES) * len(SENSOR_SETS))) % len(NOISE)
+        drive, sensors, level = nominal_combination(seed)
     else:
         sensors = FAULTS[fault][0] if fault in FAULTS else "gyro_gps"  # or REAL_ROBOT
         drive, level = "differential", seed % len(NOISE)
