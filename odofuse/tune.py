@@ -260,6 +260,7 @@ def compiled_innovations(log, config):
     args["sgate"] = np.concatenate([sgate, np.full(S, -1.0)])  # probes: always rejected
     args["acc"] = np.zeros(len(order), dtype=np.int8)
     args["nis"] = np.zeros(len(order))
+    args["wy"] = np.full((len(order), 2), np.nan)
     kern.ekf_offline(*args.values())
     nis, acc = args["nis"], args["acc"]
     if np.any(acc[probe] != 0):
@@ -269,7 +270,8 @@ def compiled_innovations(log, config):
     real = idx[:, 0]
     for si, s in enumerate(streams):  # the monitor would trigger a recovery: Python path
         sel = ms == si
-        if cekf._record(loc.monitor, s, mt[real[sel]], acc[real[sel]] == 1, nis[real[sel]]):
+        r = real[sel]
+        if cekf._record(loc.monitor, s, mt[r], acc[r] == 1, nis[r], args["wy"][r]):
             return None
     for j in range(J):
         d = int(dims[ms[j]])

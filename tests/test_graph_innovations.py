@@ -64,10 +64,12 @@ def test_predicted_nis_is_the_kalman_filters_on_a_pose_chain():
     y = z - np.array([pred.x(), pred.y()])
     want = float(y @ np.linalg.solve(S, y))
     got = predicted_nis(isam, kf, new, {1: row}, {X0: 3, X1: 3})
-    assert got[1] == pytest.approx(want, rel=1e-9)
+    assert got[1][0] == pytest.approx(want, rel=1e-9)
+    # its whitened innovation (the innovation-mean scan's) carries the same NIS
+    assert sum(v * v for v in got[1][1]) == pytest.approx(want, rel=1e-9)
     # iSAM2's read of the old keys alone (no whole-estimate query) gives the same prediction
     got = predicted_nis(isam, kf, new, {1: row}, {X0: 3, X1: 3}, current_values)
-    assert got[1] == pytest.approx(want, rel=1e-9)
+    assert got[1][0] == pytest.approx(want, rel=1e-9)
 
 
 def test_current_values_is_isam2s_best_estimate_at_those_keys():

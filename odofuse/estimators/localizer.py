@@ -168,7 +168,7 @@ class Localizer:
         self._slow = (-math.inf, [], None)  # health(): (pose count, findings, time), track checks
         self._version = 0  # readings applied or dropped: health() recomputes what they change
         # health(): (that version, its findings, failing streams, test and NIS ratios)
-        self._fast = (None, [], [], {}, {})
+        self._fast = (None, [], [], {}, {}, {})
         #: A live particle filter's EKF of the same config, fed the same readings, whose
         #: calibration drift check it carries (:meth:`from_config`); None otherwise.
         self.companion: Localizer | None = None
@@ -452,7 +452,10 @@ class Localizer:
             row["dt"] = tm - t_ref
         self._last_row[stream] = row
         accepted, nis = self.backend.update(model, row)
-        if self.monitor.observe(stream, tm, accepted, nis):
+        white = None
+        if accepted and stream in self.monitor.mean_streams:
+            white = monitors.whiten(*self.backend.last_innovation[:2])
+        if self.monitor.observe(stream, tm, accepted, nis, white):
             accepted, nis = monitors.recover(self, stream, model, row)
         if item[1] == self._watch:
             self._fate = inputs.USED if accepted else inputs.REJECTED
@@ -612,7 +615,7 @@ class Localizer:
         if key != self._fast[0]:  # what only a reading, a slip or a drift snapshot changes
             fast = mon.stream_findings(span, outage=False) + monitors.slip_note(self)
             fast += drift.findings() if drift is not None else []
-            if comp is not None and comp.monitor.drift.ratio() > 1.0:
+            if comp is not None and _companion_saw(comp.monitor):
                 fast += seen_by_ekf(comp.health().findings)
             if mon._priors:
                 fast += mon._calibration_findings(self.calibration())
@@ -620,8 +623,9 @@ class Localizer:
             fast += H.rejection_findings(self.used, self.rejected, span)
             live = mon.live
             ratios = {s: live[s].ratio for s in live}, {s: live[s].wratio for s in live}
-            self._fast = (key, fast, mon.failing(), *ratios)
-        _, fast, failing, test_ratios, nis_ratios = self._fast
+            means = {s: live[s].mratio for s in mon.mean_streams}
+            self._fast = (key, fast, mon.failing(), *ratios, means)
+        _, fast, failing, test_ratios, nis_ratios, mean_ratios = self._fast
         fast = fast + mon.outage_findings(span)
         done, slow, t_slow = self._slow
         if len(self._track) >= done + HEALTH_TRACK_EVERY:
@@ -652,6 +656,7 @@ class Localizer:
             findings=found,
             test_ratios=dict(test_ratios),  # copies: the caller may keep or change them
             nis_ratios=dict(nis_ratios),
+            mean_ratios=dict(mean_ratios),
             t=self.t,
         )
 
@@ -659,6 +664,12 @@ class Localizer:
         span = (float(t[0]), float(t[-1])) if len(t) else (None, None)
         dropped = inputs.dropped_findings(self.used, self.rejected, self.dropped_late, span)
         return monitors.localizer_findings(self, t, P) + dropped
+
+
+def _companion_saw(mon) -> bool:
+    """Whether the companion EKF's monitor ``mon`` has something to tell (its drift check
+    over its bound, or an innovation-mean scan that fired): its ``health()`` is read then."""
+    return mon.drift.ratio() > 1.0 or any(st.mhits for st in mon.live.values())
 
 
 def _past_episodes(findings, t0: float) -> list:

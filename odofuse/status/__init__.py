@@ -93,6 +93,18 @@ CHECKS: tuple[Check, ...] = (
         ("tests/test_live_health.py", "tests/test_graph_innovations.py"),
     ),
     Check(
+        "innovation_mean",
+        ("status/monitors.py",),
+        "the same as nis, for the streams measured against the world (not a gyro)",
+        "|sum|^2 / nis_window of the last nis_window whitened innovations (L^-1 y, S = L L^T), "
+        "chi-square(dim), every nis_window / 4 readings, alpha spent over the evaluations "
+        "(Bonferroni)",
+        "nis_alpha per fused stream (1e-3); the estimators that carry an EKF's drift check "
+        "(COMPANION, not dead reckoning) carry its scans too (options.ekf.nis_alpha each)",
+        ("innovation_mean", "companion_innovation_mean"),
+        ("tests/test_innovation_mean.py",),
+    ),
+    Check(
         "calibration_drift",
         ("status/drift.py",),
         "EKF, UKF, Localizer (live), with calibration states; offline, every other estimator "

@@ -430,7 +430,8 @@ def alpha_budget(config, log) -> dict:
     at most the sum).
 
     The in-run statistical checks keep their declared probabilities: the filters' NIS window
-    test and run NIS test per fused stream (``nis_alpha`` each), dead reckoning's
+    test and run NIS test per fused stream and innovation-mean scan per fused stream other
+    than a gyro (``nis_alpha`` each), dead reckoning's
     gyro-vs-wheels test (``heading_alpha``), the EKF's and UKF's calibration drift test
     (``drift_alpha``, counted whenever they fuse a sensor; the other estimators carry an
     EKF's in the second opinion's scope, :func:`companion_applies`), the batch smoother's residual
@@ -452,7 +453,7 @@ def alpha_budget(config, log) -> dict:
     -------
     dict
         ``alpha_run``; ``checks``: check (``nis:<stream>``, ``nis_run:<stream>``,
-        ``calibration_drift``, ``gyro_wheels``,
+        ``innovation_mean:<stream>``, ``calibration_drift``, ``gyro_wheels``,
         ``residual_windows:<stream>``, ``latency:<stream>``, ``cross_check_nees``,
         ``reference_variance``, ``variance_factor``) ->
         false-alarm probability per run; ``total`` (their sum, at most ``alpha_run``
@@ -476,13 +477,20 @@ def alpha_budget(config, log) -> dict:
         nis = float(nis_opts.nis_alpha)
         checks.update({f"nis:{n}": nis for n in sorted(tested)})
         checks.update({f"nis_run:{n}": nis for n in sorted(tested)})
+        # the innovation-mean scan: the streams measured against the world (not the gyro)
+        mean = [n for n in tested if sensor_kind(config, n) != "gyro"]
+        checks.update({f"innovation_mean:{n}": nis for n in sorted(mean)})
         drift = float(getattr(nis_opts, "drift_alpha", 0.0))
         if drift > 0.0 and fused:  # the EKF's and UKF's calibration drift check
             checks["calibration_drift"] = drift
     elif est == "dead_reckoning" and "gyro" in streams and len(streams["gyro"]):
         checks["gyro_wheels"] = float(config.estimator_options(est).heading_alpha)
     if companion_applies(config, log):  # an EKF's, for the others (COMPANION)
-        checks["calibration_drift"] = float(config.estimator_options("ekf").drift_alpha)
+        ekf = config.estimator_options("ekf")
+        checks["calibration_drift"] = float(ekf.drift_alpha)
+        if est != "dead_reckoning":  # and its innovation-mean scans (drift.seen_by_ekf)
+            means = [n for n in fused if sensor_kind(config, n) != "gyro"]
+            checks.update({f"companion_innovation_mean:{n}": float(ekf.nis_alpha) for n in means})
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
     gyros = [n for n in fused if sensor_kind(config, n) == "gyro"]
     windows = {f"residual_windows:{n}": WINDOW_ALPHA for n in [odo, *gyros] if n}
@@ -734,8 +742,9 @@ def cross_check(config, log, result: EstimateResult, reference=None):
 
 def companion_findings(config, log) -> tuple[Finding, ...]:
     """The ``calibration_drift`` findings of an EKF of ``log`` with ``config`` (its estimator
-    replaced; the EKF's options are the config's ``options.ekf``), each saying that the EKF saw
-    it; () when the EKF has no calibration state to test or finds nothing.
+    replaced; the EKF's options are the config's ``options.ekf``) and its ``innovation_mean``
+    findings, each saying that the EKF saw it (:func:`odofuse.status.drift.seen_by_ekf`); ()
+    when the EKF finds nothing.
 
     The EKF's calibration path is the model's martingale only while the EKF itself is
     consistent: an EKF degraded by any other check (NIS windows, recoveries, rejection runs)
@@ -768,6 +777,8 @@ def _with_companion(config, log, result: EstimateResult, ref: Reference | None =
     log) when given, else those of an EKF of ``config``."""
     drift = ref.drift if ref is not None and ref.drift is not None else None
     found = drift() if drift is not None else companion_findings(config, log)
+    if config.estimator == "dead_reckoning":  # it fuses none of the sensors the scans test
+        found = tuple(f for f in found if f.check != "innovation_mean")
     return dataclasses.replace(result, findings=(*result.findings, *found)) if found else result
 
 

@@ -159,16 +159,21 @@ def drift_of(loc) -> Drift | None:
 
 def seen_by_ekf(found) -> tuple[Finding, ...]:
     """What an EKF of the same log and config, with findings ``found``, tells another
-    estimator about the calibration's drift (the companion of
-    :data:`odofuse.status.cross_check.COMPANION`, offline and live): its ``calibration_drift``
-    findings, each saying the EKF saw them.
+    estimator about the log (the companion of :data:`odofuse.status.cross_check.COMPANION`,
+    offline and live): its ``calibration_drift`` and ``innovation_mean`` findings, each
+    saying the EKF saw them (dead reckoning, which fuses no absolute sensor, takes the first
+    only: ``cross_check._with_companion``). Both say the log departs from the config's model
+    (a calibration that moved more than its walk allows, innovations whose mean is off
+    zero), which the other estimator runs too.
 
-    The EKF's calibration path is the model's martingale only while the EKF itself is
+    The EKF's calibration path and innovations are the model's only while the EKF itself is
     consistent: an EKF that is also degraded by another check (NIS windows, recoveries,
-    rejection runs) cannot judge (its own failure moved the calibration), and says so in a
-    note that does not degrade."""
+    rejection runs) cannot judge (its own failure moved them), and says so in a note that
+    does not degrade."""
+    own = ("calibration_drift", "innovation_mean")
     drift = [f for f in found if f.check == "calibration_drift" and f.degrades]
-    other = sorted({f.check for f in found if f.degrades and f.check != "calibration_drift"})
+    mean = [f for f in found if f.check == "innovation_mean" and f.degrades]
+    other = sorted({f.check for f in found if f.degrades and f.check not in own})
     if drift and other:
         return (
             cannot_judge(
@@ -176,9 +181,11 @@ def seen_by_ekf(found) -> tuple[Finding, ...]:
                 "no evidence about the log"
             ),
         )
+    if other:
+        return ()
     return tuple(
         dataclasses.replace(f, message=f"seen by an EKF of this log and config: {f.message}")
-        for f in drift
+        for f in drift + mean
     )
 
 

@@ -13,10 +13,12 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   covariance conditioning and growth, calibration states that ran to their bounds or
   collapsed, a heading that rested on a gyro bias still being learnt over most of the run);
 * the streaming checks (:func:`advance`: test ratio, NIS windows with persistence and
-  hysteresis, rejection runs, reading times; O(1) per reading) that both
+  hysteresis, the innovation-mean scan, rejection runs, reading times; O(1) per reading)
+  that both
   :meth:`Localizer.health <odofuse.estimators.localizer.Localizer.health>` (a
   :class:`LiveHealth`) and the offline result read, and the minimal detectable errors of
-  every gate and NIS window (:func:`gate_mde`, :func:`window_mde`, :func:`mde_of`);
+  every gate, NIS window and scan (:func:`gate_mde`, :func:`window_mde`, :func:`mean_mde`,
+  :func:`mde_of`);
 * :func:`slip_scale`, the robust (heavy-tailed) odometry rule used when a gyro is present;
 * the track checks it calls live in :mod:`odofuse.status.pose_checks` (covariance
   health, collapse, and dead reckoning's gyro-vs-wheels tell-tale).
@@ -143,6 +145,10 @@ class LiveHealth:
     nis_ratios : dict
         Sensor -> the last complete NIS window's mean over its chi-square bound (above 1
         the window failed; ``nan`` before the first window is complete).
+    mean_ratios : dict
+        Sensor -> the innovation-mean scan's last evaluation over its bound (above 1 the
+        window's mean innovation is off zero; ``nan`` before the first), for the streams
+        measured against the world.
     t : float
         Filter time (s) the answer is for.
     """
@@ -152,6 +158,7 @@ class LiveHealth:
     findings: tuple
     test_ratios: dict
     nis_ratios: dict
+    mean_ratios: dict
     t: float
 
 
@@ -238,6 +245,16 @@ class _Live(NamedTuple):
     long_t1: float = math.nan
     tsum: float = 0.0  # NIS of every accepted reading, summed (the run's NIS test)
     tn: int = 0
+    # The innovation-mean scan (absolute streams; :func:`mean_bound`)
+    mwin: tuple = ()  # the last nis_window accepted readings' (t, whitened innovation)
+    mk: int = 0  # evaluations of the scan
+    mratio: float = math.nan  # the last evaluation's statistic over its bound
+    mhits: int = 0  # evaluations above their bound
+    m_t0: float = math.nan  # first window above its bound: its first reading's time
+    m_t1: float = math.nan  # last window above its bound: its last reading's time
+    mworst: float = 0.0  # the largest statistic over its bound
+    mfailing: bool = False  # above its bound now (hysteresis: one window of readings)
+    mgood: int = 0  # consecutive evaluations inside the bound while failing
 
 
 @functools.lru_cache(maxsize=4096)
@@ -262,7 +279,93 @@ def window_band(k: int, w: int, d: int, alpha: float, persist: int) -> tuple[flo
     return _band(max(int(k), 1).bit_length() - 1, int(w), int(d), float(alpha), int(persist))
 
 
-def advance(st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts) -> _Live:
+def mean_stride(w: int) -> int:
+    """Readings between two evaluations of the innovation-mean scan of windows of ``w``."""
+    return max(int(w) // 4, 1)
+
+
+@functools.lru_cache(maxsize=4096)
+def _mean_bound(block: int, d: int, alpha: float) -> tuple[float, float]:
+    """``(bound, a)`` of the scan's evaluations ``2^b <= j < 2^(b+1)`` (block ``b``): the
+    ``1 - a`` quantile of chi-square(``d``), ``a = alpha 6 / (pi^2 (b + 1)^2) / 2^b`` (the
+    NIS windows' spending, :func:`_band`, one evaluation at a time: Bonferroni, valid however
+    the overlapping windows are correlated)."""
+    a = alpha * 6.0 / (math.pi**2 * (block + 1) ** 2) / 2**block
+    from odofuse import chi2
+
+    return float(chi2.ppf(1.0 - a, d)), a
+
+
+def mean_bound(j: int, d: int, alpha: float) -> tuple[float, float]:
+    """``(bound, a)`` of the ``j``-th (1-based) evaluation of the innovation-mean scan."""
+    return _mean_bound(max(int(j), 1).bit_length() - 1, int(d), float(alpha))
+
+
+def whiten(y, S) -> tuple | None:
+    """``L^-1 y`` with ``S = L L^T`` (lower Cholesky) as a tuple, or None when ``S`` is not
+    positive definite; closed form for ``d <= 2`` (the compiled kernels' ``_whiten`` is the
+    same formula: the scan's sums must not depend on the path)."""
+    y = np.atleast_1d(np.asarray(y, dtype=float))
+    S = np.atleast_2d(np.asarray(S, dtype=float))
+    if y.size == 1:
+        s00 = float(S[0, 0])
+        return (float(y[0]) / math.sqrt(s00),) if s00 > 0.0 else None
+    if y.size == 2:
+        s00, s10, s11 = float(S[0, 0]), float(S[1, 0]), float(S[1, 1])
+        if not s00 > 0.0:
+            return None
+        l00 = math.sqrt(s00)
+        l10 = s10 / l00
+        r = s11 - l10 * l10
+        if not r > 0.0:
+            return None
+        v0 = float(y[0]) / l00
+        return v0, (float(y[1]) - l10 * v0) / math.sqrt(r)
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        return None
+    return tuple(float(v) for v in np.linalg.solve(L, y))
+
+
+def _scan(st: _Live, kw: dict, t: float, white, w: int, d: int, opts) -> None:
+    """The innovation-mean scan after one accepted reading with whitened innovation
+    ``white`` (into ``kw``): every :func:`mean_stride` readings, the last ``w`` whitened
+    innovations' sum ``s`` gives ``|s|^2 / w``, chi-square(``d``) under the filter's own
+    model, against :func:`mean_bound`. It sees a bias that the NIS hardly does: a 1 m offset
+    under a 2 m GPS adds a quarter to each NIS but shares its sign over tens of readings."""
+    if white is None or len(white) != d or not all(math.isfinite(v) for v in white):
+        return
+    win = st.mwin + ((t, *white),)
+    if len(win) > w:
+        win = win[1:]
+    kw["mwin"] = win
+    n = st.tn + 1
+    if len(win) < w or (n - w) % mean_stride(w):
+        return
+    j = st.mk + 1
+    sums = [math.fsum(e[1 + i] for e in win) for i in range(d)]
+    stat = math.fsum(v * v for v in sums) / w
+    bound, _ = mean_bound(j, d, opts.nis_alpha)
+    ratio = stat / bound
+    kw.update(mk=j, mratio=ratio)
+    if ratio > 1.0:
+        kw.update(mhits=st.mhits + 1, mfailing=True, mgood=0, m_t1=t)
+        kw["mworst"] = max(st.mworst, ratio)
+        if st.mhits == 0:
+            kw["m_t0"] = win[0][0]
+    elif st.mfailing:
+        good = st.mgood + 1
+        # recovered once a whole window of new readings is inside the bound
+        if good * mean_stride(w) >= w:
+            kw.update(mfailing=False, mgood=0)
+        else:
+            kw["mgood"] = good
+
+
+def advance(
+    st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts, white=None
+) -> _Live:
     """The streaming checks after one gated reading (the Localizer's live health and the
     offline run's findings both come from here: docs/filters.md, "Live health").
 
@@ -272,6 +375,8 @@ def advance(st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts
       make the stream failing, ``health_recover`` consecutive windows inside it clear that
       (ArduPilot EKF3's persistence and hysteresis); below the band is a note;
     * rejection runs: ``reject_run`` consecutive rejections make the stream failing too;
+    * the innovation-mean scan (:func:`_scan`) of a stream given its whitened innovations
+      ``white`` (the absolute sensors: :attr:`FilterMonitor.mean_streams`);
     * reading times, for the outage check.
     """
     w, persist = max(int(opts.nis_window), 1), int(opts.health_persist)
@@ -295,6 +400,8 @@ def advance(st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts
                 kw["longest"], kw["long_t0"], kw["long_t1"] = run, kw.get("run_t0", st.run_t0), t
         return st._replace(**kw)
     kw["run"] = 0
+    if white is not None:
+        _scan(st, kw, t, white, w, d, opts)
     kw["tsum"], kw["tn"] = st.tsum + min(nis, 1e12), st.tn + 1
     wsum, wn = st.wsum + min(nis, 1e12), st.wn + 1
     if wn == 1:
@@ -389,6 +496,22 @@ def live_findings(
                     figure=mean,
                 )
             )
+    if st.mhits:
+        _, a = mean_bound(st.mk, d, opts.nis_alpha)
+        now = "; failing now" if st.mfailing else ""
+        out.append(
+            Finding(
+                "innovation_mean",
+                f"mean of {w} whitened innovations off zero {st.mhits} time(s): |sum|^2 / {w} "
+                f"up to {_s(st.mworst)} x its chi-square({d}) bound (at <= {_s(a)} an "
+                f"evaluation, every {mean_stride(w)} readings){now}: a bias the filter does "
+                f"not model (its NIS can look right){nis_keys(s)}",
+                sensor=s,
+                t_start=st.m_t0,
+                t_end=st.m_t1,
+                figure=st.mworst,
+            )
+        )
     if st.low_episodes:
         out.append(
             Finding(
@@ -518,6 +641,13 @@ class FilterMonitor:
         self._t = {s: array("d") for s in models}
         self._nis = {s: array("d") for s in models}
         self._ok = {s: array("b") for s in models}
+        #: The streams the innovation-mean scan tests: those measured against the world (no
+        #: heading clone; the gyro's innovations are whitened within seconds by the wheels'
+        #: geometry, docs/trust.md); their records keep ``dim`` whitened values a reading.
+        self.mean_streams = frozenset(
+            s for s, m in models.items() if not (m.clones() if hasattr(m, "clones") else {})
+        )
+        self._white = {s: array("d") for s in self.mean_streams}
         self._floor = {s: 0 for s in models}  # rejections before this index are handled
         self.live = {s: _Live() for s in models}  # the streaming checks (advance)
         self._cursor = {s: 0 for s in models}  # readings of the record fed to advance
@@ -545,6 +675,8 @@ class FilterMonitor:
         lengths, floor, n_rec, live, n_drift = snap
         for s, n in lengths.items():
             del self._t[s][n:], self._nis[s][n:], self._ok[s][n:]
+            if s in self._white:
+                del self._white[s][n * self.dims[s] :]
         self._floor = dict(floor)
         del self.recoveries[n_rec:]
         self.live = dict(live)
@@ -562,27 +694,35 @@ class FilterMonitor:
     def _advance(self, s: str, n: int) -> None:
         st, gate, d, opts = self.live[s], self.gates[s], self.dims[s], self.options
         t, nis, ok = self._t[s], self._nis[s], self._ok[s]
+        wy = self._white.get(s)
         for j in range(n, len(t)):
-            st = advance(st, t[j], ok[j] == 1, nis[j], gate, d, opts)
+            white = None if wy is None or ok[j] != 1 else tuple(wy[j * d : (j + 1) * d])
+            st = advance(st, t[j], ok[j] == 1, nis[j], gate, d, opts, white)
         self.live[s] = st
         self._cursor[s] = len(t)
 
     def failing(self) -> list[str]:
         """The streams whose checks are failing now (persistence reached, not recovered)."""
         self.catch_up()
-        return [s for s, st in self.live.items() if st.failing]
+        return [s for s, st in self.live.items() if st.failing or st.mfailing]
 
-    def observe(self, stream: str, t: float, accepted: bool, nis: float) -> bool:
+    def observe(self, stream: str, t: float, accepted: bool, nis: float, white=None) -> bool:
         """Record one gated update; True when the stream shows divergence (recovery due).
 
         Divergence: the last ``reject_run`` readings of the stream were all rejected. With a
         gate of probability ``p`` a consistent filter does that with probability
         ``(1 - p)^reject_run`` (1e-15 for 0.999 and 5): the filter, not the sensor, is off
-        (or the sensor is broken for that long, which the findings then show).
+        (or the sensor is broken for that long, which the findings then show). ``white``:
+        the reading's whitened innovation (:func:`whiten`), for a stream of
+        :attr:`mean_streams` (None: not known; the scan skips the reading).
         """
         self._t[stream].append(t)
         self._nis[stream].append(nis if math.isfinite(nis) else 1e300)
         self._ok[stream].append(1 if accepted else 0)
+        wy = self._white.get(stream)
+        if wy is not None:
+            d = self.dims[stream]
+            wy.extend(white if white is not None and len(white) == d else (math.nan,) * d)
         self._advance(stream, self._cursor[stream])
         if accepted or not self.options.recovery:
             return False
@@ -763,11 +903,24 @@ def slip_run_findings(stream, a: float, b: float, unit: str) -> list:
     ]
 
 
+def mean_mde(j: int, w: int, d: int, s_max: float, opts) -> float:
+    """Smallest constant error of ``w`` readings that the innovation-mean scan's ``j``-th
+    evaluation detects with probability ``mde_power``: ``(sqrt(bound) + z_power) *
+    sqrt(s_max / w)`` (:func:`gate_mde`'s argument for a window's whitened sum, whose mean
+    along the error is ``sqrt(w) |b| / sqrt(s_max)`` in the worst direction)."""
+    if not s_max > 0.0:
+        return math.inf
+    bound, _ = mean_bound(j, d, opts.nis_alpha)
+    z = _normal_quantile(float(opts.mde_power))
+    return (math.sqrt(bound) + z) * math.sqrt(s_max / w)
+
+
 def mde_of(loc) -> dict:
-    """Sensor -> ``{"gate", "nis_window"}``: the smallest error of a reading each check of
-    the stream detects with probability ``mde_power`` (in the sensor's units), at the
-    innovation covariance of the stream's last reading under the current state covariance
-    (:func:`gate_mde`, :func:`window_mde`); None where no reading was seen."""
+    """Sensor -> ``{"gate", "nis_window"}`` (and ``"innovation_mean"`` for the streams the
+    scan tests): the smallest error of a reading each check of the stream detects with
+    probability ``mde_power`` (in the sensor's units), at the innovation covariance of the
+    stream's last reading under the current state covariance (:func:`gate_mde`,
+    :func:`window_mde`, :func:`mean_mde`); None where no reading was seen."""
     mon, opts = loc.monitor, loc.options
     mon.catch_up()
     x, Pfull = loc.backend.mean(), loc.backend.cov()
@@ -789,6 +942,9 @@ def mde_of(loc) -> dict:
             "gate": gate if math.isfinite(gate) else None,
             "nis_window": window if math.isfinite(window) else None,
         }
+        if s in mon.mean_streams:
+            mean = mean_mde(mon.live[s].mk + 1, w, mon.dims[s], s_max, opts)
+            out[s]["innovation_mean"] = mean if math.isfinite(mean) else None
     return out
 
 
@@ -945,6 +1101,8 @@ def forget_readings(monitor: FilterMonitor, keep: int, snapshots) -> list:
     for s, k in drop.items():
         if k:
             del monitor._t[s][:k], monitor._nis[s][:k], monitor._ok[s][:k]
+            if s in monitor._white:
+                del monitor._white[s][: k * monitor.dims[s]]
             monitor._floor[s] = max(0, monitor._floor[s] - k)
             monitor._cursor[s] -= k
     n_rec = min((n for _, _, n, *_ in snaps), default=len(monitor.recoveries))

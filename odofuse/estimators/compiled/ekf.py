@@ -184,12 +184,13 @@ def _gps_values(model, st) -> np.ndarray:
     return np.array([model.z(st.row(i)) for i in range(len(st))]).reshape(-1, 2)
 
 
-def _record(mon, stream: str, t, ok, nis) -> bool:
+def _record(mon, stream: str, t, ok, nis, white) -> bool:
     """Feed one stream's gated updates to the monitor, as ``FilterMonitor.observe`` would one
     by one; True when a recovery would have been triggered (a run of ``reject_run``
-    rejections with recovery on). Fills the monitor's record arrays directly when they are
-    the ``array`` buffers it keeps (the equality tests compare the findings), else calls
-    ``observe`` per reading."""
+    rejections with recovery on). ``white`` (n, 2): each accepted reading's whitened
+    innovation (the kernels' ``_whiten``; its first ``dim`` columns are the stream's). Fills
+    the monitor's record arrays directly when they are the ``array`` buffers it keeps (the
+    equality tests compare the findings), else calls ``observe`` per reading."""
     from array import array
 
     opts = mon.options
@@ -205,9 +206,13 @@ def _record(mon, stream: str, t, ok, nis) -> bool:
         v = np.where(np.isfinite(nis), nis, 1e300)
         bufs[1].frombytes(v.astype(float).tobytes())
         oks.frombytes(ok.astype(np.int8).tobytes())
+        wy = getattr(mon, "_white", {}).get(stream)
+        if wy is not None:
+            wy.frombytes(np.ascontiguousarray(white[:, : mon.dims[stream]]).tobytes())
         return False
-    for tj, okj, nj in zip(t.tolist(), ok.tolist(), nis.tolist(), strict=True):
-        if mon.observe(stream, tj, okj, nj):
+    d = mon.dims[stream]
+    for tj, okj, nj, wj in zip(t.tolist(), ok.tolist(), nis.tolist(), white, strict=True):
+        if mon.observe(stream, tj, okj, nj, tuple(wj[:d].tolist())):
             return True
     return False
 
@@ -266,6 +271,7 @@ def prepare(log, config, estimator: str = "ekf"):
     odom = loc._odom.copy()
     acc = np.zeros(len(mt), dtype=np.int8)
     nis = np.zeros(len(mt))
+    wy = np.full((len(mt), 2), np.nan)
     snap_k = snapshot_steps(t, loc.monitor.drift)
     snap_x, snap_v = np.empty((len(snap_k), len(x))), np.empty((len(snap_k), len(x)))
     args = dict(
@@ -273,7 +279,7 @@ def prepare(log, config, estimator: str = "ekf"):
         M=M, K=K, floor=floor, rate=rate,
         cal=cal_code, cidx=cidx, mt=mt, ms=ms, mstep=mstep, mz=np.ascontiguousarray(mz),
         maux=np.ascontiguousarray(maux), mR=mR, skind=skind, sidx=sidx, sgate=sgate, sR=sR,
-        traj_x=traj_x, traj_P=traj_P, odom=odom, acc=acc, nis=nis,
+        traj_x=traj_x, traj_P=traj_P, odom=odom, acc=acc, nis=nis, wy=wy,
         snap_k=snap_k, snap_x=snap_x, snap_v=snap_v, **_slip_args(kern, loc, log, t),
     )  # fmt: skip
     return kern, loc, streams, args
@@ -359,7 +365,7 @@ def finish(loc, log, streams, args):
         mine = ms == si
         sel = mine & (acc != 2)  # clone-only first gyro readings are not counted
         ok = acc[sel] == 1
-        if _record(loc.monitor, s, mt[sel], ok, nis[sel]):
+        if _record(loc.monitor, s, mt[sel], ok, nis[sel], args["wy"][sel]):
             return None  # a recovery would re-open the filter: the Python path does that
         loc.used[s] += int(np.count_nonzero(ok))
         loc.rejected[s] += int(ok.size - np.count_nonzero(ok))
@@ -431,30 +437,37 @@ def kernel_backend_class(base):
                 return super().update(model, row)
             self._pending = (model, row)
             kf = self.kf
-            nis, ok = self._kern.ekf_update_row(kf.x, kf.P, *args, gate)
+            nis, ok = self._kern.ekf_update_row(kf.x, kf.P, *args, gate, self._out)
             return bool(ok), float(nis)
 
         compose_odom = compose_odom
         slip_step = slip_step
 
-        @property
-        def last_innovation(self):
-            """``(y, S, R)`` of the last update, from the model's ``h``/``H``/``R``; read only
-            by a recovery, which follows a rejected update (the state is still the prior)."""
-            if self._pending is None:
-                return self._innovation
-            model, row = self._pending
-            x, P = self.kf.x, self.kf.P
-            y = np.atleast_1d(model.residual(model.z(row), model.h(x, row)))
-            H = np.atleast_2d(model.H(x, row))
-            R = np.atleast_2d(model.R(row))
-            return y, H @ P @ H.T + R, R
-
-        @last_innovation.setter
-        def last_innovation(self, value) -> None:
-            self._innovation, self._pending = value, None
+        last_innovation = kernel_innovation
 
     return KernelEkfBackend
+
+
+def _kernel_innovation(self):
+    """``(y, S, R)`` of a kernel backend's last update: the kernel's (``self._out``: ``y0, y1,
+    s00, s10, s11``), or the Python method's when it ran; read by a recovery and by the
+    innovation-mean scan."""
+    if self._pending is None:
+        return self._innovation
+    model, row = self._pending
+    y0, y1, s00, s10, s11 = self._out.tolist()
+    R = np.atleast_2d(model.R(row))
+    if model.dim == 1:
+        return np.array([y0]), np.array([[s00]]), R
+    return np.array([y0, y1]), np.array([[s00, s10], [s10, s11]]), R
+
+
+def _set_innovation(self, value) -> None:
+    self._innovation, self._pending = value, None
+
+
+#: ``last_innovation`` of the kernel backends (EKF, UKF).
+kernel_innovation = property(_kernel_innovation, _set_innovation)
 
 
 def _update_args(kind, model, row):
@@ -518,7 +531,7 @@ def swap_backend(loc, estimator: str, base: str, make_class):
     backend.__dict__.update(loc.backend.__dict__)
     backend._motion_args = _motion_args(loc.motion_model, backend.odo_cal)
     backend._kern, backend._kinds, backend._pending = kern, kinds, None
-    backend._innovation = None
+    backend._innovation, backend._out = None, np.zeros(5)
     backend.kf.x = np.ascontiguousarray(backend.kf.x, dtype=float)
     backend.kf.P = np.ascontiguousarray(backend.kf.P, dtype=float)
     loc.backend = backend

@@ -330,6 +330,7 @@ def _work(n, m):
         np.empty((n, 2)),  # 11 AH
         np.empty((m, 3)),  # 12 Jc (du'/dp)
         np.empty(m),  # 13 the step's input part
+        np.empty(5),  # 14 the last update's innovation and its covariance
     )
 
 
@@ -532,8 +533,10 @@ def _measure(x, kind, aux, idx, dt, H, jac):
 def _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work):
     """filterpy's ``ExtendedKalmanFilter.update`` (Joseph form) with the gate; returns
     ``(nis, accepted)``. The state is left unchanged when the NIS fails ``nis <= gate``.
-    ``R = [[r00, r01], [r01, r11]]`` (its first entry for scalar sensors)."""
+    ``R = [[r00, r01], [r01, r11]]`` (its first entry for scalar sensors). ``work[14]``
+    receives the innovation ``y0, y1`` and ``S`` ``s00, s10, s11`` (as the UKF's ``out``)."""
     A, H, PHT, Kg, HP, AH = work[6], work[7], work[8], work[9], work[10], work[11]
+    out = work[14]
     n = x.shape[0]
     d = 2 if kind == GPS else 1
     h0, h1 = _measure(x, kind, aux, idx, dt, H, True)
@@ -551,6 +554,7 @@ def _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work):
         s00 = r00
         for i in range(n):
             s00 += H[0, i] * PHT[i, 0]
+        out[0], out[1], out[2], out[3], out[4] = y0, 0.0, s00, 0.0, 0.0
         i00 = 1.0 / s00
         nis = y0 * i00 * y0
         if not nis <= gate:
@@ -564,6 +568,7 @@ def _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work):
             s01 += H[0, i] * PHT[i, 1]
             s10 += H[1, i] * PHT[i, 0]
             s11 += H[1, i] * PHT[i, 1]
+        out[0], out[1], out[2], out[3], out[4] = y0, y1, s00, s10, s11
         det = s00 * s11 - s01 * s10
         i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
         nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i10 * y0 + i11 * y1)
@@ -880,11 +885,33 @@ def _clone(x, P, dst, src):
 
 
 @njit(cache=True)
-def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk):
+def _whiten(d, out, w):
+    """``w[:d] = L^-1 y`` of the innovation ``y`` and its covariance ``S = L L^T`` in ``out``
+    (``y0, y1, s00, s10, s11``; lower Cholesky), NaN when ``S`` is not positive definite:
+    ``status.monitors.whiten``'s formula, for the innovation-mean scan."""
+    w[0] = w[1] = np.nan
+    if not out[2] > 0.0:
+        return
+    l00 = math.sqrt(out[2])
+    v0 = out[0] / l00
+    if d == 1:
+        w[0] = v0
+        return
+    l10 = out[3] / l00
+    r = out[4] - l10 * l10
+    if r > 0.0:
+        w[0], w[1] = v0, (out[1] - l10 * v0) / math.sqrt(r)
+
+
+@njit(cache=True)
+def _apply(
+    j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, wy, work, uk
+):  # fmt: skip
     """Apply measurement ``j`` (the Localizer's ``_apply``): a gyro's first reading only clones
     the heading; else the gated update of the EKF (``uk`` None), or of the UKF (``uk`` its
     weights, ``(Wm, Wc, lambda + n, angles, singular pivot, ukf_work)``);
-    a gyro reading then clones the heading."""
+    a gyro reading then clones the heading. ``wy[j]`` receives an accepted reading's
+    whitened innovation (:func:`_whiten`)."""
     s = ms[j]
     kind = skind[s]
     tm = mt[j]
@@ -904,14 +931,18 @@ def _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, ni
         v, ok = _ekf_update(
             x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s], work
         )  # fmt: skip
+        out = work[14]
     else:
         Wm, Wc, c, angles, tol, uw = uk
         v, ok = _ukf_update(
             x, P, kind, mz[j], maux[j], r00, r01, r11, sidx[s], dt, sgate[s],
             Wm, Wc, c, angles, tol, work, uw, uw[8],
         )  # fmt: skip
+        out = uw[8]
     nis[j] = v
     acc[j] = 1 if ok else 0
+    if ok:
+        _whiten(2 if kind == GPS else 1, out, wy[j])
     if kind == GYRO:
         t_ref[s] = tm
         _clone(x, P, sidx[s, 0], 2)
@@ -1005,7 +1036,7 @@ def step_slip(x, P, u, span, g, M, K, floor, rate, slip, bias_idx, run, learn):
 def ekf_offline(
     x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-    traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v,
+    traj_x, traj_P, odom, acc, nis, wy, snap_k, snap_x, snap_v,
     slip_g, slip, bias_idx, slip_out, learn,
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend, over a whole log
@@ -1013,7 +1044,7 @@ def ekf_offline(
     filter_offline(
         x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
         mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-        traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v,
+        traj_x, traj_P, odom, acc, nis, wy, snap_k, snap_x, snap_v,
         slip_g, slip, bias_idx, slip_out, learn, None,
     )  # fmt: skip
 
@@ -1022,7 +1053,7 @@ def ekf_offline(
 def filter_offline(
     x, P, walk, tt, U, integ, M, K, floor, rate, cal, cidx,
     mt, ms, mstep, mz, maux, mR, skind, sidx, sgate, sR,
-    traj_x, traj_P, odom, acc, nis, snap_k, snap_x, snap_v,
+    traj_x, traj_P, odom, acc, nis, wy, snap_k, snap_x, snap_v,
     slip_g, slip, bias_idx, slip_out, learn, uk,
 ):  # fmt: skip
     """The Localizer's offline event loop with the EKF backend (``uk`` None), or the UKF's,
@@ -1043,6 +1074,7 @@ def filter_offline(
     skind, sidx (S, 2), sgate, sR (S, 2, 2) : per-stream kind, state columns, gate, R.
     traj_x : (N+1, 3), traj_P : (N+1, 3, 3), odom : (3,), acc : (J,) int8, nis : (J,) out.
         ``acc`` is 1 accepted, 0 rejected, 2 a clone-only first gyro reading.
+    wy : (J, 2) out: each accepted reading's whitened innovation (:func:`_whiten`).
     snap_k : (K,) increasing steps after which the state is copied to ``snap_x`` (K, n) and
         the covariance's diagonal to ``snap_v`` (K, n) (the calibration drift check's
         snapshots, :class:`odofuse.status.drift.Drift`).
@@ -1074,7 +1106,7 @@ def filter_offline(
     si = 0
     run = 0.0  # the summed disagreement of the current slip run (robust odometry)
     while j < J and mstep[j] == -1:
-        _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
+        _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, wy, work, uk)
         j += 1
     for k in range(U.shape[0]):
         t0, t1 = tt[k], tt[k + 1]
@@ -1099,7 +1131,10 @@ def filter_offline(
                     work, uk, scale,
                 )  # fmt: skip
                 done = f
-            _apply(j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, work, uk)
+            _apply(
+                j, x, P, mt, ms, mz, maux, mR, skind, sidx, sgate, sR, t_ref, acc, nis, wy,
+                work, uk,
+            )  # fmt: skip
             j += 1
         if done < 1.0 or not due:
             part = 1.0 - done
@@ -1150,14 +1185,17 @@ def _row_arrays(z0, z1, a0, a1, i0, i1):
 
 
 @njit(cache=True)
-def ekf_update_row(x, P, kind, z0, z1, a0, a1, r00, r01, r11, i0, i1, dt, gate):
+def ekf_update_row(x, P, kind, z0, z1, a0, a1, r00, r01, r11, i0, i1, dt, gate, out):
     """One gated update of the streaming Localizer, in place: :func:`_ekf_update` on the
     row's values ``z`` (z0, z1), beacon position / lever arm ``(a0, a1)``, ``R`` entries and
-    state columns ``(i0, i1)`` (-1: none) as :func:`_apply` passes them; returns
+    state columns ``(i0, i1)`` (-1: none) as :func:`_apply` passes them; ``out`` (5,)
+    receives the innovation and its covariance (``y0, y1, s00, s10, s11``); returns
     ``(nis, accepted)``."""
     z, aux, idx = _row_arrays(z0, z1, a0, a1, i0, i1)
     work = _work(x.shape[0], 1)
-    return _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work)
+    nis, ok = _ekf_update(x, P, kind, z, aux, r00, r01, r11, idx, dt, gate, work)
+    out[:] = work[14]
+    return nis, ok
 
 
 @njit(cache=True)

@@ -95,21 +95,7 @@ def kernel_backend_class(base):
             nis, ok = self._kern.ukf_update_row(kf.x, kf.P, *args, gate, *self._weights, self._out)
             return bool(ok), float(nis)
 
-        @property
-        def last_innovation(self):
-            """``(y, S, R)`` of the last update (the kernel's, or filterpy's); read only by a
-            recovery, which follows a rejected update."""
-            if self._pending is None:
-                return self._innovation
-            model, row = self._pending
-            y0, y1, s00, s01, s11 = self._out.tolist()
-            if model.dim == 1:
-                return np.array([y0]), np.array([[s00]]), model.R(row)
-            return np.array([y0, y1]), np.array([[s00, s01], [s01, s11]]), model.R(row)
-
-        @last_innovation.setter
-        def last_innovation(self, value) -> None:
-            self._innovation, self._pending = value, None
+        last_innovation = compiled_ekf.kernel_innovation
 
     return KernelUkfBackend
 
@@ -121,4 +107,3 @@ def live(loc) -> None:
     backend = compiled_ekf.swap_backend(loc, "ukf", "UkfBackend", kernel_backend_class)
     if backend is not None:
         backend._weights = _weights(backend.n, loc.options, loc.models)
-        backend._out = np.zeros(5)

@@ -72,7 +72,7 @@ def current_values(isam, keys):
     return out
 
 
-def predicted_nis(isam, graph, new_values, rows: dict, dims: dict, read=None) -> dict[int, float]:
+def predicted_nis(isam, graph, new_values, rows: dict, dims: dict, read=None) -> dict:
     """NIS of one keyframe's sensor factors against the smoother's prediction.
 
     Parameters
@@ -96,10 +96,13 @@ def predicted_nis(isam, graph, new_values, rows: dict, dims: dict, read=None) ->
     Returns
     -------
     dict
-        Position -> NIS; empty when a factor refers to a variable that neither the smoother
-        nor ``new_values`` holds (nothing predicts it), nan where the prediction's
-        covariance is not positive definite.
+        Position -> ``(NIS, whitened innovation)`` (``status.monitors.whiten`` of the
+        noise-whitened innovation and its covariance, for the innovation-mean scan); empty
+        when a factor refers to a variable that neither the smoother nor ``new_values`` holds
+        (nothing predicts it), ``(nan, None)`` where the prediction's covariance is not
+        positive definite.
     """
+    from odofuse.status.monitors import whiten
 
     keys = sorted({k for j in range(graph.size()) for k in graph.at(j).keys()})
     new = set(new_values.keys())
@@ -126,7 +129,7 @@ def predicted_nis(isam, graph, new_values, rows: dict, dims: dict, read=None) ->
                 eta += A.T @ b
         chol = np.linalg.cholesky(info)
     except (np.linalg.LinAlgError, RuntimeError):
-        return {j: math.nan for j in rows}
+        return {j: (math.nan, None) for j in rows}
     mu = np.linalg.solve(chol.T, np.linalg.solve(chol, eta))
     out = {}
     for j, f in rows.items():
@@ -134,7 +137,7 @@ def predicted_nis(isam, graph, new_values, rows: dict, dims: dict, read=None) ->
         half = np.linalg.solve(chol, A.T)  # P = L^-T L^-1, so A P A^T = half^T half
         S = half.T @ half + np.eye(A.shape[0])
         y = b - A @ mu
-        out[j] = float(y @ np.linalg.solve(S, y))
+        out[j] = float(y @ np.linalg.solve(S, y)), whiten(y, S)
     return out
 
 
@@ -157,12 +160,13 @@ def observe(mon, isam, fac, graph, new_values, read=None) -> None:
             rows[pos], streams[pos] = twin, meas
     if not rows:
         return
-    for pos, nis in predicted_nis(isam, graph, new_values, rows, fac.dims, read).items():
+    for pos, (nis, white) in predicted_nis(isam, graph, new_values, rows, fac.dims, read).items():
         if not math.isfinite(nis):
             continue
         meas = streams[pos]
         t = float(fac.p.kt[meas.keyframe])
-        mon.observe(meas.stream, t, bool(nis <= mon.gates[meas.stream]), nis)
+        ok = bool(nis <= mon.gates[meas.stream])
+        mon.observe(meas.stream, t, ok, nis, white if meas.stream in mon.mean_streams else None)
 
 
 def summary(mon) -> dict:

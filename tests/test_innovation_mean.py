@@ -1,0 +1,142 @@
+"""The innovation-mean scan (issue 25; docs/trust.md, "The innovation-mean scan"): its
+false-alarm rate on white innovations, a bias it sees that the NIS windows miss, its live
+hysteresis, and the same finding from the compiled and the Python EKF.
+
+White innovations are drawn from seeded ``numpy.random.default_rng`` streams; the bias test's
+size was fixed from the formula (:func:`monitors.mean_mde`) before it was run.
+"""
+
+import dataclasses
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import binom, chi2
+
+from odofuse.declarations import EkfOptions
+from odofuse.status import monitors
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+
+def _feed(opts, white, d=None):
+    """The streaming checks' state after accepted readings with whitened innovations
+    ``white`` (n, d), 1 s apart, each NIS ``|white|^2``."""
+    d = white.shape[1] if d is None else d
+    st = monitors._Live()
+    for k, v in enumerate(white.tolist()):
+        st = monitors.advance(st, float(k), True, math.fsum(x * x for x in v), math.inf, d, opts, v)
+    return st
+
+
+@dataclasses.dataclass(frozen=True)
+class _Gps:
+    dim: int = 2
+    gate: float | None = None
+
+
+def test_mean_bound_spends_alpha_over_the_evaluations():
+    # block b of evaluations 2^b .. 2^(b+1) - 1 shares alpha 6 / (pi^2 (b + 1)^2): the sum
+    # over every evaluation is alpha
+    alpha = 1e-3
+    total = sum(
+        2**b * monitors._mean_bound(b, 2, alpha)[1] for b in range(60)
+    )  # the tail past 2^60 evaluations is below 1e-19
+    assert total == pytest.approx(alpha, rel=2e-2)
+    bound, a = monitors.mean_bound(1, 1, alpha)
+    assert a == pytest.approx(alpha * 6 / math.pi**2)
+    assert bound == pytest.approx(chi2.ppf(1 - a, 1))
+    assert monitors.mean_bound(3, 2, alpha)[0] == monitors.mean_bound(2, 2, alpha)[0]
+    assert monitors.mean_stride(20) == 5 and monitors.mean_stride(3) == 1
+
+
+def test_whiten_is_the_lower_cholesky_solve():
+    S = np.array([[4.0, 1.2], [1.2, 0.9]])
+    y = np.array([1.5, -0.7])
+    L = np.linalg.cholesky(S)
+    assert monitors.whiten(y, S) == pytest.approx(tuple(np.linalg.solve(L, y)), rel=1e-12)
+    assert monitors.whiten([3.0], [[4.0]]) == (1.5,)
+    S3 = np.diag([1.0, 4.0, 9.0])
+    assert monitors.whiten([1.0, 2.0, 3.0], S3) == pytest.approx((1.0, 1.0, 1.0))
+    assert monitors.whiten(y, np.array([[1.0, 2.0], [2.0, 1.0]])) is None  # not PD
+
+
+@pytest.mark.parametrize("d", [1, 2])
+def test_false_alarm_rate_on_white_innovations_is_within_alpha(d):
+    # alpha 0.05 a stream (the option's default is 1e-3: too rare to count here); 400
+    # streams of 150 readings each (28 evaluations)
+    opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05)
+    rng = np.random.default_rng(100 + d)
+    n, length = 400, 150
+    fired = sum(_feed(opts, rng.standard_normal((length, d))).mhits > 0 for _ in range(n))
+    assert fired <= binom.ppf(0.99, n, opts.nis_alpha), fired
+
+
+def test_a_bias_the_nis_windows_miss_is_found_and_clears_a_window_later():
+    # A 2-D stream, 300 readings; readings 120-159 carry a bias of 1.3 sigma on one axis
+    # (a 1 m offset of a GPS of sigma 0.77 m): each NIS grows by 1.7 on average, within the
+    # NIS windows' band, while 20 readings' whitened sum is 26 sigma-units off zero.
+    opts = EkfOptions()
+    mon = monitors.FilterMonitor(opts, {"gps": _Gps()})
+    rng = np.random.default_rng(11)
+    white = rng.standard_normal((300, 2))
+    white[120:160, 0] += 1.3
+    failing_at = {}
+    for k, v in enumerate(white.tolist()):
+        mon.observe("gps", float(k), True, v[0] ** 2 + v[1] ** 2, tuple(v))
+        failing_at[k] = "gps" in mon.failing()
+    st = mon.live["gps"]
+    assert st.episodes == 0 and st.mhits > 0
+    found = {f.check: f for f in mon.stream_findings((0.0, 299.0))}
+    assert "nis" not in found and "nis_run" not in found
+    f = found["innovation_mean"]
+    assert f.degrades and f.sensor == "gps" and f.figure > 1.0
+    assert 100.0 <= f.t_start <= 160.0 and 120.0 <= f.t_end <= 180.0
+    # live: failing while the biased readings are in the window, clear a window after
+    assert any(failing_at[k] for k in range(130, 180))
+    assert not any(failing_at[k] for k in range(205, 300))
+    assert not any(failing_at[k] for k in range(0, 120))
+    # one evaluation this late detects 1.3 sigma with less than mde_power (several
+    # evaluations saw the bias here): its minimal detectable error is above it
+    mde = monitors.mean_mde(st.mk + 1, 20, 2, 1.0, opts)
+    assert 1.3 < mde < 2.0
+
+
+def test_the_mde_is_detected_with_its_power():
+    opts = EkfOptions()
+    w, d, j = 20, 2, 8
+    mde = monitors.mean_mde(j, w, d, 1.0, opts)
+    bound = monitors.mean_bound(j, d, opts.nis_alpha)[0]
+    rng = np.random.default_rng(5)
+    sums = rng.standard_normal((100_000, w, d)).sum(axis=1)
+    sums[:, 0] += w * mde
+    detected = np.mean((sums**2).sum(axis=1) / w > bound)
+    assert detected >= opts.mde_power - 0.005, detected
+
+
+def test_compiled_and_python_ekf_give_the_same_scan():
+    # The compiled core's figure eight (GPS sigma 0.3 m at 1 Hz) with the fixes 0.5 m east
+    # of the truth over 20-45 s: both paths whiten every accepted fix alike, so the scan's
+    # finding and its minimal detectable error agree to 1e-9 (assert_same_run).
+    from compiled_checks import SCENARIO, assert_same_run
+    from graph_sim import simulated_run
+
+    from odofuse.estimators.assembly import run_with
+    from odofuse.estimators.compiled import ekf as compiled_ekf
+    from odofuse.estimators.ekf import make_backend
+    from odofuse.io.log import Stream
+
+    log, cfg = simulated_run(SCENARIO, 3, "ekf", {"slip": False, "compiled": "on"})
+    st = log.streams["gps"]
+    v = st.values.copy()
+    v[(st.t >= 20.0) & (st.t < 45.0), st.columns.index("x")] += 0.5
+    log = dataclasses.replace(
+        log, streams={**log.streams, "gps": Stream(st.name, st.source, st.t, st.columns, v)}
+    )
+    res, ref = compiled_ekf.run(log, cfg), run_with(log, cfg, "ekf", make_backend)
+    assert res is not None
+    assert_same_run(res, ref)
+    assert 0.0 < ref.extra["mde"]["gps"]["innovation_mean"] < 0.5
+    assert [f.sensor for f in ref.findings if f.check == "innovation_mean"] == ["gps"]
