@@ -140,3 +140,54 @@ def test_compiled_and_python_ekf_give_the_same_scan():
     assert_same_run(res, ref)
     assert 0.0 < ref.extra["mde"]["gps"]["innovation_mean"] < 0.5
     assert [f.sensor for f in ref.findings if f.check == "innovation_mean"] == ["gps"]
+
+
+def test_rejection_count_bound_is_the_binomial_tail():
+    p = monitors.reject_probability(chi2.ppf(0.999, 2), 2)
+    assert p == pytest.approx(1e-3, rel=1e-9)
+    assert monitors.reject_probability(math.inf, 2) == 0.0
+    # first evaluation: share 6.08e-4; P(Bin(20, 1e-3) >= 2) = 1.9e-4 fits, >= 1 (0.0198) not
+    k, a = monitors.count_bound(1, 20, p, 1e-3)
+    assert k == 2 and a == pytest.approx(1e-3 * 6 / math.pi**2)
+    assert binom.sf(k - 1, 20, p) <= a < binom.sf(k - 2, 20, p)
+    k8, a8 = monitors.count_bound(8, 20, p, 1e-3)
+    assert k8 == 3 and binom.sf(k8 - 1, 20, p) <= a8 < binom.sf(k8 - 2, 20, p)
+    assert monitors.count_bound(1, 20, 0.0, 1e-3)[0] == 1  # P(>= 1) = 0: one would fire
+
+
+def test_rejection_count_false_alarm_rate_is_within_alpha():
+    # a gate of 0.9 (a reading rejected one time in ten) so that chance counts are common;
+    # alpha 0.05 a stream, 400 streams of 150 readings
+    opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05)
+    gate = float(chi2.ppf(0.9, 1))
+    rng = np.random.default_rng(21)
+    fired = 0
+    for _ in range(400):
+        st = monitors._Live()
+        for k, v in enumerate(rng.chisquare(1, 150).tolist()):
+            st = monitors.advance(st, float(k), v <= gate, v, gate, 1, opts)
+        fired += st.rhits > 0
+    assert fired <= binom.ppf(0.99, 400, opts.nis_alpha), fired
+
+
+def test_a_burst_of_rejections_not_in_a_row_is_counted():
+    # GPS multipath at 4 sigma: readings 40-54 rejected one in two, never reject_run (5) in
+    # a row: the rejection count fires within the burst and clears a window after the
+    # window has left it
+    opts = EkfOptions()
+    mon = monitors.FilterMonitor(opts, {"gps": _Gps(gate=0.999)})
+    gate = mon.gates["gps"]
+    rng = np.random.default_rng(12)
+    failing_at = {}
+    for k in range(120):
+        bad = 40 <= k < 55 and k % 2 == 0
+        nis = gate * 2 if bad else float(rng.chisquare(2))
+        mon.observe("gps", float(k), nis <= gate, nis)
+        failing_at[k] = "gps" in mon.failing()
+    st = mon.live["gps"]
+    assert st.runs == 0 and st.rhits > 0
+    (f,) = [f for f in mon.stream_findings((0.0, 119.0)) if f.check == "rejection_count"]
+    assert f.degrades and f.figure >= 3 and 20.0 <= f.t_start <= 55.0 <= f.t_end + 10.0
+    assert any(failing_at[k] for k in range(45, 60)) and not any(failing_at[k] for k in range(40))
+    # the last rejection (54) leaves the window at 74; four evaluations inside clear it
+    assert failing_at[85] and not any(failing_at[k] for k in range(90, 120))

@@ -105,6 +105,17 @@ CHECKS: tuple[Check, ...] = (
         ("tests/test_innovation_mean.py",),
     ),
     Check(
+        "rejection_count",
+        ("status/monitors.py",),
+        "the same as nis (every gated stream)",
+        "rejections among the last nis_window readings against the binomial bound of the "
+        "gate's own rejection probability (1 - gate), every nis_window / 4 readings, alpha "
+        "spent over the evaluations (Bonferroni)",
+        "nis_alpha per fused gated stream (1e-3)",
+        ("rejection_count",),
+        ("tests/test_innovation_mean.py",),
+    ),
+    Check(
         "calibration_drift",
         ("status/drift.py",),
         "EKF, UKF, Localizer (live), with calibration states; offline, every other estimator "

@@ -430,8 +430,8 @@ def alpha_budget(config, log) -> dict:
     at most the sum).
 
     The in-run statistical checks keep their declared probabilities: the filters' NIS window
-    test and run NIS test per fused stream and innovation-mean scan per fused stream other
-    than a gyro (``nis_alpha`` each), dead reckoning's
+    test, run NIS test and rejection count per fused stream and innovation-mean scan per
+    fused stream other than a gyro (``nis_alpha`` each), dead reckoning's
     gyro-vs-wheels test (``heading_alpha``), the EKF's and UKF's calibration drift test
     (``drift_alpha``, counted whenever they fuse a sensor; the other estimators carry an
     EKF's in the second opinion's scope, :func:`companion_applies`), the batch smoother's residual
@@ -453,7 +453,8 @@ def alpha_budget(config, log) -> dict:
     -------
     dict
         ``alpha_run``; ``checks``: check (``nis:<stream>``, ``nis_run:<stream>``,
-        ``innovation_mean:<stream>``, ``calibration_drift``, ``gyro_wheels``,
+        ``innovation_mean:<stream>``, ``rejection_count:<stream>``, ``calibration_drift``,
+        ``gyro_wheels``,
         ``residual_windows:<stream>``, ``latency:<stream>``, ``cross_check_nees``,
         ``reference_variance``, ``variance_factor``) ->
         false-alarm probability per run; ``total`` (their sum, at most ``alpha_run``
@@ -480,6 +481,9 @@ def alpha_budget(config, log) -> dict:
         # the innovation-mean scan: the streams measured against the world (not the gyro)
         mean = [n for n in tested if sensor_kind(config, n) != "gyro"]
         checks.update({f"innovation_mean:{n}": nis for n in sorted(mean)})
+        # the rejection count of every gated stream (a stream without a gate cannot fire it)
+        gated = [n for n in tested if getattr(config.sensors[n], "gate", 0.999) is not None]
+        checks.update({f"rejection_count:{n}": nis for n in sorted(gated)})
         drift = float(getattr(nis_opts, "drift_alpha", 0.0))
         if drift > 0.0 and fused:  # the EKF's and UKF's calibration drift check
             checks["calibration_drift"] = drift

@@ -255,6 +255,17 @@ class _Live(NamedTuple):
     mworst: float = 0.0  # the largest statistic over its bound
     mfailing: bool = False  # above its bound now (hysteresis: one window of readings)
     mgood: int = 0  # consecutive evaluations inside the bound while failing
+    # The rejection count (:func:`_count`): the last nis_window readings' gate decisions
+    rwin: tuple = ()  # 1 rejected, 0 accepted
+    rk: int = 0  # evaluations
+    rhits: int = 0  # evaluations at or above their bound
+    r_t0: float = math.nan  # first window at or above its bound: its first reading's time
+    r_t1: float = math.nan
+    rworst: int = 0  # the most rejections in a window that fired
+    rbound: int = 0  # the bound of that window
+    rfailing: bool = False
+    rgood: int = 0
+    rtimes: tuple = ()  # the times of the readings of rwin
 
 
 @functools.lru_cache(maxsize=4096)
@@ -284,6 +295,14 @@ def mean_stride(w: int) -> int:
     return max(int(w) // 4, 1)
 
 
+def _still_failing(good: int, w: int) -> tuple[bool, int]:
+    """``(failing, good)`` of a failing scan or count after one more evaluation inside its
+    bound (``good`` such evaluations before it): it recovers once a whole window of new
+    readings is inside."""
+    good += 1
+    return (False, 0) if good * mean_stride(w) >= w else (True, good)
+
+
 @functools.lru_cache(maxsize=4096)
 def _mean_bound(block: int, d: int, alpha: float) -> tuple[float, float]:
     """``(bound, a)`` of the scan's evaluations ``2^b <= j < 2^(b+1)`` (block ``b``): the
@@ -299,6 +318,66 @@ def _mean_bound(block: int, d: int, alpha: float) -> tuple[float, float]:
 def mean_bound(j: int, d: int, alpha: float) -> tuple[float, float]:
     """``(bound, a)`` of the ``j``-th (1-based) evaluation of the innovation-mean scan."""
     return _mean_bound(max(int(j), 1).bit_length() - 1, int(d), float(alpha))
+
+
+@functools.lru_cache(maxsize=256)
+def reject_probability(gate: float, d: int) -> float:
+    """The probability that a consistent filter's reading fails its gate ``gate`` (NIS
+    threshold) in ``d`` dimensions: ``P(chi2_d > gate)``; 0 without a gate."""
+    if not math.isfinite(gate):
+        return 0.0
+    from scipy.special import gammaincc
+
+    return float(gammaincc(0.5 * d, 0.5 * gate))
+
+
+@functools.lru_cache(maxsize=4096)
+def _count_bound(block: int, w: int, p: float, alpha: float) -> tuple[int, float]:
+    """``(k, a)``: the fewest rejections among ``w`` readings that fire the rejection count at
+    an evaluation of block ``b`` (share ``a`` as :func:`_mean_bound`): the smallest ``k`` with
+    ``P(Binomial(w, p) >= k) <= a``, ``p`` the gate's rejection probability (``w + 1``: never)."""
+    a = alpha * 6.0 / (math.pi**2 * (block + 1) ** 2) / 2**block
+    tail = 1.0
+    for k in range(w + 1):
+        if tail <= a:
+            return k, a
+        tail -= math.comb(w, k) * p**k * (1.0 - p) ** (w - k)
+    return w + 1, a
+
+
+def count_bound(j: int, w: int, p: float, alpha: float) -> tuple[int, float]:
+    """``(k, a)`` of the ``j``-th (1-based) evaluation of the rejection count."""
+    return _count_bound(max(int(j), 1).bit_length() - 1, int(w), float(p), float(alpha))
+
+
+def _count(st: _Live, kw: dict, t: float, ok: bool, gate: float, d: int, w: int, opts) -> None:
+    """The rejection count after one gated reading (into ``kw``): every :func:`mean_stride`
+    readings, the rejections among the last ``w`` against the binomial bound of the gate's own
+    rejection probability (:func:`count_bound`). A consistent filter rejects a reading with
+    probability ``1 - gate`` (1e-3), independently of the others; a burst of gross readings
+    that the gate rejects one in two (GPS multipath at 4 sigma) fails it within a window,
+    where the runs of ``reject_run`` consecutive rejections need them in a row."""
+    p = reject_probability(gate, d)
+    if p <= 0.0:
+        return
+    win, times = st.rwin + ((0 if ok else 1),), st.rtimes + (t,)
+    if len(win) > w:
+        win, times = win[1:], times[1:]
+    kw["rwin"], kw["rtimes"] = win, times
+    if len(win) < w or (st.n + 1 - w) % mean_stride(w):
+        return
+    j = st.rk + 1
+    k, _ = count_bound(j, w, p, opts.nis_alpha)
+    count = sum(win)
+    kw["rk"] = j
+    if count >= k:
+        kw.update(rhits=st.rhits + 1, rfailing=True, rgood=0, r_t1=t)
+        if count > st.rworst:
+            kw.update(rworst=count, rbound=k)
+        if st.rhits == 0:
+            kw["r_t0"] = times[0]
+    elif st.rfailing:
+        kw["rfailing"], kw["rgood"] = _still_failing(st.rgood, w)
 
 
 def whiten(y, S) -> tuple | None:
@@ -355,12 +434,7 @@ def _scan(st: _Live, kw: dict, t: float, white, w: int, d: int, opts) -> None:
         if st.mhits == 0:
             kw["m_t0"] = win[0][0]
     elif st.mfailing:
-        good = st.mgood + 1
-        # recovered once a whole window of new readings is inside the bound
-        if good * mean_stride(w) >= w:
-            kw.update(mfailing=False, mgood=0)
-        else:
-            kw["mgood"] = good
+        kw["mfailing"], kw["mgood"] = _still_failing(st.mgood, w)
 
 
 def advance(
@@ -377,10 +451,12 @@ def advance(
     * rejection runs: ``reject_run`` consecutive rejections make the stream failing too;
     * the innovation-mean scan (:func:`_scan`) of a stream given its whitened innovations
       ``white`` (the absolute sensors: :attr:`FilterMonitor.mean_streams`);
+    * the rejection count (:func:`_count`) of the last ``nis_window`` readings;
     * reading times, for the outage check.
     """
     w, persist = max(int(opts.nis_window), 1), int(opts.health_persist)
     kw = {"n": st.n + 1, "t_last": t, "ratio": nis / gate if math.isfinite(gate) else 0.0}
+    _count(st, kw, t, ok, gate, d, w, opts)
     if st.n == 0:
         kw["t_first"] = t
     elif t - st.t_last > st.gap:
@@ -455,10 +531,10 @@ RUN_NIS_MIN_WINDOWS = 2
 
 
 def live_findings(
-    s: str, st: _Live, t0: float, t1: float, opts, d: int, outage: bool = True
+    s: str, st: _Live, t0: float, t1: float, opts, d: int, outage: bool = True, gate=math.inf
 ) -> list[Finding]:
     """The findings of one stream's streaming checks over the run ``[t0, t1]`` (s) (the
-    outage check only with ``outage``)."""
+    outage check only with ``outage``; ``gate``: the stream's NIS threshold)."""
     out: list[Finding] = []
     w, persist = max(int(opts.nis_window), 1), int(opts.health_persist)
     if st.episodes:
@@ -510,6 +586,23 @@ def live_findings(
                 t_start=st.m_t0,
                 t_end=st.m_t1,
                 figure=st.mworst,
+            )
+        )
+    if st.rhits:
+        now = "; failing now" if st.rfailing else ""
+        p = reject_probability(float(gate), d)
+        out.append(
+            Finding(
+                "rejection_count",
+                f"{st.rworst} of {w} consecutive readings rejected by the gate (a consistent "
+                f"filter rejects {_s(p)} of them; {st.rbound} or more at <= "
+                f"{_s(count_bound(st.rk, w, p, opts.nis_alpha)[1])} an evaluation), "
+                f"{st.rhits} time(s){now}: the estimate and this sensor disagree"
+                f"{nis_keys(s)}",
+                sensor=s,
+                t_start=st.r_t0,
+                t_end=st.r_t1,
+                figure=float(st.rworst),
             )
         )
     if st.low_episodes:
@@ -704,7 +797,7 @@ class FilterMonitor:
     def failing(self) -> list[str]:
         """The streams whose checks are failing now (persistence reached, not recovered)."""
         self.catch_up()
-        return [s for s, st in self.live.items() if st.failing or st.mfailing]
+        return [s for s, st in self.live.items() if st.failing or st.mfailing or st.rfailing]
 
     def observe(self, stream: str, t: float, accepted: bool, nis: float, white=None) -> bool:
         """Record one gated update; True when the stream shows divergence (recovery due).
@@ -769,7 +862,7 @@ class FilterMonitor:
         out: list[Finding] = []
         t0, t1 = span if span is not None else (math.nan, math.nan)
         for s, st in self.live.items():
-            out += live_findings(s, st, t0, t1, self.options, self.dims[s], outage)
+            out += live_findings(s, st, t0, t1, self.options, self.dims[s], outage, self.gates[s])
         out += self._recovery_findings()
         return out
 
