@@ -256,16 +256,15 @@ class _Live(NamedTuple):
     mfailing: bool = False  # above its bound now (hysteresis: one window of readings)
     mgood: int = 0  # consecutive evaluations inside the bound while failing
     # The rejection count (:func:`_count`): the last nis_window readings' gate decisions
-    rwin: tuple = ()  # 1 rejected, 0 accepted
     rk: int = 0  # evaluations
     rhits: int = 0  # evaluations at or above their bound
-    r_t0: float = math.nan  # first window at or above its bound: its first reading's time
+    r_t0: float = math.nan  # first window at or above its bound: its first rejection's time
     r_t1: float = math.nan
     rworst: int = 0  # the most rejections in a window that fired
     rbound: int = 0  # the bound of that window
     rfailing: bool = False
     rgood: int = 0
-    rtimes: tuple = ()  # the times of the readings of rwin
+    rtimes: tuple = ()  # (index, time) of the rejected readings among the last nis_window
 
 
 @functools.lru_cache(maxsize=4096)
@@ -357,25 +356,27 @@ def _count(st: _Live, kw: dict, t: float, ok: bool, gate: float, d: int, w: int,
     probability ``1 - gate`` (1e-3), independently of the others; a burst of gross readings
     that the gate rejects one in two (GPS multipath at 4 sigma) fails it within a window,
     where the runs of ``reject_run`` consecutive rejections need them in a row."""
+    n = st.n + 1  # this reading's index (1-based)
+    rej = st.rtimes if ok else st.rtimes + ((n, t),)
+    if rej and rej[0][0] <= n - w:  # rejections are rare: O(1) a reading
+        rej = tuple(e for e in rej if e[0] > n - w)
+    if rej is not st.rtimes:
+        kw["rtimes"] = rej
+    if n < w or (n - w) % (w // 4 or 1):  # mean_stride, inline: every reading passes here
+        return
     p = reject_probability(gate, d)
     if p <= 0.0:
         return
-    win, times = st.rwin + ((0 if ok else 1),), st.rtimes + (t,)
-    if len(win) > w:
-        win, times = win[1:], times[1:]
-    kw["rwin"], kw["rtimes"] = win, times
-    if len(win) < w or (st.n + 1 - w) % mean_stride(w):
-        return
     j = st.rk + 1
     k, _ = count_bound(j, w, p, opts.nis_alpha)
-    count = sum(win)
+    count = len(rej)
     kw["rk"] = j
     if count >= k:
         kw.update(rhits=st.rhits + 1, rfailing=True, rgood=0, r_t1=t)
         if count > st.rworst:
             kw.update(rworst=count, rbound=k)
-        if st.rhits == 0:
-            kw["r_t0"] = times[0]
+        if st.rhits == 0 and rej:
+            kw["r_t0"] = rej[0][1]
     elif st.rfailing:
         kw["rfailing"], kw["rgood"] = _still_failing(st.rgood, w)
 
