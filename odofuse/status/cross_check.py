@@ -469,6 +469,8 @@ def alpha_budget(config, log) -> dict:
     fused = [str(n) for n in (config.sensors or {}) if n in streams and len(streams[n])]
     checks: dict[str, float] = {}
     graph = est in GRAPH_NIS
+    # the streams the innovation-mean scans test: those measured against the world
+    scanned = {n for n in fused if sensor_kind(config, n) != "gyro"}
     if est in DRIFT_EVIDENCE:
         # fixed-lag and iSAM2 (also with slam: graph.isam2_slam) test their sensor rows (not
         # the gyro's or the loop closures', factors between poses) at the filters' defaults
@@ -478,9 +480,7 @@ def alpha_budget(config, log) -> dict:
         nis = float(nis_opts.nis_alpha)
         checks.update({f"nis:{n}": nis for n in sorted(tested)})
         checks.update({f"nis_run:{n}": nis for n in sorted(tested)})
-        # the innovation-mean scan: the streams measured against the world (not the gyro)
-        mean = [n for n in tested if sensor_kind(config, n) != "gyro"]
-        checks.update({f"innovation_mean:{n}": nis for n in sorted(mean)})
+        checks.update({f"innovation_mean:{n}": nis for n in sorted(scanned & set(tested))})
         # the rejection count of every gated stream (a stream without a gate cannot fire it)
         gated = [n for n in tested if getattr(config.sensors[n], "gate", 0.999) is not None]
         checks.update({f"rejection_count:{n}": nis for n in sorted(gated)})
@@ -493,8 +493,9 @@ def alpha_budget(config, log) -> dict:
         ekf = config.estimator_options("ekf")
         checks["calibration_drift"] = float(ekf.drift_alpha)
         if est != "dead_reckoning":  # and its innovation-mean scans (drift.seen_by_ekf)
-            means = [n for n in fused if sensor_kind(config, n) != "gyro"]
-            checks.update({f"companion_innovation_mean:{n}": float(ekf.nis_alpha) for n in means})
+            checks.update(
+                {f"companion_innovation_mean:{n}": float(ekf.nis_alpha) for n in sorted(scanned)}
+            )
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
     gyros = [n for n in fused if sensor_kind(config, n) == "gyro"]
     windows = {f"residual_windows:{n}": WINDOW_ALPHA for n in [odo, *gyros] if n}

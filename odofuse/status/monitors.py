@@ -267,6 +267,18 @@ class _Live(NamedTuple):
     rtimes: tuple = ()  # (index, time) of the rejected readings among the last nis_window
 
 
+def _share(block: int, alpha: float) -> float:
+    """One test's share of ``alpha`` in block ``block`` of an alpha-spending schedule over a
+    run of any length: the tests ``2^b <= k < 2^(b+1)`` of block ``b`` share
+    ``alpha * 6 / (pi^2 (b + 1)^2)`` (the blocks' shares sum to ``alpha``), ``2^-b`` each."""
+    return alpha * 6.0 / (math.pi**2 * (block + 1) ** 2) / 2**block
+
+
+def _block(k: int) -> int:
+    """The block ``b`` (``2^b <= k < 2^(b+1)``) of the ``k``-th (1-based) test."""
+    return max(int(k), 1).bit_length() - 1
+
+
 @functools.lru_cache(maxsize=4096)
 def _band(block: int, w: int, d: int, alpha: float, persist: int) -> tuple[float, float, float]:
     """``(lo, hi, a)``: the band of a window's mean NIS and its per-window probability ``a``.
@@ -276,7 +288,7 @@ def _band(block: int, w: int, d: int, alpha: float, persist: int) -> tuple[float
     fails on ``persist`` consecutive windows, so one window's probability is that share's
     per-window part to the power ``1 / persist`` (consistent windows are independent).
     """
-    q = alpha * 6.0 / (math.pi**2 * (block + 1) ** 2) / 2**block
+    q = _share(block, alpha)
     a = q ** (1.0 / persist)
     from odofuse import chi2
 
@@ -286,7 +298,7 @@ def _band(block: int, w: int, d: int, alpha: float, persist: int) -> tuple[float
 
 def window_band(k: int, w: int, d: int, alpha: float, persist: int) -> tuple[float, float, float]:
     """``(lo, hi, a)`` of the ``k``-th (1-based) window of ``w`` readings of dimension ``d``."""
-    return _band(max(int(k), 1).bit_length() - 1, int(w), int(d), float(alpha), int(persist))
+    return _band(_block(k), int(w), int(d), float(alpha), int(persist))
 
 
 def mean_stride(w: int) -> int:
@@ -294,21 +306,21 @@ def mean_stride(w: int) -> int:
     return max(int(w) // 4, 1)
 
 
-def _still_failing(good: int, w: int) -> tuple[bool, int]:
+def _still_failing(good: int, w: int, stride: int) -> tuple[bool, int]:
     """``(failing, good)`` of a failing scan or count after one more evaluation inside its
-    bound (``good`` such evaluations before it): it recovers once a whole window of new
-    readings is inside."""
+    bound (``good`` such evaluations before it, one every ``stride`` readings): it recovers
+    once a whole window of ``w`` new readings is inside."""
     good += 1
-    return (False, 0) if good * mean_stride(w) >= w else (True, good)
+    return (False, 0) if good * stride >= w else (True, good)
 
 
 @functools.lru_cache(maxsize=4096)
 def _mean_bound(block: int, d: int, alpha: float) -> tuple[float, float]:
     """``(bound, a)`` of the scan's evaluations ``2^b <= j < 2^(b+1)`` (block ``b``): the
-    ``1 - a`` quantile of chi-square(``d``), ``a = alpha 6 / (pi^2 (b + 1)^2) / 2^b`` (the
-    NIS windows' spending, :func:`_band`, one evaluation at a time: Bonferroni, valid however
-    the overlapping windows are correlated)."""
-    a = alpha * 6.0 / (math.pi**2 * (block + 1) ** 2) / 2**block
+    ``1 - a`` quantile of chi-square(``d``), ``a`` the evaluation's :func:`_share` (the NIS
+    windows' spending, one evaluation at a time: Bonferroni, valid however the overlapping
+    windows are correlated)."""
+    a = _share(block, alpha)
     from odofuse import chi2
 
     return float(chi2.ppf(1.0 - a, d)), a
@@ -316,7 +328,7 @@ def _mean_bound(block: int, d: int, alpha: float) -> tuple[float, float]:
 
 def mean_bound(j: int, d: int, alpha: float) -> tuple[float, float]:
     """``(bound, a)`` of the ``j``-th (1-based) evaluation of the innovation-mean scan."""
-    return _mean_bound(max(int(j), 1).bit_length() - 1, int(d), float(alpha))
+    return _mean_bound(_block(j), int(d), float(alpha))
 
 
 @functools.lru_cache(maxsize=256)
@@ -333,9 +345,9 @@ def reject_probability(gate: float, d: int) -> float:
 @functools.lru_cache(maxsize=4096)
 def _count_bound(block: int, w: int, p: float, alpha: float) -> tuple[int, float]:
     """``(k, a)``: the fewest rejections among ``w`` readings that fire the rejection count at
-    an evaluation of block ``b`` (share ``a`` as :func:`_mean_bound`): the smallest ``k`` with
+    an evaluation of block ``b`` (its :func:`_share` ``a``): the smallest ``k`` with
     ``P(Binomial(w, p) >= k) <= a``, ``p`` the gate's rejection probability (``w + 1``: never)."""
-    a = alpha * 6.0 / (math.pi**2 * (block + 1) ** 2) / 2**block
+    a = _share(block, alpha)
     tail = 1.0
     for k in range(w + 1):
         if tail <= a:
@@ -346,23 +358,26 @@ def _count_bound(block: int, w: int, p: float, alpha: float) -> tuple[int, float
 
 def count_bound(j: int, w: int, p: float, alpha: float) -> tuple[int, float]:
     """``(k, a)`` of the ``j``-th (1-based) evaluation of the rejection count."""
-    return _count_bound(max(int(j), 1).bit_length() - 1, int(w), float(p), float(alpha))
+    return _count_bound(_block(j), int(w), float(p), float(alpha))
 
 
-def _count(st: _Live, kw: dict, t: float, ok: bool, gate: float, d: int, w: int, opts) -> None:
-    """The rejection count after one gated reading (into ``kw``): every :func:`mean_stride`
-    readings, the rejections among the last ``w`` against the binomial bound of the gate's own
-    rejection probability (:func:`count_bound`). A consistent filter rejects a reading with
-    probability ``1 - gate`` (1e-3), independently of the others; a burst of gross readings
-    that the gate rejects one in two (GPS multipath at 4 sigma) fails it within a window,
-    where the runs of ``reject_run`` consecutive rejections need them in a row."""
+def _count(
+    st: _Live, kw: dict, t: float, ok: bool, gate: float, d: int, w: int, stride: int, opts
+) -> None:
+    """The rejection count after one gated reading (into ``kw``): every ``stride``
+    (:func:`mean_stride`) readings, the rejections among the last ``w`` against the binomial
+    bound of the gate's own rejection probability (:func:`count_bound`). A consistent filter
+    rejects a reading with probability ``1 - gate`` (1e-3), independently of the others; a
+    burst of gross readings that the gate rejects one in two (GPS multipath at 4 sigma) fails
+    it within a window, where the runs of ``reject_run`` consecutive rejections need them in
+    a row."""
     n = st.n + 1  # this reading's index (1-based)
     rej = st.rtimes if ok else st.rtimes + ((n, t),)
     if rej and rej[0][0] <= n - w:  # rejections are rare: O(1) a reading
         rej = tuple(e for e in rej if e[0] > n - w)
     if rej is not st.rtimes:
         kw["rtimes"] = rej
-    if n < w or (n - w) % (w // 4 or 1):  # mean_stride, inline: every reading passes here
+    if n < w or (n - w) % stride:
         return
     p = reject_probability(gate, d)
     if p <= 0.0:
@@ -378,7 +393,7 @@ def _count(st: _Live, kw: dict, t: float, ok: bool, gate: float, d: int, w: int,
         if st.rhits == 0 and rej:
             kw["r_t0"] = rej[0][1]
     elif st.rfailing:
-        kw["rfailing"], kw["rgood"] = _still_failing(st.rgood, w)
+        kw["rfailing"], kw["rgood"] = _still_failing(st.rgood, w, stride)
 
 
 def whiten(y, S) -> tuple | None:
@@ -408,11 +423,11 @@ def whiten(y, S) -> tuple | None:
     return tuple(float(v) for v in np.linalg.solve(L, y))
 
 
-def _scan(st: _Live, kw: dict, t: float, white, w: int, d: int, opts) -> None:
+def _scan(st: _Live, kw: dict, t: float, white, w: int, d: int, stride: int, opts) -> None:
     """The innovation-mean scan after one accepted reading with whitened innovation
-    ``white`` (into ``kw``): every :func:`mean_stride` readings, the last ``w`` whitened
-    innovations' sum ``s`` gives ``|s|^2 / w``, chi-square(``d``) under the filter's own
-    model, against :func:`mean_bound`. It sees a bias that the NIS hardly does: a 1 m offset
+    ``white`` (into ``kw``): every ``stride`` (:func:`mean_stride`) readings, the last ``w``
+    whitened innovations' sum ``s`` gives ``|s|^2 / w``, chi-square(``d``) under the filter's
+    own model, against :func:`mean_bound`. It sees a bias that the NIS hardly does: a 1 m offset
     under a 2 m GPS adds a quarter to each NIS but shares its sign over tens of readings."""
     if white is None or len(white) != d or not all(math.isfinite(v) for v in white):
         return
@@ -421,7 +436,7 @@ def _scan(st: _Live, kw: dict, t: float, white, w: int, d: int, opts) -> None:
         win = win[1:]
     kw["mwin"] = win
     n = st.tn + 1
-    if len(win) < w or (n - w) % mean_stride(w):
+    if len(win) < w or (n - w) % stride:
         return
     j = st.mk + 1
     sums = [math.fsum(e[1 + i] for e in win) for i in range(d)]
@@ -435,7 +450,7 @@ def _scan(st: _Live, kw: dict, t: float, white, w: int, d: int, opts) -> None:
         if st.mhits == 0:
             kw["m_t0"] = win[0][0]
     elif st.mfailing:
-        kw["mfailing"], kw["mgood"] = _still_failing(st.mgood, w)
+        kw["mfailing"], kw["mgood"] = _still_failing(st.mgood, w, stride)
 
 
 def advance(
@@ -457,7 +472,8 @@ def advance(
     """
     w, persist = max(int(opts.nis_window), 1), int(opts.health_persist)
     kw = {"n": st.n + 1, "t_last": t, "ratio": nis / gate if math.isfinite(gate) else 0.0}
-    _count(st, kw, t, ok, gate, d, w, opts)
+    stride = w // 4 or 1  # mean_stride(w), inline (0.2 us a reading): scan and count
+    _count(st, kw, t, ok, gate, d, w, stride, opts)
     if st.n == 0:
         kw["t_first"] = t
     elif t - st.t_last > st.gap:
@@ -478,7 +494,7 @@ def advance(
         return st._replace(**kw)
     kw["run"] = 0
     if white is not None:
-        _scan(st, kw, t, white, w, d, opts)
+        _scan(st, kw, t, white, w, d, stride, opts)
     kw["tsum"], kw["tn"] = st.tsum + min(nis, 1e12), st.tn + 1
     wsum, wn = st.wsum + min(nis, 1e12), st.wn + 1
     if wn == 1:
