@@ -26,12 +26,13 @@ run per log shared by its estimators, as ``odofuse run`` shares it).
 * For every run that says ``ok``: its position NEES against the chi-square 99.9 % bound of its
   run (:func:`nees_bound`: the mean of ``n_eff`` independent chi-square(2) values, ``n_eff``
   the run's effective number of independent NEES values from their integrated autocorrelation
-  time). For the batch smoother and iSAM2 the last column adds the bound their solution's
-  joint covariance implies (:func:`model_nees_bound`: the exact distribution of the run's
-  mean NEES under the estimator's own model, however correlated its errors are); Sokal's
-  estimate of ``n_eff`` from one run's series counts more independent values than the
-  solution says it holds (docs/trust.md, "The bound a graph solution implies"). Ground truth
-  only scores.
+  time). For the batch smoother, iSAM2, the EKF and the UKF the last column adds the bound
+  their own joint covariance implies (the exact distribution of the run's mean NEES under the
+  estimator's own model, however correlated its errors are: :func:`model_nees_bound` from a
+  graph solution's information matrix, :func:`filter_model_nees_bound` from a filter's closed
+  loop, ``filter_joint.py``); Sokal's estimate of ``n_eff`` from one run's series counts more
+  independent values than the model says it holds (docs/trust.md, "The bound a graph solution
+  implies", "The bound a filter's own model implies"). Ground truth only scores.
 
 ``--quick``: 2 seeds, EKF and smoother, the nominal logs and three faults (the tests' form is
 ``tests/test_status_rate.py``). Serial on purpose (the machine's two cores are shared).
@@ -335,7 +336,6 @@ def model_nees_bound(problem, graph, values, gt) -> tuple[float, float]:
     eigenvalues of ``L^T B L`` (``S = L L^T``): :func:`generalised_chi2_ppf` gives its
     99.9 % point exactly."""
     import gtsam
-    from scipy.linalg import block_diag
 
     from odofuse import se2
     from odofuse.estimators.graph.keys import X
@@ -356,22 +356,85 @@ def model_nees_bound(problem, graph, values, gt) -> tuple[float, float]:
     body = np.linalg.inv(info)[np.ix_(cols, cols)].reshape(m, 2, m, 2)  # GTSAM tangent
     R = se2.rot(poses[idx, 2])  # body -> world position blocks: R_i S_ij R_j^T
     S = np.einsum("iab,ibjc,jdc->iajd", R, body, R).reshape(2 * m, 2 * m)
-    S = 0.5 * (S + S.T)
+    return joint_bound(0.5 * (S + S.T), poses[idx, :2] - g[:, :2])
+
+
+def joint_bound(S: np.ndarray, e: np.ndarray) -> tuple[float, float]:
+    """``(bound, mean NEES)`` of position errors ``e`` ``(m, 2)`` whose joint covariance under
+    the estimator's model is ``S`` ``(2m, 2m)``: the run's mean NEES ``e^T B e`` (``B`` the
+    blocks ``P_i^-1 / m``, ``P_i`` the diagonal blocks of ``S``) is a weighted sum of
+    chi-square(1) values whose weights are the eigenvalues of ``B S`` (those of ``C^T S C``,
+    ``B = C C^T`` block by block), and :func:`generalised_chi2_ppf` gives its 99.9 % point."""
+    from scipy.linalg import block_diag
+
+    m = len(e)
     P_inv = np.linalg.inv(S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :])
-    B = block_diag(*P_inv) / m
-    e = (poses[idx, :2] - g[:, :2]).ravel()
-    L = np.linalg.cholesky(S)
-    return generalised_chi2_ppf(np.linalg.eigvalsh(L.T @ B @ L)), float(e @ B @ e)
+    C = block_diag(*np.linalg.cholesky(P_inv)) / math.sqrt(m)
+    e = np.asarray(e, dtype=float).ravel()
+    lam = np.linalg.eigvalsh(C.T @ S @ C)
+    return generalised_chi2_ppf(np.clip(lam, 0.0, None)), float(e @ (C @ (C.T @ e)))
+
+
+#: At most this many poses enter a filter's model bound (every ``s``-th of those scored): the
+#: joint covariance is ``(2m, 2m)`` and its eigenvalues cost ``m^3``.
+FILTER_BOUND_POSES = 600
+
+
+#: How far below 0 (correlation scale) the noise a pose adds under the recorded closed loop
+#: may go (:func:`filter_joint.worst_added_noise`): the EKF's is its own recursion (rounding,
+#: 1e-13 measured); the UKF's covariance is its sigma points', not the Jacobians' (up to 2e-4
+#: measured on seeds 6001-6033).
+ADDED_NOISE_TOLERANCE = {"ekf": 1e-9, "ukf": 1e-3}
+
+
+def filter_model_nees_bound(log, cfg, estimator: str, traj, gt) -> tuple[float, float]:
+    """``(bound, mean NEES)`` of a Kalman filter's (``ekf`` / ``ukf``) positions against
+    ``gt`` at every ``s``-th scored pose (at most :data:`FILTER_BOUND_POSES`), the bound the
+    filter's own model implies for their mean (:mod:`filter_joint`: the run again on the
+    Python path, its closed loop recorded; its poses must be ``traj``'s, the compiled run's,
+    to 1e-6)."""
+    import filter_joint
+
+    from odofuse.se2 import wrap
+
+    again, steps = filter_joint.run_recorded(log, cfg, estimator)
+    worst = filter_joint.worst_added_noise(steps)
+    if not worst >= -ADDED_NOISE_TOLERANCE[estimator]:
+        raise AssertionError(f"{estimator}: the recorded closed loop adds noise {worst:.3g} < 0")
+    same = again.poses.shape == traj.poses.shape
+    d = again.poses - traj.poses if same else np.zeros((0, 3))
+    if not (same and np.all(np.abs(np.c_[d[:, :2], wrap(d[:, 2])]) <= 1e-6)):
+        raise AssertionError(f"{estimator}: the recorded Python run is not the run scored")
+    return recorded_nees_bound(again, steps, gt)
+
+
+def recorded_nees_bound(traj, steps, gt) -> tuple[float, float]:
+    """``(bound, mean NEES)`` of the recorded filter run ``traj`` with its closed loop
+    ``steps`` (:func:`filter_joint.run_recorded`) at every ``s``-th pose scored against
+    ``gt``, at most :data:`FILTER_BOUND_POSES` of them."""
+    import filter_joint
+
+    from odofuse.evaluation import associate
+
+    idx, g = associate(traj, gt)
+    P = traj.covariances[idx][:, :2, :2]
+    pd = np.linalg.eigvalsh(P)[:, 0] > 0.0
+    idx, g = idx[pd], g[pd]
+    every = max(1, math.ceil(len(idx) / FILTER_BOUND_POSES))
+    idx, g = idx[::every], g[::every]
+    S = filter_joint.joint_position_covariance(steps, idx)
+    return joint_bound(S, traj.poses[idx, :2] - g[:, :2])
 
 
 def _keep(solutions: list, problem, graph, values, estimator: str) -> None:
     solutions.append((estimator, problem, graph, values))
 
 
-def run_log(log, cfg, estimators):
+def run_log(log, cfg, estimators, model_bounds: bool = True):
     """``{estimator: (status, position NEES, bound, first warning, rmse, model bound)}`` on one
-    log; the model bound (:func:`model_nees_bound`) of the batch smoother and iSAM2, nan for
-    the others (no joint covariance)."""
+    log; the model bound (:func:`model_nees_bound`, :func:`filter_model_nees_bound`) of the
+    batch smoother, iSAM2, EKF and UKF, nan for the others (no joint covariance) and without
+    ``model_bounds``."""
     from odofuse.estimators.graph import solvers
     from odofuse.evaluation import nees_values, trajectory_from_stream
     from odofuse.log_defaults import apply_log_defaults
@@ -401,10 +464,17 @@ def run_log(log, cfg, estimators):
         bound = nees_bound(v)[0] if v.size else math.nan
         model = math.nan
         mine = [(p, graph, values) for e, p, graph, values in solutions if e == est]
-        if mine and v.size and est in ("smoother", "isam2"):
+        if not model_bounds or not v.size:
+            pass
+        elif mine and est in ("smoother", "isam2"):
             model, joint_mean = model_nees_bound(*mine[-1], gt)
             if not abs(joint_mean - mean) <= 1e-3 * max(mean, 1.0):  # the same poses and blocks
                 raise AssertionError(f"{est}: joint NEES {joint_mean} != {mean}")
+        elif est in ("ekf", "ukf"):
+            # judged on every s-th pose: the model's bound of that mean, scaled to the mean
+            # of all poses that the other columns use (the ratio is what is judged)
+            model, sub_mean = filter_model_nees_bound(log, run_cfg, est, result.trajectory, gt)
+            model *= mean / sub_mean
         warn = next(
             (w for w, f in zip(m["warnings"], m["findings"], strict=True) if f.get("degrades")),
             m["warnings"][0] if m["warnings"] else "",
@@ -414,7 +484,16 @@ def run_log(log, cfg, estimators):
 
 
 # ------------------------------------------------------------------------------- the table
-def measure(seeds, estimators, faults, fault_seeds=None, log_lines=print, base=None, case=None):
+def measure(
+    seeds,
+    estimators,
+    faults,
+    fault_seeds=None,
+    log_lines=print,
+    base=None,
+    case=None,
+    model_bounds=True,
+):
     """Run the benchmark: ``{"nominal": {est: [row...]}, fault: {est: [row...]}}`` (the
     faults on ``fault_seeds``, default ``seeds``); ``base`` :data:`REAL_ROBOT`: the
     "nominal" logs are the real robot's. ``case(seed, fault)`` makes each ``(log, config,
@@ -427,7 +506,7 @@ def measure(seeds, estimators, faults, fault_seeds=None, log_lines=print, base=N
         for seed in seeds if kind == "nominal" or fault_seeds is None else fault_seeds:
             t0 = time.perf_counter()
             log, cfg, what = case(seed, base if kind == "nominal" else kind)
-            rows = run_log(log, cfg, estimators)
+            rows = run_log(log, cfg, estimators, model_bounds)
             for est, row in rows.items():
                 table[kind][est].append((seed, what, *row))
             brief = " ".join(f"{e}:{r[0][:3]}/{r[1]:.3g}" for e, r in rows.items())
