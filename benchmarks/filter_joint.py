@@ -16,7 +16,9 @@ The operations: a prediction multiplies by the motion Jacobian at the filter's m
 (:meth:`EkfBackend.transition` with odometry calibration, ``I + c e_theta^T`` without); an
 accepted update by ``I - K H``, ``K`` the filter's own gain and ``H`` the measurement model's
 Jacobian at the prior; a rejected one by nothing; a clone copies the source state's row; an
-inflation (a recovery) adds independent uncertainty (``Phi`` unchanged). The UKF takes the
+inflation (a recovery, ``P <- D P D``) scales the error by ``D`` (adding the difference as
+independent noise instead is not a covariance: ``D P D - P`` is indefinite where ``P``
+correlates the pose with the other states). The UKF takes the
 same Jacobians at its own mean with its own gain: the statistical linearisation from its sigma
 points (``F = P_xx'^T P^-1``) was tried first and is ill-conditioned beside a fresh heading
 clone, where ``P`` is singular. Benchmark code only: nothing in odofuse calls it.
@@ -43,6 +45,7 @@ def _hooks(rec: _Record, backend_cls):
     from odofuse.estimators.ekf import EkfBackend
 
     predict, update, clone = backend_cls.predict, backend_cls.update, backend_cls.clone
+    inflate = backend_cls.inflate
 
     def h_predict(self, u, dt, dtheta=None, var_dtheta=0.0, noise_scale=1.0):
         x = self.kf.x.copy()
@@ -70,7 +73,13 @@ def _hooks(rec: _Record, backend_cls):
         E[dst, src] = 1.0
         rec.apply(E)
 
-    return {"predict": h_predict, "update": h_update, "clone": h_clone}
+    def h_inflate(self, factor, idx):
+        inflate(self, factor, idx)
+        D = np.ones(self.n)
+        D[list(idx)] = np.sqrt(factor)
+        rec.apply(np.diag(D))
+
+    return {"predict": h_predict, "update": h_update, "clone": h_clone, "inflate": h_inflate}
 
 
 def _no_replay(self, snap):

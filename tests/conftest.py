@@ -28,12 +28,20 @@ def pytest_collection_modifyitems(config, items):
 def pytest_configure(config):
     """One folder per test run where ``benchmarks/gtsam_reference.best`` shares GTSAM's
     reference optima between the xdist workers (set before they start, so they inherit it):
-    a file's reference is then computed once per run, not once per worker that asks."""
+    a file's reference is then computed once per run, not once per worker that asks. Also
+    lets the run write Python's bytecode caches (below)."""
     import os
+    import sys
     import tempfile
 
     if hasattr(config, "workerinput"):  # a worker: the controller has set it
         return
+    # A machine with PYTHONDONTWRITEBYTECODE set (this one's shell) has every worker and every
+    # `odofuse` subprocess compile odofuse and re-rewrite the test modules' asserts from source:
+    # the suite writes its bytecode caches (__pycache__, ignored by git) like any default
+    # Python, so that only the first process compiles.
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    sys.dont_write_bytecode = False
     folder = tempfile.mkdtemp(prefix="odofuse-gtsam-best-")
     os.environ["ODOFUSE_GTSAM_BEST_DIR"] = folder
     config._gtsam_best_dir = folder

@@ -16,6 +16,7 @@ and the import graph among odofuse modules has no cycle.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -152,7 +153,11 @@ def imports_of(name: str, path: Path) -> set[str]:
     return found  # type: ignore[return-value]
 
 
-GRAPH = {name: imports_of(name, path) for name, path in MODULES.items()}
+@functools.cache
+def graph() -> dict[str, set[str]]:
+    """Module -> the odofuse modules it imports (parsed once, when a test first asks: not at
+    collection, which every pytest-xdist worker does)."""
+    return {name: imports_of(name, path) for name, path in MODULES.items()}
 
 
 def layer_of(name: str) -> tuple[int, str, bool] | None:
@@ -188,10 +193,10 @@ def test_no_import_cycle():
     # Iterative depth-first search; a back edge to a module on the stack closes a cycle.
     state: dict[str, int] = {}  # 1 = on the stack, 2 = done
     cycles = []
-    for root in sorted(GRAPH):
+    for root in sorted(graph()):
         if root in state:
             continue
-        stack = [(root, iter(sorted(GRAPH[root])))]
+        stack = [(root, iter(sorted(graph()[root])))]
         path = [root]
         state[root] = 1
         while stack:
@@ -206,14 +211,14 @@ def test_no_import_cycle():
             elif child not in state:
                 state[child] = 1
                 path.append(child)
-                stack.append((child, iter(sorted(GRAPH[child]))))
+                stack.append((child, iter(sorted(graph()[child]))))
     assert not cycles, "import cycles among odofuse modules:\n" + "\n".join(cycles)
 
 
 def test_only_the_cli_imports_teaching():
     bad = [
         f"{name} imports {dep}"
-        for name, deps in sorted(GRAPH.items())
+        for name, deps in sorted(graph().items())
         for dep in sorted(deps)
         if (dep == TEACHING or dep.startswith(TEACHING + "."))
         and not (name == TEACHING or name.startswith(TEACHING + "."))
@@ -224,7 +229,7 @@ def test_only_the_cli_imports_teaching():
 
 def test_imports_follow_the_pipeline():
     bad = []
-    for name, deps in sorted(GRAPH.items()):
+    for name, deps in sorted(graph().items()):
         here = layer_of(name)
         if here is None:
             continue  # reported by test_every_module_is_in_the_layer_table
