@@ -41,7 +41,8 @@ class _Record:
 
 
 def _hooks(rec: _Record, backend_cls):
-    """The observed ``predict``, ``update`` and ``clone`` of an EKF or UKF backend class."""
+    """The observed ``predict``, ``update``, ``clone`` and ``inflate`` of an EKF or UKF backend
+    class."""
     from odofuse.estimators.ekf import EkfBackend
 
     predict, update, clone = backend_cls.predict, backend_cls.update, backend_cls.clone
