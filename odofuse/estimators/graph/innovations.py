@@ -42,7 +42,7 @@ def _jacobian(lin, index: dict, n: int) -> tuple[np.ndarray, np.ndarray]:
     return out, np.asarray(b, dtype=float)
 
 
-def current_values(isam, keys):
+def current_values(isam, keys, known=None):
     """iSAM2's current estimate of ``keys`` (``gtsam.Values``) without bringing its whole
     delta up to date, as ``calculateEstimate`` does at O(n) a call (``tests/test_graph.py``):
     each key's linearisation point moved by the mean of its marginal (``marginalFactor``,
@@ -52,13 +52,18 @@ def current_values(isam, keys):
     ``o``, ``w`` or points (:mod:`odofuse.estimators.graph.keys`). Where a key's marginal is
     indeterminate for GTSAM's Cholesky (a calibration vector before the readings fix it,
     beside landmarks pinned at 1e-6 m: 6 of 3,526 reads on Plaza1, all at the start), the
-    whole estimate (``calculateEstimate``) is returned instead."""
+    whole estimate (``calculateEstimate``) is returned instead. ``known`` (key -> pose) gives
+    poses already read this way since iSAM2's last update (the newest pose, which
+    ``_newest_estimate`` read right after it), so that each marginal is read once."""
     import gtsam
 
     lin = isam.getLinearizationPoint()
     none = gtsam.VectorValues()
     out = gtsam.Values()
     for k in keys:
+        if known is not None and k in known:
+            out.insert(k, known[k])
+            continue
         try:
             step = isam.marginalFactor(k).solve(none).at(k)
         except RuntimeError:  # indeterminate for Cholesky: the whole estimate, once

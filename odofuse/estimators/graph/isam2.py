@@ -11,6 +11,7 @@ the window), with the iSAM2 parameters both use.
 from __future__ import annotations
 
 import bisect
+import functools
 import time
 
 import numpy as np
@@ -465,13 +466,15 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
     online = np.empty((len(problem.kt), 3))  # each keyframe's estimate right after its update
     findings: list[Finding] = []
     monitor = innovations.monitor(problem)  # the filters' NIS checks, as fixed-lag's
+    newest: dict = {}  # the pose the last update added -> its estimate, read after it
     for i in range(len(problem.kt)):
         t_step = _clock()
         if i > 0:
             current = current.compose(gtsam.Pose2(*problem.deltas[i - 1]))
         g, v = fac.keyframe(i, current)
         if i > 0 and fac.rows:
-            innovations.observe(monitor, isam, fac, g, v, innovations.current_values)
+            read = functools.partial(innovations.current_values, known=newest)
+            innovations.observe(monitor, isam, fac, g, v, read)
         graph.push_back(g)
         values.insert(v)
         window.add(graph, values)
@@ -481,6 +484,7 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
             latency.append(_clock() - t0)
             if i > 0:  # the root clique's marginal can be indeterminate too (a diverged run)
                 current = _newest_estimate(isam, X(i), current)
+                newest = {X(i): current}
         except RuntimeError as exc:  # indeterminate system: report, never a traceback
             if cholesky:
                 raise _CholeskyFailed from exc
