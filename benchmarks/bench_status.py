@@ -381,9 +381,10 @@ FILTER_BOUND_POSES = 600
 
 
 #: How far below 0 (correlation scale) the noise a pose adds under the recorded closed loop
-#: may go (:func:`filter_joint.worst_added_noise`): the EKF's is its own recursion (rounding,
-#: 1e-13 measured); the UKF's covariance is its sigma points', not the Jacobians' (up to 2e-4
-#: measured on seeds 6001-6033).
+#: may go (:func:`filter_joint.worst_added_noise`): the EKF's is its own recursion (rounding:
+#: -7e-16 on the logs checked one by one); the UKF's covariance is its sigma points', not the
+#: Jacobians' (-5.1e-4 at most of those; every log of seeds 6000-6099 and 7000-7099 within
+#: these tolerances).
 ADDED_NOISE_TOLERANCE = {"ekf": 1e-9, "ukf": 1e-3}
 
 
@@ -464,13 +465,11 @@ def run_log(log, cfg, estimators, model_bounds: bool = True):
         bound = nees_bound(v)[0] if v.size else math.nan
         model = math.nan
         mine = [(p, graph, values) for e, p, graph, values in solutions if e == est]
-        if not model_bounds or not v.size:
-            pass
-        elif mine and est in ("smoother", "isam2"):
+        if model_bounds and v.size and mine and est in ("smoother", "isam2"):
             model, joint_mean = model_nees_bound(*mine[-1], gt)
             if not abs(joint_mean - mean) <= 1e-3 * max(mean, 1.0):  # the same poses and blocks
                 raise AssertionError(f"{est}: joint NEES {joint_mean} != {mean}")
-        elif est in ("ekf", "ukf"):
+        elif model_bounds and v.size and est in ("ekf", "ukf"):
             # judged on every s-th pose: the model's bound of that mean, scaled to the mean
             # of all poses that the other columns use (the ratio is what is judged)
             try:
