@@ -74,8 +74,8 @@ DEGRADED = {
 #: computation (24.5 + 10.8 s for Plaza1's pair in the suite, 9.4 + 6.3 s for Plaza2's).
 #: The partner's test runs its CLI once and checks that the two configs load equal logs
 #: through the run's own path (``load_log_for`` and ``apply_log_defaults``): every stream,
-#: the map, ground truth, repairs, start pose and findings; ``source`` (the log's and its
-#: streams') is the path named.
+#: the map, ground truth, repairs, start pose and findings (each stream's ``source``, the
+#: file it was read from, included); the log's ``source`` is the path named.
 #: (One test, not two sharing a cache: the xdist workers would each run it.)
 SAME_LOG = {"Plaza1_TD.txt": "Plaza1_DR.txt", "Plaza2_TD.txt": "Plaza2_DR.txt"}
 _RUNS: dict = {}
@@ -194,13 +194,13 @@ def _assert_same_log(config: str, other: str, folder: Path) -> None:
         if f.name == "streams":
             assert x.keys() == y.keys()
             for k in x:
-                _assert_same_stream(x[k], y[k], (a.source, b.source))
+                _assert_same_stream(x[k], y[k])
         elif f.name == "landmarks":
             assert x.keys() == y.keys()
             for k in x:
                 np.testing.assert_array_equal(x[k], y[k])
         elif f.name == "groundtruth":
-            _assert_same_stream(x, y, (a.source, b.source))
+            _assert_same_stream(x, y)
         elif f.name == "initial_pose":
             assert (x is None) == (y is None)
             if x is not None:
@@ -209,12 +209,11 @@ def _assert_same_log(config: str, other: str, folder: Path) -> None:
             assert x == y, f.name
 
 
-def _assert_same_stream(x, y, sources) -> None:
-    """Equal streams; each names the path its config named (the reader's ``source``)."""
+def _assert_same_stream(x, y) -> None:
+    """Equal streams, read from the same file (``source``)."""
     assert (x is None) == (y is None)
     if x is not None:
-        assert (x.source, y.source) == sources
-        assert (x.name, tuple(x.columns)) == (y.name, tuple(y.columns))
+        assert (x.name, x.source, tuple(x.columns)) == (y.name, y.source, tuple(y.columns))
         np.testing.assert_array_equal(x.t, y.t)
         np.testing.assert_array_equal(x.values, y.values)
 

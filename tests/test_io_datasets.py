@@ -207,6 +207,16 @@ def test_plaza_text_equals_builtin(walk):
     assert text.landmarks == {} and text.groundtruth is None  # not shipped as text
 
 
+def test_plaza_text_streams_name_the_file_they_were_read_from(walk):
+    """A log named by its ``_TD.txt`` still says its odometry came from ``_DR.txt`` (the
+    ``file`` of a later message about that stream); the log's source is the path named."""
+    for name in ("Plaza1_DR.txt", "Plaza1_TD.txt"):
+        log = walk[name]
+        assert os.path.basename(log.source) == name
+        assert os.path.basename(log.streams["odometry"].source) == "Plaza1_DR.txt"
+        assert os.path.basename(log.streams["ranges"].source) == "Plaza1_TD.txt"
+
+
 def test_inverted_edge_covariance_is_the_adjoint():
     d = (0.7, -0.3, 2.5)
     t = gtsam.Pose2(*d)

@@ -37,16 +37,23 @@ NAME = re.compile(r"^(?P<prefix>.+)_(?P<kind>DR|TD|GT|TL)\.txt$", re.IGNORECASE)
 COLUMNS = {"DR": 3, "TD": 4, "GT": 4, "TL": 3}
 
 
-def plaza_log(dr, td, tl, gt, source: str, initial=None) -> SensorLog:
-    """The SensorLog of Plaza arrays (``dr`` or ``td``, ``tl``, ``gt`` may be ``None``)."""
+def plaza_log(dr, td, tl, gt, source: str, initial=None, files=None) -> SensorLog:
+    """The SensorLog of Plaza arrays (``dr`` or ``td``, ``tl``, ``gt`` may be ``None``).
+
+    ``source`` names the log (the path the config gave); ``files`` maps ``"DR"``, ``"TD"``,
+    ``"GT"`` to the file each array was read from, the ``source`` of its stream (default
+    ``source``: a ``.mat`` holds them all), so that a message about the odometry of a log
+    named by its ``_TD.txt`` names ``_DR.txt``."""
+    files = files or {}
+    src = {kind: files.get(kind, source) for kind in ("DR", "TD", "GT")}
     streams, repairs = {}, {}
     if dr is not None:
-        streams["odometry"] = Stream("odometry", source, dr[:, 0], ("ds", "dtheta"), dr[:, 1:3])
+        streams["odometry"] = Stream("odometry", src["DR"], dr[:, 0], ("ds", "dtheta"), dr[:, 1:3])
     if td is not None:
         # The raw TD ranges of Plaza1 jump back in time twice (425 rows out of order) and repeat
         # two (t, beacon) pairs with different ranges: sorted and deduplicated here, and counted.
         ranges, moved, dropped = time_ordered(
-            Stream("ranges", source, td[:, 0], ("id", "range"), td[:, 2:4]), ("id",)
+            Stream("ranges", src["TD"], td[:, 0], ("id", "range"), td[:, 2:4]), ("id",)
         )
         streams["ranges"] = ranges
         pairs = (("ranges.reordered", moved), ("ranges.duplicates_dropped", dropped))
@@ -54,7 +61,7 @@ def plaza_log(dr, td, tl, gt, source: str, initial=None) -> SensorLog:
     landmarks = {} if tl is None else {int(row[0]): row[1:3].copy() for row in tl}
     groundtruth = None
     if gt is not None:
-        groundtruth = Stream("groundtruth", source, gt[:, 0], ("x", "y", "theta"), gt[:, 1:4])
+        groundtruth = Stream("groundtruth", src["GT"], gt[:, 0], ("x", "y", "theta"), gt[:, 1:4])
     return SensorLog(source, streams, landmarks, groundtruth, repairs, initial)
 
 
@@ -90,14 +97,15 @@ def read_plaza_text(path: str | Path) -> SensorLog:
     m = NAME.match(path.name)
     if m is None:
         raise InputError("not a Plaza text file (expected <prefix>_DR/TD/GT/TL.txt)", str(path))
-    found = {}
+    found, files = {}, {}
     for kind, ncol in COLUMNS.items():
         sibling = path.with_name(f"{m['prefix']}_{kind}.txt")
         if sibling.exists():
-            found[kind] = _read_table(sibling, ncol)
+            found[kind], files[kind] = _read_table(sibling, ncol), str(sibling)
     if "TD" not in found and "DR" not in found:
         raise InputError(f"neither {m['prefix']}_DR.txt nor {m['prefix']}_TD.txt exists", str(path))
-    return plaza_log(found.get("DR"), found.get("TD"), found.get("TL"), found.get("GT"), str(path))
+    arrays = (found.get(kind) for kind in ("DR", "TD", "TL", "GT"))
+    return plaza_log(*arrays, str(path), files=files)
 
 
 #: The arrays a Plaza ``.mat`` file must hold.
