@@ -110,6 +110,17 @@ def levenberg_marquardt(
     units = {n: gtsam.noiseModel.Unit.Create(n) for n in set(dims.values())}
     eyes = {n: np.eye(n) for n in units}
     zeros = {n: np.zeros(n) for n in units}
+    damping: dict[float, object] = {}  # lambda -> its prior rows (lambda takes a few values)
+
+    def damping_rows(lam: float):
+        rows = damping.get(lam)
+        if rows is None:
+            rows = damping[lam] = gtsam.GaussianFactorGraph()
+            sq = math.sqrt(lam)
+            for key, n in dims.items():
+                rows.add(gtsam.JacobianFactor(key, sq * eyes[n], zeros[n], units[n]))
+        return rows
+
     lam = float(lambda_initial)
     iterations = 0
     failed = 0
@@ -120,9 +131,7 @@ def levenberg_marquardt(
         improved = False
         while lam <= 1e10:
             damped = lin.clone()
-            sq = math.sqrt(lam)
-            for key, n in dims.items():
-                damped.add(gtsam.JacobianFactor(key, sq * eyes[n], zeros[n], units[n]))
+            damped.push_back(damping_rows(lam))
             try:
                 delta = damped.optimize(ordering)
             except RuntimeError:  # gtsam.IndeterminateLinearSystemException
