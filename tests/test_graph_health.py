@@ -110,6 +110,62 @@ def test_marginals_failure_is_regularised_and_reported():
     assert np.linalg.eigvalsh(cov[L(0)])[-1] > 1e3
 
 
+def test_marginals_that_cholesky_refuses_are_taken_by_qr_exactly(monkeypatch):
+    """When GTSAM's (Cholesky) ``Marginals`` calls a determined system indeterminate (a
+    numerical failure: the information matrix squares the Jacobian's condition number), the
+    covariances are QR's, equal to the true ones, and no finding is added."""
+    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    g.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    g.add(gtsam.RangeFactor2D(X(0), L(0), 5.0, gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+    g.add(
+        gtsam.BearingFactor2D(
+            X(0), L(0), gtsam.Rot2(0.3), gtsam.noiseModel.Isotropic.Sigma(1, 0.05)
+        )
+    )
+    v.insert(X(0), gtsam.Pose2(0.02, -0.01, 0.01))
+    v.insert(L(0), gtsam.Point2(4.8, 1.5))
+    truth = gtsam.Marginals(g, v)
+    want = {k: truth.marginalCovariance(k) for k in (X(0), L(0))}
+
+    def refuses(*args):
+        raise RuntimeError("Indeterminate linear system detected (simulated)")
+
+    monkeypatch.setattr(gtsam, "Marginals", refuses)
+    cov, findings = marginal_covariances(g, v, [X(0), L(0)], {X(0): 3, L(0): 2})
+    assert findings == []
+    for k, c in want.items():
+        np.testing.assert_allclose(cov[k], c, rtol=1e-9, atol=1e-14)
+
+
+@pytest.mark.slow(seconds=15)  # Plaza2's range-only SLAM smoother through the CLI: 15 s
+def test_plaza2_calibrated_slam_has_its_covariances(tmp_path):
+    """Before: ``[covariance] marginal covariances: indeterminate system ...; covariances
+    omitted`` (Cholesky, information eigenvalues 8e-5 to 4e8); QR takes them."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    data = gtsam.findExampleDataFile("Plaza2_DR.txt")
+    (tmp_path / "run.yaml").write_text(
+        f"log: {data}\nrobot: {{drive: increments}}\nestimator: smoother\n"
+        "sensors: {ranges: {}}\noptions: {smoother: {slam: true, odometry_calibration: true}}\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root), "MPLBACKEND": "Agg"}
+    cmd = [sys.executable, "-m", "odofuse", "run", "run.yaml", "-o", "out"]
+    proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    warnings = json.loads((tmp_path / "out" / "metrics.json").read_text())["warnings"]
+    assert not any(w.startswith("[covariance]") for w in warnings), warnings
+    traj = np.loadtxt(tmp_path / "out" / "trajectory.csv", delimiter=",", skiprows=1)
+    P = np.stack([traj[:, [4, 5]], traj[:, [5, 7]]], axis=1)
+    assert np.isfinite(traj).all() and np.linalg.eigvalsh(P)[:, 0].min() > 0
+    marks = np.loadtxt(tmp_path / "out" / "landmarks.csv", delimiter=",", skiprows=1)
+    assert len(marks) == 4 and np.isfinite(marks).all() and (marks[:, [3, 5]] > 0).all()
+
+
 def test_optimistic_noise_model_is_reported():
     _, m = _run(sensors={"gps": {"sigma": 0.03}})  # the fixes are 0.3 m noisy
     assert m["status"] == "degraded"
