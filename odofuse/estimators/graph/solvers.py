@@ -80,9 +80,10 @@ def levenberg_marquardt(
     Each iteration linearises once, then solves ``(J^T J + lambda I) dx = -J^T r`` (the
     damping added as unit-weight prior rows on every variable) by sparse QR/Cholesky
     elimination in a COLAMD ordering fixed at the start, retracts, and accepts the step if
-    the error decreases (lambda / 10), else retries with lambda * 10. An elimination that
-    fails (GTSAM's indeterminate linear system, e.g. a numerically singular block) is
-    retried with lambda * 10 too, and counted.
+    the error decreases (lambda / 10), else retries with lambda * 10. The elimination is
+    GTSAM's default (Cholesky where it can), and QR where Cholesky meets an indeterminate
+    system (:func:`_solve_damped`); one that fails both ways (a singular block, a non-finite
+    Jacobian) is retried with lambda * 10 too, and counted.
 
     Parameters
     ----------
@@ -132,9 +133,8 @@ def levenberg_marquardt(
         while lam <= 1e10:
             damped = lin.clone()
             damped.push_back(damping_rows(lam))
-            try:
-                delta = damped.optimize(ordering)
-            except RuntimeError:  # gtsam.IndeterminateLinearSystemException
+            delta = _solve_damped(damped, ordering)
+            if delta is None:
                 failed += 1
                 lam *= 10.0
                 continue
@@ -154,6 +154,30 @@ def levenberg_marquardt(
             reason = "converged"
             break
     return LMOutcome(values, iterations, float(err), reason, failed)
+
+
+def _solve_damped(damped, ordering):
+    """The solution of the damped linear system ``damped`` (a ``GaussianFactorGraph``) in
+    ``ordering``, or None when it cannot be had.
+
+    GTSAM's default elimination (``EliminatePreferCholesky``) factorises the information
+    matrix, whose condition number is the square of the Jacobian's; where it meets an
+    indeterminate system, QR (``gtsam.EliminateQR``, on the Jacobian) is tried before the
+    caller raises the damping. Plaza2's calibrated range-only SLAM met Cholesky's failure at
+    lambda 1e-3 in most of its iterations, so each took a 10x damped step and LM stopped at
+    its 100-iteration cap still falling (docs/trust.md, session 36). None when QR fails too
+    or gives a non-finite step."""
+    import gtsam
+
+    try:
+        return damped.optimize(ordering)
+    except RuntimeError:  # gtsam.IndeterminateLinearSystemException
+        pass
+    try:
+        delta = damped.optimize(ordering, gtsam.EliminateQR)
+    except RuntimeError:
+        return None
+    return delta if np.all(np.isfinite(delta.vector())) else None
 
 
 def pose_array(values, K) -> np.ndarray:
