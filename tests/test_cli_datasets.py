@@ -177,8 +177,7 @@ def _assert_same_log(config: str, other: str, folder: Path) -> None:
     from odofuse.io.loader import load_log_for
     from odofuse.log_defaults import apply_log_defaults
 
-    head, _, rest = config.partition("\n")
-    assert other.partition("\n")[2] == rest, (config, other)
+    assert other.partition("\n")[2] == config.partition("\n")[2], (config, other)
     logs = []
     folder.mkdir(parents=True)
     for n, text in enumerate((config, other)):
