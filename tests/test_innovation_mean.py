@@ -155,10 +155,23 @@ def test_rejection_count_bound_is_the_binomial_tail():
     assert monitors.count_bound(1, 20, 0.0, 1e-3)[0] == 1  # P(>= 1) = 0: one would fire
 
 
+def test_the_count_null_adds_the_gross_fraction_to_the_gate():
+    gate = float(chi2.ppf(0.999, 2))
+    assert monitors.count_probability(gate, 2, 0.0) == pytest.approx(1e-3, rel=1e-9)
+    # Huber's contaminated model: 3 % gross readings, the rest rejected at 1e-3
+    p = monitors.count_probability(gate, 2, 0.03)
+    assert p == pytest.approx(1e-3 + 0.999 * 0.03, rel=1e-12)
+    assert monitors.count_probability(math.inf, 2, 0.03) == 0.0  # no gate: no rejection
+    assert EkfOptions().gross_fraction == 0.03
+    # the first evaluation: two gross fixes among 20 (P 0.12 at 3.1 %) no longer fire
+    k, a = monitors.count_bound(1, 20, p, 1e-3)
+    assert k == 5 and binom.sf(k - 1, 20, p) <= a < binom.sf(k - 2, 20, p)
+
+
 def test_rejection_count_false_alarm_rate_is_within_alpha():
     # a gate of 0.9 (a reading rejected one time in ten) so that chance counts are common;
-    # alpha 0.05 a stream, 400 streams of 150 readings
-    opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05)
+    # alpha 0.05 a stream, 400 streams of 150 readings, no gross readings
+    opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05, gross_fraction=0.0)
     gate = float(chi2.ppf(0.9, 1))
     rng = np.random.default_rng(21)
     fired = 0
@@ -170,10 +183,34 @@ def test_rejection_count_false_alarm_rate_is_within_alpha():
     assert fired <= binom.ppf(0.99, 400, opts.nis_alpha), fired
 
 
+def _gross_stream_fires(opts, rng, n: int = 150, share: float = 0.03) -> bool:
+    """Whether the count fires on one consistent stream of ``n`` readings (gate 0.999, 2-D)
+    a share ``share`` of which is gross (always rejected)."""
+    gate = float(chi2.ppf(0.999, 2))
+    st = monitors._Live()
+    gross = rng.random(n) < share
+    for k, v in enumerate(rng.chisquare(2, n).tolist()):
+        nis = 1e3 if gross[k] else v
+        st = monitors.advance(st, float(k), nis <= gate, nis, gate, 2, opts)
+    return st.rhits > 0
+
+
+def test_gross_readings_at_their_declared_share_stay_within_alpha():
+    # 3 % of the readings gross (a real GNSS receiver's few fixes tens of metres off):
+    # within alpha at the default gross_fraction; the Gaussian-only null (0) fires on many
+    opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05)
+    rng = np.random.default_rng(23)
+    fired = sum(_gross_stream_fires(opts, rng) for _ in range(400))
+    assert fired <= binom.ppf(0.99, 400, opts.nis_alpha), fired
+    gaussian = dataclasses.replace(opts, gross_fraction=0.0)
+    rng = np.random.default_rng(23)
+    assert sum(_gross_stream_fires(gaussian, rng) for _ in range(400)) > 0.5 * 400
+
+
 def test_a_burst_of_rejections_not_in_a_row_is_counted():
     # GPS multipath at 4 sigma: readings 40-54 rejected one in two, never reject_run (5) in
     # a row: the rejection count fires within the burst and clears a window after the
-    # window has left it
+    # window is back inside its bound
     opts = EkfOptions()
     mon = monitors.FilterMonitor(opts, {"gps": _Gps(gate=0.999)})
     gate = mon.gates["gps"]
@@ -189,5 +226,7 @@ def test_a_burst_of_rejections_not_in_a_row_is_counted():
     (f,) = [f for f in mon.stream_findings((0.0, 119.0)) if f.check == "rejection_count"]
     assert f.degrades and f.figure >= 3 and 20.0 <= f.t_start <= 55.0 <= f.t_end + 10.0
     assert any(failing_at[k] for k in range(45, 60)) and not any(failing_at[k] for k in range(40))
-    # the last rejection (54) leaves the window at 74; four evaluations inside clear it
-    assert failing_at[85] and not any(failing_at[k] for k in range(90, 120))
+    # 8 rejections in the window of reading 54 fire it (bound 7 with 3 % gross readings);
+    # the window of 64 holds 5 (46-54), inside the bound: four evaluations inside (64, 69,
+    # 74, 79: a whole window of readings) clear it
+    assert [k for k in range(120) if failing_at[k]] == list(range(54, 79))

@@ -149,6 +149,15 @@ class FilterOptions:
         doc="consecutive rejections of one stream that mean divergence",
         minimum=1,
     )
+    gross_fraction: float = option(
+        0.03,
+        unit="-",
+        doc="share of a gated stream's readings that may be gross (a GNSS fix tens of metres "
+        "off) without a fault: the rejection count's null adds it to the gate's own rate",
+        minimum=0,
+        maximum=1,
+        exclusive_maximum=True,
+    )
     recovery: bool = option(
         True, unit="-", doc="re-open (inflate the pose covariance) when a stream shows divergence"
     )

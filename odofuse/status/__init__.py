@@ -109,8 +109,9 @@ CHECKS: tuple[Check, ...] = (
         ("status/monitors.py",),
         "the same as nis (every gated stream)",
         "rejections among the last nis_window readings against the binomial bound of the "
-        "gate's own rejection probability (1 - gate), every nis_window / 4 readings, alpha "
-        "spent over the evaluations (Bonferroni)",
+        "gate's own rejection probability (1 - gate) plus the gross_fraction a real sensor "
+        "has (3 %), every nis_window / 4 readings, alpha spent over the evaluations "
+        "(Bonferroni)",
         "nis_alpha per fused gated stream (1e-3)",
         ("rejection_count",),
         ("tests/test_innovation_mean.py",),

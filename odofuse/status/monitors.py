@@ -342,6 +342,16 @@ def reject_probability(gate: float, d: int) -> float:
     return float(gammaincc(0.5 * d, 0.5 * gate))
 
 
+def count_probability(gate: float, d: int, gross: float) -> float:
+    """The rejection count's null: the probability that a reading of a consistent filter's
+    stream fails its gate when a share ``gross`` (``gross_fraction``) of the stream is gross,
+    far beyond the gate (Huber's contaminated model: a real GNSS receiver has a few fixes tens
+    of metres off, which the gate is there to set aside): ``p + (1 - p) gross``, ``p``
+    :func:`reject_probability`; 0 without a gate."""
+    p = reject_probability(gate, d)
+    return p + (1.0 - p) * float(gross) if p > 0.0 else 0.0
+
+
 @functools.lru_cache(maxsize=4096)
 def _count_bound(block: int, w: int, p: float, alpha: float) -> tuple[int, float]:
     """``(k, a)``: the fewest rejections among ``w`` readings that fire the rejection count at
@@ -366,11 +376,12 @@ def _count(
 ) -> None:
     """The rejection count after one gated reading (into ``kw``): every ``stride``
     (:func:`mean_stride`) readings, the rejections among the last ``w`` against the binomial
-    bound of the gate's own rejection probability (:func:`count_bound`). A consistent filter
-    rejects a reading with probability ``1 - gate`` (1e-3), independently of the others; a
-    burst of gross readings that the gate rejects one in two (GPS multipath at 4 sigma) fails
-    it within a window, where the runs of ``reject_run`` consecutive rejections need them in
-    a row."""
+    bound of :func:`count_probability` (:func:`count_bound`). A consistent filter rejects a
+    reading with probability ``1 - gate`` (1e-3), independently of the others, and a real
+    sensor adds its few gross readings (``gross_fraction``, 3 %: two gross GNSS fixes in a
+    window are not a fault); a burst that the gate rejects one in two (GPS multipath at 4
+    sigma) fails it within a window, where the runs of ``reject_run`` consecutive rejections
+    need them in a row."""
     n = st.n + 1  # this reading's index (1-based)
     rej = st.rtimes if ok else st.rtimes + ((n, t),)
     if rej and rej[0][0] <= n - w:  # rejections are rare: O(1) a reading
@@ -379,7 +390,7 @@ def _count(
         kw["rtimes"] = rej
     if n < w or (n - w) % stride:
         return
-    p = reject_probability(gate, d)
+    p = count_probability(gate, d, opts.gross_fraction)
     if p <= 0.0:
         return
     j = st.rk + 1
@@ -607,12 +618,13 @@ def live_findings(
         )
     if st.rhits:
         now = "; failing now" if st.rfailing else ""
-        p = reject_probability(float(gate), d)
+        p = count_probability(float(gate), d, opts.gross_fraction)
         out.append(
             Finding(
                 "rejection_count",
                 f"{st.rworst} of {w} consecutive readings rejected by the gate (a consistent "
-                f"filter rejects {_s(p)} of them; {st.rbound} or more at <= "
+                f"filter rejects {_s(p)} of them, gross readings included; {st.rbound} or "
+                "more at <= "
                 f"{_s(count_bound(st.rk, w, p, opts.nis_alpha)[1])} an evaluation), "
                 f"{st.rhits} time(s){now}: the estimate and this sensor disagree"
                 f"{nis_keys(s)}",
