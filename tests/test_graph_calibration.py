@@ -39,6 +39,29 @@ SCENARIO = {
 #: graph estimators (SLAM: the smoother with unknown landmarks)
 ESTIMATORS = ("smoother", "isam2", "fixed_lag", "slam")
 OPTIONS = list(itertools.product((False, True), (False, True), ("none", "cauchy")))
+#: The commit tier (``-m "not slow"``, issue 28) runs a pairwise-covering subset of the grid:
+#: each estimator with two complementary option rows (odometry calibration, sensor
+#: calibration, robust odometry loss; the eight rows split into four pairs), so that every value
+#: of every option meets every estimator and every pair of two options' values occurs. The
+#: full suite (CI) runs all 32 of each test.
+COMMIT_ROWS = {
+    "smoother": {(False, False, "none"), (True, True, "cauchy")},
+    "isam2": {(False, True, "cauchy"), (True, False, "none")},
+    "fixed_lag": {(True, False, "cauchy"), (False, True, "none")},
+    "slam": {(True, True, "none"), (False, False, "cauchy")},
+}
+GRID = [
+    pytest.param(
+        name,
+        *row,
+        id=f"{name}-{'-'.join(str(v) for v in row)}",
+        marks=()
+        if row in COMMIT_ROWS[name]
+        else pytest.mark.slow(reason="grid beyond the commit tier's pairwise cover"),
+    )
+    for row in OPTIONS
+    for name in ESTIMATORS
+]
 #: a run farther than this from the truth must say ``degraded`` (m, position RMSE; SLAM is
 #: scored after alignment since its map frame is free)
 HOLDS_M = {"sim": 0.5, "plaza": 2.0}
@@ -57,8 +80,7 @@ def _check(res, log, where):
     return m
 
 
-@pytest.mark.parametrize("name", ESTIMATORS)
-@pytest.mark.parametrize("odo_cal, sensor_cal, loss", OPTIONS)
+@pytest.mark.parametrize(("name", "odo_cal", "sensor_cal", "loss"), GRID)
 def test_every_estimator_with_every_calibration_option_simulated(name, odo_cal, sensor_cal, loss):
     estimator, extra = _estimator(name)
     options = {"odometry_calibration": odo_cal, "robust": {"wheels": loss}, **extra}
@@ -88,8 +110,7 @@ def _plaza_config(estimator, options, calibrate):
     )
 
 
-@pytest.mark.parametrize("name", ESTIMATORS)
-@pytest.mark.parametrize("odo_cal, sensor_cal, loss", OPTIONS)
+@pytest.mark.parametrize(("name", "odo_cal", "sensor_cal", "loss"), GRID)
 def test_every_estimator_with_every_calibration_option_plaza(
     plaza_excerpt, name, odo_cal, sensor_cal, loss
 ):
@@ -139,3 +160,12 @@ def test_isam2_freezes_the_odometry_calibration():
     k = info["wheel_radius_ratio"]["keyframe"]
     assert res.extra["python_factors"] == k  # calibrated (Python) odometry factors up to it
     assert metrics(res, log)["ate_rmse_m"] < 0.5
+
+
+def test_the_commit_tier_covers_the_grid_pairwise():
+    rows = [(name, *row) for name, rs in COMMIT_ROWS.items() for row in rs]
+    assert set(COMMIT_ROWS) == set(ESTIMATORS)
+    assert sorted(r[1:] for r in rows) == sorted(OPTIONS)  # each row once
+    for i, j in itertools.combinations(range(4), 2):  # every pair of factors, every value pair
+        values = [sorted({r[k] for r in rows}) for k in (i, j)]
+        assert {(r[i], r[j]) for r in rows} == set(itertools.product(*values)), (i, j)
