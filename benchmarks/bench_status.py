@@ -359,6 +359,156 @@ def model_nees_bound(problem, graph, values, gt) -> tuple[float, float]:
     return joint_bound(0.5 * (S + S.T), poses[idx, :2] - g[:, :2])
 
 
+def lag_prefixes(kt: np.ndarray, lag: float) -> np.ndarray:
+    """Per keyframe ``j``, the last keyframe whose factors the fixed-lag smoother held when it
+    took ``j``'s estimate (``run_fixed_lag``'s ``freeze``: before adding keyframe ``i`` it
+    takes every pose older than ``kt[i] - lag``; the poses left at the end take all ``K``)."""
+    K = len(kt)
+    out = np.full(K, K - 1)
+    done = 0
+    for i in range(1, K):
+        upto = int(np.searchsorted(kt, kt[i] - lag, side="left"))
+        out[done:upto] = i - 1
+        done = max(done, upto)
+    return out
+
+
+def prefix_system(graph, values):
+    """The whitened Jacobian of ``graph`` at ``values`` in keyframe order: ``(A, row_tag,
+    key_tags, key_end, col)``, ``A`` sparse ``(m, n)`` with its rows sorted by the keyframe
+    that brings them (``row_tag``: the newest pose a factor touches; a factor on no pose,
+    the newest keyframe of its variables) and its columns by the keyframe that brings each
+    variable (``key_tags``, the end column of each in ``key_end``; ``col``: key -> first
+    column), so that the factors and variables up to keyframe ``q`` are a leading block."""
+    import gtsam
+    import scipy.sparse as sp
+
+    from odofuse.estimators.graph.keys import is_vector
+
+    def pose_index(k) -> int | None:
+        sym = gtsam.Symbol(k)
+        return int(sym.index()) if sym.chr() == ord("x") else None
+
+    def dim(k) -> int:
+        if pose_index(k) is not None:
+            return 3
+        return len(values.atVector(k)) if is_vector(k) else 2
+
+    factors = [graph.at(j) for j in range(graph.size()) if graph.at(j) is not None]
+    keys_of = [list(f.keys()) for f in factors]
+    tag = [max((p for k in ks if (p := pose_index(k)) is not None), default=None) for ks in keys_of]
+    key_tag: dict = {}
+    for ks, t in zip(keys_of, tag, strict=True):
+        for k in ks:
+            if t is not None:
+                key_tag[k] = min(key_tag.get(k, t), t)
+    tag = [
+        t if t is not None else max(key_tag.get(k, 0) for k in ks)
+        for ks, t in zip(keys_of, tag, strict=True)
+    ]
+    for ks, t in zip(keys_of, tag, strict=True):
+        for k in ks:
+            key_tag.setdefault(k, t)
+    order = sorted(key_tag, key=lambda k: (key_tag[k], pose_index(k) is None, k))
+    col, n = {}, 0
+    for k in order:
+        col[k] = n
+        n += dim(k)
+    key_end = np.array([col[k] + dim(k) for k in order])
+    key_tags = np.array([key_tag[k] for k in order])
+    rows, cols, vals, row_tag, m = [], [], [], [], 0
+    for f in sorted(range(len(factors)), key=lambda j: tag[j]):
+        A, _ = factors[f].linearize(values).jacobian()
+        c0 = 0
+        for k in keys_of[f]:
+            d = dim(k)
+            r, c = np.nonzero(A[:, c0 : c0 + d])
+            rows.append(r + m)
+            cols.append(c + col[k])
+            vals.append(A[r, c0 + c])
+            c0 += d
+        row_tag.append(np.full(A.shape[0], tag[f]))
+        m += A.shape[0]
+    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), (m, n))
+    return A, np.concatenate(row_tag), key_tags, key_end, col
+
+
+def fixed_lag_joint_covariance(problem, graph, values, idx) -> np.ndarray:
+    """The joint covariance ``(2m, 2m)``, world frame, of the fixed-lag smoother's position
+    errors at keyframes ``idx`` under its own (linearised) model.
+
+    Pose ``j``'s estimate is that of the factors of keyframes ``0..p(j)``
+    (:func:`lag_prefixes`; the window's marginalisation is exact for a linear model). With
+    ``H_q`` the information matrix of the factors up to keyframe ``q`` (whitened Jacobian
+    ``A_q``), the error of an estimate from those factors is ``H_q^-1 A_q^T n_q``, and since
+    the factors of a smaller prefix are the first rows of a larger one's, ``cov(e_j, e_k) =
+    H_p^-1 A_p^T A_q[rows of p] H_q^-1 = (H_q^-1)_jk`` for ``p(j) <= p(k) = q``: each pose's
+    covariance with the earlier ones is read from the information matrix of its own prefix.
+    ``graph`` is every factor the smoother was given (the gated rows left out), linearised at
+    the run's final ``values``: a linearisation, as the smoother's model bound is."""
+    import gtsam
+    from scipy.sparse.linalg import splu
+
+    from odofuse import se2
+
+    A, row_tag, key_tags, key_end, col = prefix_system(graph, values)
+    prefix = lag_prefixes(problem.kt, problem.options.lag)[idx]
+    body = np.zeros((len(idx), 2, len(idx), 2))
+    poses = np.array(
+        [
+            [values.atPose2(X).x(), values.atPose2(X).y(), values.atPose2(X).theta()]
+            for X in (gtsam.symbol("x", int(i)) for i in idx)
+        ]
+    )
+    for q in np.unique(prefix):
+        m_q = int(np.searchsorted(row_tag, q, side="right"))
+        n_q = int(key_end[np.searchsorted(key_tags, q, side="right") - 1])
+        A_q = A[:m_q, :n_q]
+        lu = splu((A_q.T @ A_q).tocsc())
+        mine = np.flatnonzero(prefix == q)
+        pos = [col[gtsam.symbol("x", int(idx[a]))] + c for a in mine for c in (0, 1)]
+        E = np.zeros((n_q, len(pos)))
+        E[pos, np.arange(len(pos))] = 1.0
+        Xs = lu.solve(E).reshape(n_q, len(mine), 2)
+        upto = int(mine.max()) + 1  # every scored pose at or before this prefix's last
+        for b in range(upto):
+            c = col[gtsam.symbol("x", int(idx[b]))]
+            block = Xs[c : c + 2]  # (2, len(mine), 2): rows of pose b, columns of poses mine
+            for a_i, a in enumerate(mine):
+                if b <= a:
+                    body[b, :, a, :] = block[:, a_i, :]
+                    body[a, :, b, :] = block[:, a_i, :].T
+    R = se2.rot(poses[:, 2])
+    mm = len(idx)
+    S = np.einsum("iab,ibjc,jdc->iajd", R, body, R).reshape(2 * mm, 2 * mm)
+    return 0.5 * (S + S.T)
+
+
+def fixed_lag_nees_bound(problem, graph, values, traj, gt) -> tuple[float, float, float]:
+    """``(bound, mean NEES, worst covariance ratio)`` of the fixed-lag smoother's positions
+    against ``gt``, the bound its own model implies (:func:`fixed_lag_joint_covariance`,
+    :func:`joint_bound`), at every ``s``-th scored pose (at most
+    :data:`FILTER_BOUND_POSES`). The model's diagonal blocks are the covariances the run
+    reported up to the linearisation point (the run linearised each window at its estimate
+    then, the model at the final one): the worst ratio, the largest ``|log eig(Q^-1 P)|`` of
+    the two, is returned as ``exp`` of it."""
+    from odofuse.evaluation import associate
+
+    idx, g = associate(traj, gt)
+    every = max(1, math.ceil(len(idx) / FILTER_BOUND_POSES))
+    idx, g = idx[::every], g[::every]
+    S = fixed_lag_joint_covariance(problem, graph, values, idx)
+    m = len(idx)
+    Q = S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :]
+    P = traj.covariances[idx][:, :2, :2]
+    worst = max(
+        float(np.abs(np.log(np.linalg.eigvals(np.linalg.solve(Q[i], P[i])).real)).max())
+        for i in range(m)
+    )
+    bound, mean = joint_bound(S, traj.poses[idx, :2] - g[:, :2])
+    return bound, mean, math.exp(worst)
+
+
 def joint_bound(S: np.ndarray, e: np.ndarray) -> tuple[float, float]:
     """``(bound, mean NEES)`` of position errors ``e`` ``(m, 2)`` whose joint covariance under
     the estimator's model is ``S`` ``(2m, 2m)``: the run's mean NEES ``e^T B e`` (``B`` the
@@ -378,6 +528,11 @@ def joint_bound(S: np.ndarray, e: np.ndarray) -> tuple[float, float]:
 #: At most this many poses enter a filter's model bound (every ``s``-th of those scored): the
 #: joint covariance is ``(2m, 2m)`` and its eigenvalues cost ``m^3``.
 FILTER_BOUND_POSES = 600
+
+
+#: Largest ratio of the fixed-lag model's covariance of a pose to the one the run reported
+#: (:func:`fixed_lag_nees_bound`) that passes without a note.
+FIXED_LAG_COVARIANCE_TOLERANCE = 1.5
 
 
 #: How far below 0 (correlation scale) the noise a pose adds under the recorded closed loop
@@ -469,6 +624,12 @@ def run_log(log, cfg, estimators, model_bounds: bool = True):
             model, joint_mean = model_nees_bound(*mine[-1], gt)
             if not abs(joint_mean - mean) <= 1e-3 * max(mean, 1.0):  # the same poses and blocks
                 raise AssertionError(f"{est}: joint NEES {joint_mean} != {mean}")
+        elif model_bounds and v.size and mine and est == "fixed_lag":
+            # judged on every s-th pose, scaled to the mean of all poses as the filters' are
+            model, sub_mean, worst = fixed_lag_nees_bound(*mine[-1][:3], result.trajectory, gt)
+            model *= mean / sub_mean
+            if worst > FIXED_LAG_COVARIANCE_TOLERANCE:
+                print(f"    {est}: model covariance {worst:.3g}x the reported one", flush=True)
         elif model_bounds and v.size and est in ("ekf", "ukf"):
             # judged on every s-th pose: the model's bound of that mean, scaled to the mean
             # of all poses that the other columns use (the ratio is what is judged)

@@ -50,3 +50,92 @@ def test_fixed_lag_pose_is_the_batch_marginal_of_the_data_before_it_left(run, t_
     # the same estimate, up to the relinearisation threshold (0.1): well inside one sigma
     d = res.trajectory.poses[j, :2] - batch.trajectory.poses[jb, :2]
     assert d @ np.linalg.solve(Q[:2, :2], d) < 0.5**2
+
+
+# ------------------------------------------------ the filters' gate on fixed-lag's rows
+def _with_gross_fixes(clean_cfg, folder, offset):
+    """A copy of the log of ``clean_cfg`` whose GPS fixes 30, 50 and 70 are ``offset`` (m,
+    x and y) off: gross fixes, far beyond any gate."""
+    import csv
+    import shutil
+
+    shutil.copytree(clean_cfg.parent, folder)
+    gps = folder / "gps.csv"
+    rows = list(csv.reader(gps.open(encoding="utf-8")))
+    for j in (30, 50, 70):
+        rows[1 + j][1] = repr(float(rows[1 + j][1]) + offset[0])
+        rows[1 + j][2] = repr(float(rows[1 + j][2]) + offset[1])
+    with gps.open("w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh).writerows(rows)
+    return folder / "config.yaml"
+
+
+def test_fixed_lag_leaves_out_a_gross_fix_as_the_filters_gate_does(tmp_path):
+    """Issue 25: fixed-lag gave a gross GNSS fix Huber's loss, a bounded pull that never
+    vanishes, and said ``ok`` over Sokal's NEES bound on 5 of 40 real-robot logs (1.15x).
+    Now a row beyond its gate by its predicted NIS is left out, as a filter leaves it out:
+    fixes 60 m off in x and 60 m off in y leave the same estimate, to rounding (with Huber's
+    loss each pulls its own way), and each is counted as rejected."""
+    import csv
+
+    from test_cross_check_skipped import _run, _simulated_log
+
+    clean = _simulated_log(tmp_path / "clean")
+    runs = {
+        name: _run(
+            _with_gross_fixes(clean, tmp_path / name, off), "fixed_lag", tmp_path / f"o{name}"
+        )
+        for name, off in {"x": (60.0, 0.0), "y": (0.0, -60.0)}.items()
+    }
+    clean_run = _run(clean, "fixed_lag", tmp_path / "oclean")
+    poses = {}
+    for name in runs:
+        with (tmp_path / f"o{name}" / "trajectory.csv").open(encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+        poses[name] = np.array([[float(r["x"]), float(r["y"])] for r in rows])
+    assert np.abs(poses["x"] - poses["y"]).max() < 1e-9
+    gps = {name: m["sensors"]["gps"] for name, m in runs.items()}
+    base = clean_run["sensors"]["gps"]
+    for name in runs:
+        assert gps[name]["rejected"] == base["rejected"] + 3, (gps[name], base)
+        assert gps[name]["used"] == base["used"] - 3
+        assert runs[name]["status"] == "ok", runs[name]["warnings"]
+    assert runs["x"]["ate_rmse_m"] < 1.5 * clean_run["ate_rmse_m"]
+
+
+def test_the_gate_reopens_after_reject_run_rejections_in_a_row():
+    """:func:`innovations.gated_out`: a row beyond its gate is left out; from the
+    ``reject_run``-th in a row on, the stream's rows go in until one is within the gate again
+    (a filter re-opens); a stream that is not gated is never left out."""
+    from types import SimpleNamespace
+
+    from odofuse.estimators.graph import innovations
+
+    gps, ranges = SimpleNamespace(stream="gps"), SimpleNamespace(stream="ranges")
+    runs = {"gps": 0}
+    oks = [False, False, True, False, False, False, False, False, True, False]
+    out = [innovations.gated_out([(j, gps, ok)], runs, 3) for j, ok in enumerate(oks)]
+    assert out == [{0}, {1}, set(), {3}, {4}, set(), set(), set(), set(), {9}]
+    assert innovations.gated_out([(0, ranges, False)], runs, 3) == set()
+    assert runs == {"gps": 1}
+
+
+def test_a_row_that_alone_holds_a_new_variable_stays_in():
+    """:func:`innovations.without` leaves a row in when nothing else holds a variable it adds
+    (iSAM2 would meet an undetermined system), and the others out."""
+    from odofuse.estimators.graph import innovations
+    from odofuse.estimators.graph.keys import X
+
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, 0.1)
+    g = gtsam.NonlinearFactorGraph()
+    g.add(gtsam.BetweenFactorPose2(X(0), X(1), gtsam.Pose2(), noise))  # 0: odometry
+    g.add(gtsam.PriorFactorPose2(X(1), gtsam.Pose2(), noise))  # 1: a row on the new pose
+    g.add(gtsam.PriorFactorPose2(X(2), gtsam.Pose2(), noise))  # 2: the only one on X(2)
+    v = gtsam.Values()
+    v.insert(X(1), gtsam.Pose2())
+    v.insert(X(2), gtsam.Pose2())
+    kept, left = innovations.without(g, {1, 2}, v)
+    assert left == {1} and kept.size() == 2
+    assert [kept.at(j).keys() for j in range(2)] == [g.at(0).keys(), g.at(2).keys()]
+    same, none = innovations.without(g, set(), v)
+    assert none == set() and same.size() == 3

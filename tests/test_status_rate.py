@@ -110,6 +110,76 @@ def test_a_filters_model_bound_follows_its_own_closed_loop():
     assert 0.0 < sub_mean < bound
 
 
+def test_lag_prefixes_are_the_keyframes_held_when_each_pose_left_the_window():
+    # run_fixed_lag takes pose j's estimate before adding the first keyframe i with
+    # kt[i] - lag > kt[j], so with the keyframes 0..i-1 in it; the last poses take all
+    kt = np.arange(11.0)
+    assert bs.lag_prefixes(kt, 2.5).tolist() == [2, 3, 4, 5, 6, 7, 8, 9, 10, 10, 10]
+    assert bs.lag_prefixes(kt, 2.0).tolist() == [2, 3, 4, 5, 6, 7, 8, 9, 10, 10, 10]
+    assert bs.lag_prefixes(kt, 1.5).tolist() == [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 10]
+    assert bs.lag_prefixes(kt, 20.0).tolist() == [10] * 11
+
+
+def test_the_fixed_lag_model_bound_is_the_covariance_of_its_stitched_estimates():
+    # the fixed-lag smoother on the nominal log of seed 504 (differential, gyro and GPS): each
+    # stitched estimate is a linear map of the whitened noise of the factors it held, e_j =
+    # (H_p^-1 A_p^T n_p)[j], so their joint covariance is the product of those maps, which
+    # the benchmark reads from each prefix's information matrix alone
+    import dataclasses
+
+    from scipy.stats import chi2
+
+    from odofuse import se2
+    from odofuse.estimators.graph import solvers
+    from odofuse.estimators.graph.isam2 import run_fixed_lag
+    from odofuse.estimators.graph.keys import X
+    from odofuse.evaluation import trajectory_from_stream
+    from odofuse.log_defaults import apply_log_defaults
+
+    log, cfg, _ = bs.make_case(504)
+    cfg, log = apply_log_defaults(cfg, log)
+    got = []
+    solvers.on_solution = lambda *args: got.append(args)
+    try:
+        res = run_fixed_lag(log, dataclasses.replace(cfg, estimator="fixed_lag"))
+    finally:
+        solvers.on_solution = None
+    ((problem, graph, values, estimator),) = got
+    assert estimator == "fixed_lag" and graph.size() > len(problem.kt)
+    kt = problem.kt
+    idx = np.arange(0, len(kt), 7)
+    S = bs.fixed_lag_joint_covariance(problem, graph, values, idx)
+    A, row_tag, key_tags, key_end, col = bs.prefix_system(graph, values)
+    A = A.toarray()
+    prefix = bs.lag_prefixes(kt, problem.options.lag)
+    assert len(set(prefix[idx])) > 10  # many windows, not one solution
+    M = np.zeros((2 * len(idx), A.shape[0]))
+    for a, j in enumerate(idx):
+        q = prefix[j]
+        m_q, n_q = int((row_tag <= q).sum()), int(key_end[key_tags <= q].max())
+        Aq = A[:m_q, :n_q]
+        c = col[X(int(j))]
+        M[2 * a : 2 * a + 2, :m_q] = np.linalg.solve(Aq.T @ Aq, Aq.T)[c : c + 2]
+    theta = np.array([values.atPose2(X(int(j))).theta() for j in idx])
+    R = np.kron(np.eye(len(idx)), np.eye(2))
+    for a, r in enumerate(se2.rot(theta)):
+        R[2 * a : 2 * a + 2, 2 * a : 2 * a + 2] = r
+    brute = R @ (M @ M.T) @ R.T
+    assert np.allclose(S, brute, rtol=1e-6, atol=1e-9 * np.abs(S).max())
+    # its diagonal is the run's own covariances, up to the linearisation point
+    m = len(idx)
+    Q = S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :]
+    P = res.trajectory.covariances[idx][:, :2, :2]
+    ratios = np.concatenate([np.linalg.eigvals(np.linalg.solve(Q[i], P[i])).real for i in range(m)])
+    assert 0.9 < ratios.min() and ratios.max() < 1.1, (ratios.min(), ratios.max())
+    # errors across windows are correlated: more than one value, fewer than m independent ones
+    gt = trajectory_from_stream(log.groundtruth)
+    bound, sub_mean, worst = bs.fixed_lag_nees_bound(problem, graph, values, res.trajectory, gt)
+    n = min(bs.FILTER_BOUND_POSES, len(kt))
+    assert chi2.ppf(0.999, 2 * n) / n < bound < chi2.ppf(0.999, 2)
+    assert 0.0 < sub_mean < bound and worst < bs.FIXED_LAG_COVARIANCE_TOLERANCE
+
+
 @pytest.fixture(scope="module")
 def table():
     # Sokal's bound is what the tests judge; the model bounds are the benchmark's column

@@ -24,9 +24,10 @@ from odofuse.declarations import FilterOptions
 from odofuse.estimators.graph.keys import is_vector
 
 #: The fixed-lag smoother's and iSAM2's NIS checks run at the filters' defaults (window,
-#: ``nis_alpha``, persistence, hysteresis, ``reject_run``), without recovery: their robust
-#: loss already bounds a gross row's pull. ``cross_check.alpha_budget`` counts them at this
-#: ``nis_alpha``.
+#: ``nis_alpha``, persistence, hysteresis, ``reject_run``), without the filters' recovery
+#: (an inflated covariance): fixed-lag re-admits a gated stream's rows instead
+#: (:func:`gated_out`), iSAM2 solves with the configured losses at the end.
+#: ``cross_check.alpha_budget`` counts them at this ``nis_alpha``.
 NIS_OPTIONS = dataclasses.replace(FilterOptions(), recovery=False)
 
 
@@ -154,17 +155,19 @@ def monitor(problem):
     return FilterMonitor(NIS_OPTIONS, problem.models)
 
 
-def observe(mon, isam, fac, graph, new_values, read=None) -> None:
+def observe(mon, isam, fac, graph, new_values, read=None) -> list:
     """Feed ``mon`` the NIS of the sensor rows of the keyframe ``fac`` just made (``graph``,
     ``new_values``; :attr:`Factors.rows`) against ``isam``'s prediction, each accepted when
-    within its stream's gate (as a filter's gate would); ``read`` as :func:`predicted_nis`."""
+    within its stream's gate (as a filter's gate would); ``read`` as :func:`predicted_nis`.
+    Returns the verdicts ``(position in graph, measurement, accepted)`` of the rows tested."""
     rows, streams = {}, {}
     for pos, meas, f in fac.rows:
         twin = f if meas.stream not in fac.p.robust else fac.with_loss(meas, f, ("none", 0.0))
         if twin.dim() == mon.dims.get(meas.stream):
             rows[pos], streams[pos] = twin, meas
     if not rows:
-        return
+        return []
+    verdicts = []
     for pos, (nis, white) in predicted_nis(isam, graph, new_values, rows, fac.dims, read).items():
         if not math.isfinite(nis):
             continue
@@ -172,6 +175,52 @@ def observe(mon, isam, fac, graph, new_values, read=None) -> None:
         t = float(fac.p.kt[meas.keyframe])
         ok = bool(nis <= mon.gates[meas.stream])
         mon.observe(meas.stream, t, ok, nis, white if meas.stream in mon.mean_streams else None)
+        verdicts.append((pos, meas, ok))
+    return verdicts
+
+
+def gated_out(verdicts, runs: dict, reject_run: int) -> set[int]:
+    """The rows of one keyframe that the filters' gate leaves out, for an incremental graph.
+
+    A row of a stream in ``runs`` (stream -> its current run of consecutive rejections,
+    updated here) that :func:`observe` found beyond its gate is left out, as a filter leaves
+    out the update, until ``reject_run`` of them in a row say that the prediction, not the
+    sensor, is off: from that one on the stream's rows go in until one is within the gate
+    again, as a filter re-opens (``status.monitors.recover``), so that the readings that
+    disagree with a prediction that drifted away pull it back. Returns their positions."""
+    out = set()
+    k = max(int(reject_run), 1)
+    for pos, meas, ok in verdicts:
+        if meas.stream not in runs:
+            continue
+        runs[meas.stream] = 0 if ok else runs[meas.stream] + 1
+        if not ok and runs[meas.stream] < k:
+            out.add(pos)
+    return out
+
+
+def without(graph, positions: set, new_values):
+    """``graph`` without the factors at ``positions``, except one that alone holds a variable
+    of ``new_values`` (the update would leave it undetermined). Returns the graph and the
+    positions left out."""
+    import gtsam
+
+    keep = [j for j in range(graph.size()) if j not in positions]
+    held = {k for j in keep for k in graph.at(j).keys()}
+    new = set(new_values.keys())
+    left = set()
+    for j in sorted(positions):
+        if all(k in held or k not in new for k in graph.at(j).keys()):
+            left.add(j)
+        else:
+            keep.append(j)
+            held.update(graph.at(j).keys())
+    if not left:
+        return graph, left
+    out = gtsam.NonlinearFactorGraph()
+    for j in sorted(keep):
+        out.push_back(graph.at(j))
+    return out, left
 
 
 def summary(mon) -> dict:

@@ -426,8 +426,8 @@ def convex_problem(problem: GraphProblem) -> GraphProblem | None:
     problem first and the Tukey problem from there (graduated non-convexity in two steps):
     the batch smoother (:func:`~odofuse.estimators.graph.solvers._convex_start`), iSAM2
     (online with Huber; its final pass is
-    the Tukey solve) and the fixed-lag smoother (Huber throughout: it has no final pass;
-    :mod:`odofuse.estimators.graph.isam2`).
+    the Tukey solve) and the fixed-lag smoother (it has no final pass: the rows that pass the
+    filters' gate get Huber's loss; :func:`odofuse.estimators.graph.isam2.run_fixed_lag`).
     """
     tukey = {
         s: k for s, (kind, k) in problem.robust.items() if kind == "tukey" and s in problem.models

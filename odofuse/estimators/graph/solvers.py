@@ -240,9 +240,11 @@ def landmark_covariances(fac: Factors, values, cov_of) -> dict:
 
 
 #: Called as ``on_solution(problem, graph, values, estimator)`` by :func:`finish` with the
-#: graph a run solved and its solution (the batch smoother's, iSAM2's final graph), never for
-#: stitched poses (the fixed-lag smoother's): ``benchmarks/bench_status.py`` sets it to compute
-#: the NEES bound that the solution's joint covariance implies. None in every run of odofuse.
+#: graph a run solved and its solution (the batch smoother's, iSAM2's final graph), or for
+#: the fixed-lag smoother's stitched poses every factor it was given and its final values
+#: (each pose the estimate of the factors of the keyframes before it left the window):
+#: ``benchmarks/bench_status.py`` sets it to compute the NEES bound that the estimator's own
+#: model implies for the run. None in every run of odofuse.
 on_solution = None
 
 
@@ -256,9 +258,9 @@ def finish(
     factors, chi-square per dimension, median ratio, fraction beyond 0.999); ``findings``
     (solver, covariance) are followed by :func:`~odofuse.status.graph_checks.graph_findings`
     (``stitched``: poses from several solutions, the fixed-lag smoother's; ``graph``: the graph
-    ``values`` solves, for :data:`on_solution`).
+    ``values`` solves, or the stitched run's factors, for :data:`on_solution`).
     """
-    if on_solution is not None and graph is not None and not stitched:
+    if on_solution is not None and graph is not None:
         on_solution(problem, graph, values, estimator)
     poses = pose_array(values, len(problem.kt))
     extra = {**_extra(problem, fac, values, estimator), **extra}
