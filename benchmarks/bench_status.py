@@ -509,6 +509,59 @@ def fixed_lag_nees_bound(problem, graph, values, traj, gt) -> tuple[float, float
     return bound, mean, math.exp(worst)
 
 
+def dead_reckoning_joint_covariance(log, cfg, traj, idx) -> np.ndarray:
+    """The joint covariance ``(2m, 2m)`` of dead reckoning's position errors at the poses
+    ``idx`` of its trajectory ``traj`` (of ``log`` and ``cfg``), as its own model states it.
+
+    Its covariance is the white noise's, propagated ``P_k = F P_{k-1} F^T + G Q G^T``, plus
+    the systematic errors' prior where ``odometry_calibration`` is on
+    (``dead_reckoning.calibration_covariances``). The white part's error moves between two
+    poses by the product of the motion Jacobians, which for any of the integrators is
+    ``Phi(k, j) = I + c e_theta^T``, ``c = (-(y_k - y_j), x_k - x_j, 0)`` (a heading error
+    swings the path travelled since), so ``cov(e_k, e_j) = Phi(k, j) P_j``; the systematic
+    part is one draw for the whole run, so its joint covariance is the second moment of the
+    same draws' deviations (``dead_reckoning.calibration_deviations``) at those poses."""
+    from odofuse.estimators.common import initial_state, odometry_inputs
+    from odofuse.estimators.dead_reckoning import CALIBRATION_DRAWS, calibration_deviations
+    from odofuse.estimators.odocal import filter_odometry_calibration
+    from odofuse.motion import motion_model_from_config
+
+    m, poses = len(idx), traj.poses
+    white = traj.covariances[idx].copy()
+    S = np.zeros((2 * m, 2 * m))
+    model = motion_model_from_config(cfg)
+    opts = cfg.estimator_options("dead_reckoning")
+    cal = filter_odometry_calibration(model, opts, "options.dead_reckoning", cfg.source)
+    if cal is not None:
+        t, U = odometry_inputs(log, model)
+        pose0, _ = initial_state(cfg, log)
+        for dev in calibration_deviations(model, cal, pose0, t, U, poses, opts.compiled):
+            d = dev[idx]
+            white -= np.einsum("ia,ib->iab", d, d) / CALIBRATION_DRAWS
+            S += np.outer(d[:, :2].ravel(), d[:, :2].ravel()) / CALIBRATION_DRAWS
+    p = poses[idx, :2]
+    c = np.stack([-(p[:, None, 1] - p[None, :, 1]), p[:, None, 0] - p[None, :, 0]], axis=-1)
+    # blocks[b, a] = cov(e_k, e_j) for k = idx[b] >= j = idx[a]
+    blocks = white[None, :, :2, :2] + c[:, :, :, None] * white[None, :, 2, None, :2]
+    later = np.tril(np.ones((m, m), dtype=bool))[:, :, None, None]
+    joint = np.where(later, blocks, np.swapaxes(blocks, 0, 1).swapaxes(2, 3))
+    S += joint.transpose(0, 2, 1, 3).reshape(2 * m, 2 * m)
+    return 0.5 * (S + S.T)
+
+
+def dead_reckoning_nees_bound(log, cfg, traj, gt) -> tuple[float, float]:
+    """``(bound, mean NEES)`` of dead reckoning's positions against ``gt`` at every ``s``-th
+    scored pose (at most :data:`FILTER_BOUND_POSES`), the bound its own model implies
+    (:func:`dead_reckoning_joint_covariance`, :func:`joint_bound`)."""
+    from odofuse.evaluation import associate
+
+    idx, g = associate(traj, gt)
+    every = max(1, math.ceil(len(idx) / FILTER_BOUND_POSES))
+    idx, g = idx[::every], g[::every]
+    S = dead_reckoning_joint_covariance(log, cfg, traj, idx)
+    return joint_bound(S, traj.poses[idx, :2] - g[:, :2])
+
+
 def joint_bound(S: np.ndarray, e: np.ndarray) -> tuple[float, float]:
     """``(bound, mean NEES)`` of position errors ``e`` ``(m, 2)`` whose joint covariance under
     the estimator's model is ``S`` ``(2m, 2m)``: the run's mean NEES ``e^T B e`` (``B`` the
@@ -630,6 +683,9 @@ def run_log(log, cfg, estimators, model_bounds: bool = True):
             model *= mean / sub_mean
             if worst > FIXED_LAG_COVARIANCE_TOLERANCE:
                 print(f"    {est}: model covariance {worst:.3g}x the reported one", flush=True)
+        elif model_bounds and v.size and est == "dead_reckoning":
+            model, sub_mean = dead_reckoning_nees_bound(log, run_cfg, result.trajectory, gt)
+            model *= mean / sub_mean  # judged on every s-th pose, as the filters are
         elif model_bounds and v.size and est in ("ekf", "ukf"):
             # judged on every s-th pose: the model's bound of that mean, scaled to the mean
             # of all poses that the other columns use (the ratio is what is judged)

@@ -74,6 +74,66 @@ def test_the_model_bound_reads_the_solutions_own_joint_covariance():
     assert chi2.ppf(0.999, 6) / 3 < model < chi2.ppf(0.999, 2)
 
 
+@pytest.mark.parametrize("seed", [504, 510])
+def test_dead_reckonings_model_bound_follows_its_own_propagation(seed):
+    # seed 504: differential with gyro and GPS (odometry calibration on: the prior of the
+    # systematic errors is in the covariance); 510: wheels only (off)
+    import dataclasses
+
+    from scipy.stats import chi2
+
+    from odofuse.estimators import dead_reckoning as dr
+    from odofuse.estimators.common import initial_state, odometry_inputs
+    from odofuse.estimators.compiled.dead_reckoning import dead_reckon
+    from odofuse.estimators.odocal import filter_odometry_calibration
+    from odofuse.evaluation import trajectory_from_stream
+    from odofuse.log_defaults import apply_log_defaults
+    from odofuse.motion import motion_model_from_config
+
+    log, cfg, _ = bs.make_case(seed)
+    cfg, log = apply_log_defaults(cfg, log)
+    cfg = dataclasses.replace(cfg, estimator="dead_reckoning")
+    traj = dr.run(log, cfg).trajectory
+    model = motion_model_from_config(cfg)
+    opts = cfg.estimator_options("dead_reckoning")
+    cal = filter_odometry_calibration(model, opts, "options.dead_reckoning", cfg.source)
+    assert (cal is not None) == (seed == 504)
+    t, U = odometry_inputs(log, model)
+    idx = np.linspace(1, len(traj.t) - 1, 12).astype(int)
+    m = len(idx)
+    S = bs.dead_reckoning_joint_covariance(log, cfg, traj, idx)
+    # its diagonal is the run's own covariances
+    diag = S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :]
+    assert np.allclose(diag, traj.covariances[idx, :2, :2], rtol=1e-9, atol=0.0)
+    # Phi(k, j) = I + c e_theta^T is the derivative of the pose at k with respect to the pose
+    # at j: dead-reckoned again from j, moved by 1e-6 in x and in heading
+    j, k = idx[2], idx[7]
+    again = dead_reckon(model, traj.poses[j], np.zeros((3, 3)), U[j:k], False)[0][-1]
+    assert np.allclose(again, traj.poses[k], atol=1e-9)
+    c = np.array([-(traj.poses[k, 1] - traj.poses[j, 1]), traj.poses[k, 0] - traj.poses[j, 0]])
+    for col, expected in ((0, [1.0, 0.0]), (2, c)):
+        moved = traj.poses[j] + 1e-6 * np.eye(3)[col]
+        d = (dead_reckon(model, moved, np.zeros((3, 3)), U[j:k], False)[0][-1] - again) / 1e-6
+        assert np.allclose(d[:2], expected, rtol=1e-4, atol=1e-6), (col, d, expected)
+    # between two poses the white part's covariance grows by what the motion adds, never less
+    white = traj.covariances
+    if cal is not None:
+        pose0, _ = initial_state(cfg, log)
+        white = white - dr.calibration_covariances(model, cal, pose0, t, U, traj.poses)
+    for j, k in zip(idx[:-1], idx[1:], strict=True):
+        Phi = np.eye(3)
+        Phi[:2, 2] = [-(traj.poses[k, 1] - traj.poses[j, 1]), traj.poses[k, 0] - traj.poses[j, 0]]
+        added = white[k] - Phi @ white[j] @ Phi.T
+        assert np.linalg.eigvalsh(added)[0] > -1e-9 * np.abs(white[k]).max()
+    # the bound: dead reckoning's error is mostly one growing mode, between one position's
+    # bound and that of m independent ones
+    gt = trajectory_from_stream(log.groundtruth)
+    bound, sub_mean = bs.dead_reckoning_nees_bound(log, cfg, traj, gt)
+    n = min(bs.FILTER_BOUND_POSES, len(traj.t))
+    assert chi2.ppf(0.999, 2 * n) / n < bound < chi2.ppf(0.999, 2)
+    assert 0.0 < sub_mean < bound
+
+
 def test_a_filters_model_bound_follows_its_own_closed_loop():
     # the EKF on the nominal log of seed 504 (differential, gyro and GPS, low noise), on its
     # Python path with its operations recorded (benchmarks/filter_joint.py): between two poses

@@ -75,24 +75,34 @@ def calibration_covariances(model, cal, pose0, t, U, poses, mode: str = "auto") 
     ndarray (N+1, 3, 3)
         To be added to the white-noise covariance of the same poses (independent sources).
     """
-    from scipy.stats import norm, qmc
-
-    nominal, sigma = np.asarray(cal.nominal), np.asarray(cal.sigma)
-    dt = np.diff(np.asarray(t, dtype=float))
-    z = norm.ppf(qmc.Sobol(len(nominal), scramble=True, seed=0).random(CALIBRATION_DRAWS))
     upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
     acc = np.zeros((6, len(poses)))
-    for zi in z:
-        Uc = cal.apply(U, nominal + zi * sigma, dt)
-        q, _ = dead_reckon(model, pose0, np.zeros((3, 3)), Uc, False, mode)
-        d = (q - poses).T
-        d[2] = se2.wrap(d[2])
+    for dev in calibration_deviations(model, cal, pose0, t, U, poses, mode):
+        d = dev.T
         for row, (a, b) in zip(acc, upper, strict=True):
             row += d[a] * d[b]
     C = np.empty((len(poses), 3, 3))
     for row, (a, b) in zip(acc, upper, strict=True):
         C[:, a, b] = C[:, b, a] = row / CALIBRATION_DRAWS
     return C
+
+
+def calibration_deviations(model, cal, pose0, t, U, poses, mode: str = "auto"):
+    """The poses dead-reckoned with each of :func:`calibration_covariances`' draws of the
+    systematic errors' prior, minus ``poses`` (``(N+1, 3)`` each, heading wrapped), one draw
+    at a time: their second moment is that covariance (and, between two times, the
+    correlation the shared errors give, which ``benchmarks/bench_status.py`` reads)."""
+    from scipy.stats import norm, qmc
+
+    nominal, sigma = np.asarray(cal.nominal), np.asarray(cal.sigma)
+    dt = np.diff(np.asarray(t, dtype=float))
+    z = norm.ppf(qmc.Sobol(len(nominal), scramble=True, seed=0).random(CALIBRATION_DRAWS))
+    for zi in z:
+        Uc = cal.apply(U, nominal + zi * sigma, dt)
+        q, _ = dead_reckon(model, pose0, np.zeros((3, 3)), Uc, False, mode)
+        d = q - poses
+        d[:, 2] = se2.wrap(d[:, 2])
+        yield d
 
 
 def run(log, config) -> EstimateResult:
