@@ -337,7 +337,6 @@ def model_nees_bound(problem, graph, values, gt) -> tuple[float, float]:
     99.9 % point exactly."""
     import gtsam
 
-    from odofuse import se2
     from odofuse.estimators.graph.keys import X
     from odofuse.evaluation import associate
     from odofuse.trajectory import Trajectory
@@ -354,9 +353,27 @@ def model_nees_bound(problem, graph, values, gt) -> tuple[float, float]:
     m = len(idx)
     cols = np.ravel([[3 * i, 3 * i + 1] for i in idx])
     body = np.linalg.inv(info)[np.ix_(cols, cols)].reshape(m, 2, m, 2)  # GTSAM tangent
-    R = se2.rot(poses[idx, 2])  # body -> world position blocks: R_i S_ij R_j^T
+    return joint_bound(world_positions(body, poses[idx, 2]), poses[idx, :2] - g[:, :2])
+
+
+def world_positions(body: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """The joint covariance ``(2m, 2m)`` of ``m`` positions in the world frame from its blocks
+    ``body`` ``(m, 2, m, 2)`` in GTSAM's Pose2 tangent (body frame) at headings ``theta``:
+    ``R_i S_ij R_j^T``, symmetrised."""
+    from odofuse import se2
+
+    m = len(theta)
+    R = se2.rot(theta)
     S = np.einsum("iab,ibjc,jdc->iajd", R, body, R).reshape(2 * m, 2 * m)
-    return joint_bound(0.5 * (S + S.T), poses[idx, :2] - g[:, :2])
+    return 0.5 * (S + S.T)
+
+
+def thinned(idx: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every ``s``-th of the scored poses ``idx`` and their ground truth ``g``, at most
+    :data:`FILTER_BOUND_POSES` of them: a joint covariance is ``(2m, 2m)`` and its
+    eigenvalues cost ``m^3``."""
+    every = max(1, math.ceil(len(idx) / FILTER_BOUND_POSES))
+    return idx[::every], g[::every]
 
 
 def lag_prefixes(kt: np.ndarray, lag: float) -> np.ndarray:
@@ -446,42 +463,31 @@ def fixed_lag_joint_covariance(problem, graph, values, idx) -> np.ndarray:
     covariance with the earlier ones is read from the information matrix of its own prefix.
     ``graph`` is every factor the smoother was given (the gated rows left out), linearised at
     the run's final ``values``: a linearisation, as the smoother's model bound is."""
-    import gtsam
     from scipy.sparse.linalg import splu
 
-    from odofuse import se2
+    from odofuse.estimators.graph.keys import X
 
     A, row_tag, key_tags, key_end, col = prefix_system(graph, values)
     prefix = lag_prefixes(problem.kt, problem.options.lag)[idx]
-    body = np.zeros((len(idx), 2, len(idx), 2))
-    poses = np.array(
-        [
-            [values.atPose2(X).x(), values.atPose2(X).y(), values.atPose2(X).theta()]
-            for X in (gtsam.symbol("x", int(i)) for i in idx)
-        ]
-    )
+    m = len(idx)
+    at = np.array([col[X(int(i))] for i in idx])  # each scored pose's first column
+    body = np.zeros((m, 2, m, 2))
     for q in np.unique(prefix):
         m_q = int(np.searchsorted(row_tag, q, side="right"))
         n_q = int(key_end[np.searchsorted(key_tags, q, side="right") - 1])
         A_q = A[:m_q, :n_q]
         lu = splu((A_q.T @ A_q).tocsc())
         mine = np.flatnonzero(prefix == q)
-        pos = [col[gtsam.symbol("x", int(idx[a]))] + c for a in mine for c in (0, 1)]
-        E = np.zeros((n_q, len(pos)))
-        E[pos, np.arange(len(pos))] = 1.0
+        E = np.zeros((n_q, 2 * len(mine)))
+        E[(at[mine, None] + [0, 1]).ravel(), np.arange(2 * len(mine))] = 1.0
         Xs = lu.solve(E).reshape(n_q, len(mine), 2)
-        upto = int(mine.max()) + 1  # every scored pose at or before this prefix's last
-        for b in range(upto):
-            c = col[gtsam.symbol("x", int(idx[b]))]
-            block = Xs[c : c + 2]  # (2, len(mine), 2): rows of pose b, columns of poses mine
-            for a_i, a in enumerate(mine):
-                if b <= a:
-                    body[b, :, a, :] = block[:, a_i, :]
-                    body[a, :, b, :] = block[:, a_i, :].T
-    R = se2.rot(poses[:, 2])
-    mm = len(idx)
-    S = np.einsum("iab,ibjc,jdc->iajd", R, body, R).reshape(2 * mm, 2 * mm)
-    return 0.5 * (S + S.T)
+        for a_i, a in enumerate(mine):  # cov(e_b, e_a) for every scored pose b <= a
+            rows = (at[: a + 1, None] + [0, 1]).ravel()
+            block = Xs[rows, a_i, :].reshape(a + 1, 2, 2)
+            body[: a + 1, :, a, :] = block
+            body[a, :, : a + 1, :] = block.transpose(2, 0, 1)
+    theta = np.array([values.atPose2(X(int(i))).theta() for i in idx])
+    return world_positions(body, theta)
 
 
 def fixed_lag_nees_bound(problem, graph, values, traj, gt) -> tuple[float, float, float]:
@@ -494,9 +500,7 @@ def fixed_lag_nees_bound(problem, graph, values, traj, gt) -> tuple[float, float
     the two, is returned as ``exp`` of it."""
     from odofuse.evaluation import associate
 
-    idx, g = associate(traj, gt)
-    every = max(1, math.ceil(len(idx) / FILTER_BOUND_POSES))
-    idx, g = idx[::every], g[::every]
+    idx, g = thinned(*associate(traj, gt))
     S = fixed_lag_joint_covariance(problem, graph, values, idx)
     m = len(idx)
     Q = S.reshape(m, 2, m, 2)[np.arange(m), :, np.arange(m), :]
@@ -555,9 +559,7 @@ def dead_reckoning_nees_bound(log, cfg, traj, gt) -> tuple[float, float]:
     (:func:`dead_reckoning_joint_covariance`, :func:`joint_bound`)."""
     from odofuse.evaluation import associate
 
-    idx, g = associate(traj, gt)
-    every = max(1, math.ceil(len(idx) / FILTER_BOUND_POSES))
-    idx, g = idx[::every], g[::every]
+    idx, g = thinned(*associate(traj, gt))
     S = dead_reckoning_joint_covariance(log, cfg, traj, idx)
     return joint_bound(S, traj.poses[idx, :2] - g[:, :2])
 
@@ -628,9 +630,7 @@ def recorded_nees_bound(traj, steps, gt) -> tuple[float, float]:
     idx, g = associate(traj, gt)
     P = traj.covariances[idx][:, :2, :2]
     pd = np.linalg.eigvalsh(P)[:, 0] > 0.0
-    idx, g = idx[pd], g[pd]
-    every = max(1, math.ceil(len(idx) / FILTER_BOUND_POSES))
-    idx, g = idx[::every], g[::every]
+    idx, g = thinned(idx[pd], g[pd])
     S = filter_joint.joint_position_covariance(steps, idx)
     return joint_bound(S, traj.poses[idx, :2] - g[:, :2])
 

@@ -643,7 +643,8 @@ def run_fixed_lag(log, config) -> EstimateResult:
     import gtsam
 
     problem = build_problem(log, config, "fixed_lag")
-    fac = Factors(convex_problem(problem) or problem)  # Huber where Tukey is configured
+    soft = convex_problem(problem)  # Huber where Tukey is configured
+    fac = Factors(soft or problem)
     lag = problem.options.lag
     params = _fixed_lag_params(problem)
     smoother = gtsam.IncrementalFixedLagSmoother(lag, params)
@@ -658,8 +659,9 @@ def run_fixed_lag(log, config) -> EstimateResult:
     findings: list[Finding] = []
     current = gtsam.Pose2(*problem.pose0)
     monitor = innovations.monitor(problem)
-    # the gated streams -> their current run of consecutive rejections (innovations.gated_out)
-    runs = {s: 0 for s, (kind, _) in problem.robust.items() if kind == "tukey"}
+    # the gated streams (Tukey's loss configured, Huber's given) -> their current run of
+    # consecutive rejections (innovations.gated_out)
+    runs = {s: 0 for s in (soft.robust if soft else ()) if soft.robust[s] != problem.robust[s]}
     # every factor given to the smoother, kept only for a benchmark's solvers.on_solution
     given = gtsam.NonlinearFactorGraph() if solvers.on_solution is not None else None
 
