@@ -635,14 +635,51 @@ def recorded_nees_bound(traj, steps, gt) -> tuple[float, float]:
     return joint_bound(S, traj.poses[idx, :2] - g[:, :2])
 
 
+def particle_nees_bound(log, cfg, traj, gt, recorded=None) -> tuple[float, float]:
+    """``(bound, mean NEES)`` of the particle filter's positions against ``gt`` at every
+    ``s``-th scored pose (at most :data:`FILTER_BOUND_POSES`), the bound of their mean under
+    the filter's own model as the EKF's closed loop states it (:mod:`filter_joint`): both
+    filters run the same motion and measurement models, states and noise, so the correlation
+    of their errors over a run is the model's; the particle filter's own covariances keep the
+    diagonal blocks (the bound depends on the block-normalised correlation alone:
+    :func:`joint_bound`). The particle cloud's own closed loop, estimated from its ancestry
+    between poses, was tried first and understates that correlation (docs/trust.md, "The
+    particle filter's model bound"). ``recorded``: the EKF's
+    :func:`filter_joint.run_recorded` of ``log`` and ``cfg``, if already run."""
+    import filter_joint
+
+    from odofuse.evaluation import associate
+
+    idx, g = associate(traj, gt)
+    P = traj.covariances[idx][:, :2, :2]
+    pd = np.linalg.eigvalsh(P)[:, 0] > 0.0
+    ekf_cfg = dataclasses.replace(cfg, estimator="ekf")
+    ekf, steps = recorded or filter_joint.run_recorded(log, ekf_cfg, "ekf")
+    worst = filter_joint.worst_added_noise(steps)
+    if not worst >= -ADDED_NOISE_TOLERANCE["ekf"]:
+        raise AssertionError(f"particle: the EKF's recorded closed loop adds noise {worst:.3g}")
+    if not np.array_equal(ekf.t, traj.t):
+        raise AssertionError("particle: the EKF's poses are not the particle filter's")
+    pd &= np.linalg.eigvalsh(ekf.covariances[idx][:, :2, :2])[:, 0] > 0.0
+    idx, g = thinned(idx[pd], g[pd])
+    m = len(idx)
+    S = filter_joint.joint_position_covariance(steps, idx).reshape(m, 2, m, 2)
+    L_ekf = np.linalg.cholesky(S[np.arange(m), :, np.arange(m), :])
+    L = np.linalg.cholesky(traj.covariances[idx, :2, :2])
+    T = L @ np.linalg.inv(L_ekf)  # L_i L_ekf,i^-1 per pose: diagonal blocks P_i
+    S = np.einsum("iab,ibjc,jdc->iajd", T, S, T).reshape(2 * m, 2 * m)
+    return joint_bound(0.5 * (S + S.T), traj.poses[idx, :2] - g[:, :2])
+
+
 def _keep(solutions: list, problem, graph, values, estimator: str) -> None:
     solutions.append((estimator, problem, graph, values))
 
 
 def run_log(log, cfg, estimators, model_bounds: bool = True):
     """``{estimator: (status, position NEES, bound, first warning, rmse, model bound)}`` on one
-    log; the model bound (:func:`model_nees_bound`, :func:`filter_model_nees_bound`) of the
-    batch smoother, iSAM2, EKF and UKF, nan for the others (no joint covariance) and without
+    log; the model bound of every estimator (:func:`model_nees_bound`,
+    :func:`fixed_lag_nees_bound`, :func:`dead_reckoning_nees_bound`,
+    :func:`filter_model_nees_bound`, :func:`particle_nees_bound`), nan without
     ``model_bounds``."""
     from odofuse.estimators.graph import solvers
     from odofuse.evaluation import nees_values, trajectory_from_stream
@@ -686,11 +723,15 @@ def run_log(log, cfg, estimators, model_bounds: bool = True):
         elif model_bounds and v.size and est == "dead_reckoning":
             model, sub_mean = dead_reckoning_nees_bound(log, run_cfg, result.trajectory, gt)
             model *= mean / sub_mean  # judged on every s-th pose, as the filters are
-        elif model_bounds and v.size and est in ("ekf", "ukf"):
+        elif model_bounds and v.size and est in ("ekf", "ukf", "particle"):
             # judged on every s-th pose: the model's bound of that mean, scaled to the mean
             # of all poses that the other columns use (the ratio is what is judged)
+            traj = result.trajectory
             try:
-                model, sub_mean = filter_model_nees_bound(log, run_cfg, est, result.trajectory, gt)
+                if est == "particle":
+                    model, sub_mean = particle_nees_bound(log, run_cfg, traj, gt)
+                else:
+                    model, sub_mean = filter_model_nees_bound(log, run_cfg, est, traj, gt)
                 model *= mean / sub_mean
             except AssertionError as exc:  # a benchmark fault: said, and the run goes on
                 print(f"    {est}: no model bound: {exc}", flush=True)

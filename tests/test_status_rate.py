@@ -170,6 +170,35 @@ def test_a_filters_model_bound_follows_its_own_closed_loop():
     assert 0.0 < sub_mean < bound
 
 
+def test_the_particle_filters_model_bound_is_the_ekfs_correlation_at_its_own_covariances():
+    # the particle filter's bound takes the EKF's closed loop on the same log and config (the
+    # same model) for the correlation of the errors and keeps its own covariances: given the
+    # EKF's own trajectory it is the EKF's bound, and it does not move when the covariances
+    # are scaled (the run's mean NEES does)
+    import dataclasses
+
+    import filter_joint
+
+    from odofuse.evaluation import trajectory_from_stream
+    from odofuse.log_defaults import apply_log_defaults
+    from odofuse.trajectory import Trajectory
+
+    log, cfg, _ = bs.make_case(504)
+    cfg, log = apply_log_defaults(cfg, log)
+    cfg = dataclasses.replace(cfg, estimator="particle")
+    gt = trajectory_from_stream(log.groundtruth)
+    ekf, steps = filter_joint.run_recorded(log, dataclasses.replace(cfg, estimator="ekf"), "ekf")
+    expected = bs.recorded_nees_bound(ekf, steps, gt)
+    assert np.allclose(bs.particle_nees_bound(log, cfg, ekf, gt), expected, rtol=1e-9)
+    wide = Trajectory(ekf.t, ekf.poses, 4.0 * ekf.covariances)
+    bound, mean = bs.particle_nees_bound(log, cfg, wide, gt, (ekf, steps))
+    assert bound == pytest.approx(expected[0], rel=1e-9)
+    assert mean == pytest.approx(expected[1] / 4.0, rel=1e-9)
+    with pytest.raises(AssertionError, match="not the particle filter's"):
+        late = Trajectory(ekf.t + 1.0, ekf.poses, ekf.covariances)
+        bs.particle_nees_bound(log, cfg, late, gt, (ekf, steps))
+
+
 def test_lag_prefixes_are_the_keyframes_held_when_each_pose_left_the_window():
     # run_fixed_lag takes pose j's estimate before adding the first keyframe i with
     # kt[i] - lag > kt[j], so with the keyframes 0..i-1 in it; the last poses take all
