@@ -199,6 +199,16 @@ def _alias_bomb(levels: int = 9) -> str:
         (b"log: x\nrobot: {drive: incr\xc5ments}\n", ["not UTF-8", "0xc5", "offset 26", "line 2"]),
         (b"log: x\n#" + b"x" * (2 << 20) + b"\n", ["larger than"]),
     ],
+    # Named ids: a 2 MiB config as its own id was carried by every xdist report.
+    ids=[
+        "alias-bomb",
+        "deep-list",
+        "deep-map",
+        "duplicate-key",
+        "duplicate-flow-key",
+        "non-utf8",
+        "2MiB",
+    ],
 )
 def test_hostile_yaml_ends_in_one_line_error(tmp_path, capsys, content, needles):
     cfg = tmp_path / "run.yaml"
@@ -254,15 +264,28 @@ def test_sparse_two_gigabyte_csv_ends_in_a_short_error(tmp_path, capsys):
 @pytest.mark.parametrize(
     "row,needles",
     [
-        (b"1.5,0.1," + b"9" * (100 << 20), ["row 6", "line longer than"]),
-        (b"1.5,0.1,0.\xc55", ["row 6", "column 'dtheta'", "not UTF-8", "0xc5"]),
-        (b"1.5,1e308,0.05", ["row 6", "column 'ds'", "out of range"]),
-        (b"1.5e18,0.1,0.05", ["row 6", "column 't'", "seconds"]),
-        (b"1.5,1_0,0.05", ["row 6", "column 'ds'", "not a number: '1_0'"]),
-        (b"1.5,0.1," + b"x" * 5000, ["row 6", "column 'dtheta'", "not a number"]),
+        pytest.param(
+            lambda: b"1.5,0.1," + b"9" * (100 << 20),
+            ["row 6", "line longer than"],
+            id="100MiB-line",
+        ),
+        pytest.param(
+            b"1.5,0.1,0.\xc55", ["row 6", "column 'dtheta'", "not UTF-8", "0xc5"], id="non-utf8"
+        ),
+        pytest.param(b"1.5,1e308,0.05", ["row 6", "column 'ds'", "out of range"], id="overflow"),
+        pytest.param(b"1.5e18,0.1,0.05", ["row 6", "column 't'", "seconds"], id="time-in-ns"),
+        pytest.param(
+            b"1.5,1_0,0.05", ["row 6", "column 'ds'", "not a number: '1_0'"], id="underscore"
+        ),
+        pytest.param(
+            b"1.5,0.1," + b"x" * 5000, ["row 6", "column 'dtheta'", "not a number"], id="5000-x"
+        ),
     ],
 )
 def test_bad_csv_row_names_file_row_and_column_with_a_short_excerpt(tmp_path, capsys, row, needles):
+    # The 100 MiB row is built in the test, not at collection: as a parameter it was the test's
+    # id, a 100 MB string that every xdist worker sent to the controller and every report carried.
+    row = row() if callable(row) else row
     cfg, odo = _csv_run(tmp_path)
     _set_row(odo, 5, row)
     assert main(["run", str(cfg)]) == 2
