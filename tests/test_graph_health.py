@@ -171,10 +171,18 @@ def test_a_damped_system_cholesky_refuses_is_solved_by_qr():
                 return bad.optimize(order, function)
             return g.optimize(order, function)
 
-    np.testing.assert_allclose(_solve_damped(g, ordering).at(X(0)), [1.0, 1.0, 2.0])
-    np.testing.assert_allclose(_solve_damped(Refusing(), ordering).at(X(0)), [1.0, 1.0, 2.0])
-    assert _solve_damped(Refusing(qr_fails=True), ordering) is None
-    assert _solve_damped(Refusing(nan=True), ordering) is None
+    delta, refused = _solve_damped(g, ordering)
+    np.testing.assert_allclose(delta.at(X(0)), [1.0, 1.0, 2.0])
+    assert not refused
+    delta, refused = _solve_damped(Refusing(), ordering)
+    np.testing.assert_allclose(delta.at(X(0)), [1.0, 1.0, 2.0])
+    assert refused
+    # told Cholesky refused before: straight to QR, and no refusal of its own to report
+    delta, refused = _solve_damped(Refusing(), ordering, cholesky=False)
+    np.testing.assert_allclose(delta.at(X(0)), [1.0, 1.0, 2.0])
+    assert not refused
+    assert _solve_damped(Refusing(qr_fails=True), ordering) == (None, True)
+    assert _solve_damped(Refusing(nan=True), ordering) == (None, True)
 
 
 @pytest.mark.slow(seconds=16)  # Plaza2's range-only SLAM smoother through the CLI: 16 s
@@ -298,3 +306,32 @@ def test_a_slip_run_of_keyframe_intervals_longer_than_a_second_degrades():
     found = {f.check: f for f in slip_findings(problem, scales)}
     run = found["slip_run"]
     assert run.degrades and (run.t_start, run.t_end) == (6.0, 7.5) and not found["slip"].degrades
+
+
+def test_the_lm_sends_a_damping_cholesky_refused_straight_to_qr(monkeypatch):
+    """Once Cholesky has refused a damped system at some lambda, the Python LM sends every
+    later system at that lambda or below to QR (issue 31: it retried Cholesky on each)."""
+    from odofuse.estimators.graph import solvers
+
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    sigma = gtsam.noiseModel.Isotropic.Sigma(3, 0.1)
+    graph.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(), sigma))
+    for i in range(3):
+        graph.add(gtsam.BetweenFactorPose2(X(i), X(i + 1), gtsam.Pose2(1.0, 0.0, 0.5), sigma))
+        values.insert(X(i), gtsam.Pose2(0.7 * i, 0.3 * i, 0.1 * i))
+    values.insert(X(3), gtsam.Pose2(2.0, 1.0, 0.2))
+    asked = []
+    solve = solvers._solve_damped
+
+    def refusing(damped, ordering, cholesky=True):  # Cholesky refuses at every lambda
+        asked.append(cholesky)
+        return solve(damped, ordering, cholesky=False)[0], cholesky
+
+    monkeypatch.setattr(solvers, "_solve_damped", refusing)
+    out = solvers.levenberg_marquardt(graph, values, {X(i): 3 for i in range(4)})
+    assert out.reason == "converged" and out.iterations > 2 and out.error < 1e-12
+    # lambda falls from its first value while the first steps are accepted: Cholesky is
+    # asked once there; later, only where the damping rose above that (17 iterations, 46
+    # systems: 15 asked)
+    assert asked[:5] == [True, False, False, False, False]
+    assert 1 < sum(asked) < len(asked) / 2
