@@ -196,16 +196,19 @@ def checked_metrics(config, log, result, runtime: float, reference=None) -> dict
     :func:`finish_run` and the trust scenarios' runs
     (:func:`odofuse.teaching.trust_scenarios.run`): :func:`odofuse.status.cross_check.cross_check`
     adds its findings (so ``status`` and ``warnings`` follow), the ``cross_check`` block, the
-    ``advice`` list (accuracy against the smoother: never a finding, never the status) and the
-    run's false-alarm budget ``alpha`` (:func:`odofuse.status.cross_check.alpha_budget`).
+    ``advice`` list (accuracy against the smoother, and the robot geometry the odometry
+    calibration fits: :func:`odofuse.status.geometry.geometry_advice`; never a finding, never
+    the status) and the run's false-alarm budget ``alpha``
+    (:func:`odofuse.status.cross_check.alpha_budget`).
     """
     from odofuse.evaluation import metrics
     from odofuse.status.cross_check import alpha_budget, cross_check
+    from odofuse.status.geometry import geometry_advice
 
     result, block, advice = cross_check(config, log, result, reference)
     m = metrics(result, log, runtime)
     m["cross_check"] = block
-    m["advice"] = list(advice)
+    m["advice"] = list(advice) + geometry_advice(config.robot, result.extra or {})
     m["alpha"] = alpha_budget(config, log)
     return m
 

@@ -611,17 +611,23 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
     if opts.covariances:
         keys = [X(i) for i in range(len(problem.kt))]
         keys += [problem.final_key(name) for name in problem.calib]
+        oc = problem.odometry_calibration
+        if oc is not None and result.exists(problem.odometry_key):
+            keys.append(problem.odometry_key)
         landmark_keys = [key for key in fac.landmark_keys.values() if result.exists(key)]
         cov, bad = marginal_covariances(graph, result, keys + landmark_keys, fac.dims, lin)
         findings += bad
         if cov:
             poses = pose_array(out.values, len(problem.kt))
             covs = world_covs(problem, poses, cov.__getitem__)
-            if problem.calib:
-                extra["calibration_sigma"] = {
-                    name: float(np.sqrt(cov[problem.final_key(name)][0, 0]))
-                    for name in problem.calib
-                }
+            sigma = {
+                name: float(np.sqrt(cov[problem.final_key(name)][0, 0])) for name in problem.calib
+            }
+            if problem.odometry_key in cov:  # the wheels' calibration (status.geometry)
+                sd = np.sqrt(np.diag(cov[problem.odometry_key]))
+                sigma.update({n: float(v) for n, v in zip(oc.names, sd, strict=True)})
+            if sigma:
+                extra["calibration_sigma"] = sigma
             if opts.slam:
                 extra["landmark_covariances"] = landmark_covariances(fac, result, cov.__getitem__)
     extra.update(
