@@ -31,7 +31,7 @@ def test_estimates_are_read_from_the_filters_and_the_smoothers_extra():
         "calibration": {"wheel_radius_scale": 1.04, "track_width_scale": 0.99, "gyro_bias": 0.1},
         "calibration_sigma": {"wheel_radius_scale": 0.01, "gyro_bias": 1e-4},
     }
-    # a state without a sigma (iSAM2, fixed-lag; here the track) cannot be judged: no advice
+    # a state without a sigma (here the track) cannot be judged: no advice
     assert calibration_estimates(smooth) == {"wheel_radius_scale": (1.04, 0.01)}
     assert calibration_estimates({}) == {}
 
@@ -99,9 +99,10 @@ def _robot_folder(tmp_path, E_s):
 
 @pytest.mark.parametrize("E_s", [1.05, 1.0])
 def test_odofuse_run_advises_the_wheel_radius_the_log_fits(tmp_path, E_s):
-    """Through ``odofuse run`` (the EKF, a subprocess) and the batch smoother: wheels 5 %
-    larger than the config says give the advice (measured: EKF 1.044 +- 0.0045, smoother
-    1.041 +- 0.005); the same robot with the configured wheels gives none."""
+    """Through ``odofuse run`` (the EKF, a subprocess) and the graph back ends: wheels 5 %
+    larger than the config says give the advice (measured: EKF 1.044 +- 0.0045, smoother and
+    iSAM2 1.041 +- 0.005, fixed-lag 1.043 +- 0.0044); the same robot with the configured
+    wheels gives none."""
     from odofuse.config import load_config
     from odofuse.io.loader import load_log_for
     from odofuse.rundir import run_one
@@ -113,10 +114,12 @@ def test_odofuse_run_advises_the_wheel_radius_the_log_fits(tmp_path, E_s):
     proc = subprocess.run(cmd, cwd=folder, env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     m = json.loads((folder / "out" / "metrics.json").read_text())
-    (folder / "smoother.yaml").write_text(CONFIG.replace("ESTIMATOR", "smoother"))
-    cfg = load_config(folder / "smoother.yaml")
-    s = run_one(cfg, load_log_for(cfg), folder / "smoothed")
-    for run, printed in ((m, proc.stdout + proc.stderr), (s, None)):
+    runs = [(m, proc.stdout + proc.stderr)]
+    for est in ("smoother", "isam2", "fixed_lag"):
+        (folder / f"{est}.yaml").write_text(CONFIG.replace("ESTIMATOR", est))
+        cfg = load_config(folder / f"{est}.yaml")
+        runs.append((run_one(cfg, load_log_for(cfg), folder / est), None))
+    for run, printed in runs:
         radius = [a for a in run["advice"] if "`robot.wheel_radius`" in a]
         assert not any("track" in a for a in run["advice"]), run["advice"]
         if E_s == 1.0:
@@ -127,6 +130,7 @@ def test_odofuse_run_advises_the_wheel_radius_the_log_fits(tmp_path, E_s):
         assert 0.05 * 1.02 < fitted < 0.05 * 1.07, line  # 0.0525 m, within its sigmas
         if printed is not None:  # printed under the table, as the second opinion's advice
             assert f"advice: ekf: {line}" in printed
-    # the smoother's sigma of the wheels' calibration is reported beside the sensors'
-    names = ("wheel_radius_scale", "wheel_radius_ratio", "track_width_scale")
-    assert set(names) <= set(s["extra"]["calibration_sigma"]), s["extra"]
+    # the graph back ends' sigmas of the wheels' calibration, beside the sensors'
+    names = {"wheel_radius_scale", "wheel_radius_ratio", "track_width_scale", "gyro_bias"}
+    for run, _ in runs[1:]:
+        assert set(run["extra"]["calibration_sigma"]) == names, run["extra"]

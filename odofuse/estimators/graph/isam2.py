@@ -26,6 +26,7 @@ from odofuse.estimators.graph.keys import X, is_vector, model_kind
 from odofuse.estimators.graph.marginals import optimum_marginals
 from odofuse.estimators.graph.problem import GraphProblem, build_problem, convex_problem
 from odofuse.estimators.graph.solvers import (
+    calibration_sigmas,
     finish,
     landmark_covariances,
     polish_isam2,
@@ -545,6 +546,7 @@ def _run_isam2(problem: GraphProblem, config, factorization: str) -> EstimateRes
             if problem.options.covariances:
                 cov_of = optimum_marginals(final_graph, result, params)
                 covs = world_covs(problem, pose_array(result, len(problem.kt)), cov_of)
+                extra.update(calibration_sigmas(problem, result, cov_of))
             solved = final_graph
         except RuntimeError as exc:
             if cholesky:
@@ -577,6 +579,7 @@ def _slam_result(problem, params, fac, extra, findings, graph, result) -> Estima
         cov_of = optimum_marginals(graph, result, params)
         covs = world_covs(problem, pose_array(result, len(problem.kt)), cov_of)
         extra["landmark_covariances"] = landmark_covariances(fac, result, cov_of)
+        extra.update(calibration_sigmas(problem, result, cov_of))
     return finish(problem, fac, result, covs, "isam2", extra, findings, graph=graph)
 
 
@@ -729,6 +732,8 @@ def run_fixed_lag(log, config) -> EstimateResult:
         "lag_s": lag,
         "nis": innovations.summary(monitor),
     }
+    if covs is not None:  # the calibration states stay in the window to the end
+        extra.update(calibration_sigmas(problem, final_values, smoother.marginalCovariance))
     findings += innovations.findings(monitor, problem)
     given = given if covs is not None else None  # a failed run has no model to judge
     return finish(

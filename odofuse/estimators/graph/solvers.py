@@ -232,6 +232,32 @@ def _extra(problem: GraphProblem, fac: Factors, values, estimator: str) -> dict:
     return extra
 
 
+def calibration_keys(problem: GraphProblem, values) -> list:
+    """The keys of the run's calibration states in ``values``: each sensor state's final key
+    and the odometry calibration vector."""
+    keys = [problem.final_key(name) for name in problem.calib]
+    if problem.odometry_calibration is not None:
+        keys.append(problem.odometry_key)
+    return [k for k in keys if values.exists(k)]
+
+
+def calibration_sigmas(problem: GraphProblem, values, cov_of) -> dict:
+    """``{"calibration_sigma": {name: sigma}}`` of the calibration states in ``values``
+    (``cov_of(key)`` their marginal covariance), beside ``extra["calibration"]``'s values: the
+    sensors' states and the wheels' (:mod:`odofuse.status.geometry` advises from them); empty
+    when there are none."""
+    sigma = {}
+    for name in problem.calib:
+        key = problem.final_key(name)
+        if values.exists(key):
+            sigma[name] = float(np.sqrt(cov_of(key)[0, 0]))
+    oc = problem.odometry_calibration
+    if oc is not None and values.exists(problem.odometry_key):
+        sd = np.sqrt(np.diag(cov_of(problem.odometry_key)))
+        sigma.update({n: float(v) for n, v in zip(oc.names, sd, strict=True)})
+    return {"calibration_sigma": sigma} if sigma else {}
+
+
 def world_covs(problem, poses, cov_of) -> np.ndarray:
     covs = np.empty((len(poses), 3, 3))
     for i in range(len(poses)):
@@ -610,24 +636,14 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
     lin = graph.linearize(result) if opts.covariances else None
     if opts.covariances:
         keys = [X(i) for i in range(len(problem.kt))]
-        keys += [problem.final_key(name) for name in problem.calib]
-        oc = problem.odometry_calibration
-        if oc is not None and result.exists(problem.odometry_key):
-            keys.append(problem.odometry_key)
+        keys += calibration_keys(problem, result)
         landmark_keys = [key for key in fac.landmark_keys.values() if result.exists(key)]
         cov, bad = marginal_covariances(graph, result, keys + landmark_keys, fac.dims, lin)
         findings += bad
         if cov:
             poses = pose_array(out.values, len(problem.kt))
             covs = world_covs(problem, poses, cov.__getitem__)
-            sigma = {
-                name: float(np.sqrt(cov[problem.final_key(name)][0, 0])) for name in problem.calib
-            }
-            if problem.odometry_key in cov:  # the wheels' calibration (status.geometry)
-                sd = np.sqrt(np.diag(cov[problem.odometry_key]))
-                sigma.update({n: float(v) for n, v in zip(oc.names, sd, strict=True)})
-            if sigma:
-                extra["calibration_sigma"] = sigma
+            extra.update(calibration_sigmas(problem, result, cov.__getitem__))
             if opts.slam:
                 extra["landmark_covariances"] = landmark_covariances(fac, result, cov.__getitem__)
     extra.update(
