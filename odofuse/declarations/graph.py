@@ -189,8 +189,10 @@ class GraphOptions:
         True,
         unit="-",
         doc=(
-            "smoother with slam: its initial iSAM2 pass checks for relinearisation only in "
-            "the branches an update touched (GTSAM's enablePartialRelinearizationCheck)"
+            "smoother with slam (its initial iSAM2 pass) and isam2: check for "
+            "relinearisation only in the branches an update touched (GTSAM's "
+            "enablePartialRelinearizationCheck; both end at a polished optimum); fixed_lag "
+            "keeps the full check"
         ),
     )
     odometry_floor: float = option(
