@@ -230,6 +230,7 @@ def _isam2_params(problem: GraphProblem, factorization: str = "QR", partial: boo
     else:
         params.setRelinearizeThreshold(r)
     params.relinearizeSkip = options.relinearize_skip
+    params.enablePartialRelinearizationCheck = partial
     params.setFactorization(factorization)
     return params
 
