@@ -20,7 +20,9 @@ The modules, by role (lowest import layer first; ``tests/test_layering.py``):
 * :mod:`~odofuse.status.graph_checks`: the factor graph's residual checks (scale, outliers,
   residual windows, calibration, jumps, slip, solver);
 * :mod:`~odofuse.status.cross_check`: the offline second opinion (the batch smoother of the
-  same log) and the run's false-alarm budget.
+  same log) and the run's false-alarm budget;
+* :mod:`~odofuse.status.geometry`: advice, never a finding: the robot geometry (wheel radius,
+  radius ratio, track) that a run's odometry calibration fits, where it is significant.
 
 :data:`CHECKS` lists every check a run can report, where it is raised, its statistic, its
 false-alarm probability on a matching log and the tests that exercise it;
