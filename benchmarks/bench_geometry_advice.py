@@ -61,10 +61,7 @@ def run(seeds: int, first: int, estimators) -> dict:
         for seed in picked:
             t0 = time.perf_counter()
             log, cfg, what = bs.make_case(seed, kind)
-            level = seed % len(bs.NOISE)  # make_case's fault logs: differential, gyro_gps
-            if kind is None:
-                level = bs.nominal_combination(seed)[2]
-            sc = bs.scenario_dict(seed, "differential", "gyro_gps", bs.NOISE[level], kind)
+            sc = bs.case_scenario(seed, kind)[0]
             true_ratio = sc["systematic"].get("E_d", 1.0)  # scores the advice, chooses nothing
             cfg, log = apply_log_defaults(cfg, log)
             brief = []
@@ -73,7 +70,7 @@ def run(seeds: int, first: int, estimators) -> dict:
                 extra = result.extra or {}
                 advice = geometry_advice(cfg.robot, extra)
                 cal = calibration_estimates(extra)
-                z = {n: (v - 1.0) / s for n, (v, s) in cal.items() if n != "dtheta_bias"}
+                z = {n: (v - m) / s for n, (v, s, m) in cal.items()}
                 row = table.setdefault((kind or "nominal", est), [])
                 row.append(
                     {
@@ -87,7 +84,7 @@ def run(seeds: int, first: int, estimators) -> dict:
                             else np.nan
                         ),
                         "z": z,
-                        "sigma": {n: s for n, (_, s) in cal.items()},
+                        "sigma": {n: s for n, (_, s, _) in cal.items()},
                     }
                 )
                 brief.append(

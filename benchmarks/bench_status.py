@@ -215,6 +215,21 @@ def nominal_combination(seed: int) -> tuple[str, str, int]:
     return drive, sensors, (seed // (len(DRIVES) * len(SENSOR_SETS))) % len(NOISE)
 
 
+def case_scenario(seed: int, fault: str | None = None) -> tuple[dict, dict, str]:
+    """``(scenario, noise level, description)`` of :func:`make_case`'s log."""
+    if fault is None:
+        drive, sensors, level = nominal_combination(seed)
+    else:
+        sensors = FAULTS[fault][0] if fault in FAULTS else "gyro_gps"  # or REAL_ROBOT
+        drive, level = "differential", seed % len(NOISE)
+    noise = NOISE[level]
+    return (
+        scenario_dict(seed, drive, sensors, noise, fault),
+        noise,
+        f"{drive}/{sensors}/noise{level}",
+    )
+
+
 def make_case(seed: int, fault: str | None = None):
     """``(log, config, description)`` of one nominal log (``fault=None``) or one fault log."""
     import yaml
@@ -225,13 +240,7 @@ def make_case(seed: int, fault: str | None = None):
     from odofuse.teaching.simlog import write_log
     from odofuse.teaching.simulate import simulate
 
-    if fault is None:
-        drive, sensors, level = nominal_combination(seed)
-    else:
-        sensors = FAULTS[fault][0] if fault in FAULTS else "gyro_gps"  # or REAL_ROBOT
-        drive, level = "differential", seed % len(NOISE)
-    noise = NOISE[level]
-    sc = scenario_dict(seed, drive, sensors, noise, fault)
+    sc, noise, what = case_scenario(seed, fault)
     sim = simulate(scenario_from_dict(sc, f"seed {seed}"))
     with tempfile.TemporaryDirectory(prefix="odofuse-status-") as folder:
         write_log(sim, folder)
@@ -239,7 +248,7 @@ def make_case(seed: int, fault: str | None = None):
         cfg_path.write_text(yaml.safe_dump(user_config(sc, noise), sort_keys=False))
         cfg = load_config(cfg_path)
         log = load_log_for(cfg)
-    return inject(log, fault, seed), cfg, f"{drive}/{sensors}/noise{level}"
+    return inject(log, fault, seed), cfg, what
 
 
 # ------------------------------------------------------------------------------- scoring

@@ -26,13 +26,13 @@ def _filter_extra(**states):
 
 def test_estimates_are_read_from_the_filters_and_the_smoothers_extra():
     filt = _filter_extra(wheel_radius_scale=(1.04, 0.01), gyro_bias=(0.002, 1e-4))
-    assert calibration_estimates(filt) == {"wheel_radius_scale": (1.04, 0.01)}
+    assert calibration_estimates(filt) == {"wheel_radius_scale": (1.04, 0.01, 1.0)}
     smooth = {
         "calibration": {"wheel_radius_scale": 1.04, "track_width_scale": 0.99, "gyro_bias": 0.1},
         "calibration_sigma": {"wheel_radius_scale": 0.01, "gyro_bias": 1e-4},
     }
     # a state without a sigma (here the track) cannot be judged: no advice
-    assert calibration_estimates(smooth) == {"wheel_radius_scale": (1.04, 0.01)}
+    assert calibration_estimates(smooth) == {"wheel_radius_scale": (1.04, 0.01, 1.0)}
     assert calibration_estimates({}) == {}
 
 

@@ -79,7 +79,7 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
     (
         "run folder",
         False,
-        ("odofuse.rundir", "odofuse.status.cross_check", "odofuse.tune"),
+        ("odofuse.rundir", "odofuse.status.cross_check", "odofuse.status.geometry", "odofuse.tune"),
     ),
     ("fleet", False, ("odofuse.batch",)),
     # odofuse live (issue 27): rmw (wire format), transport, messages, component, run.

@@ -21,32 +21,28 @@ from statistics import NormalDist
 
 #: Two-sided probability that a state advises on a log whose geometry is the configured one.
 ADVICE_ALPHA = 1e-3
-#: The odometry calibration states (``odofuse.estimators.odocal``) and their nominal values.
-NOMINAL = {
-    "wheel_radius_scale": 1.0,
-    "wheel_radius_ratio": 1.0,
-    "track_width_scale": 1.0,
-    "ds_scale": 1.0,
-    "dtheta_scale": 1.0,
-    "dtheta_bias": 0.0,
-}
 
 
-def calibration_estimates(extra: dict) -> dict[str, tuple[float, float]]:
-    """``name -> (value, sigma)`` of the run's odometry calibration states with a sigma.
+def calibration_estimates(extra: dict) -> dict[str, tuple[float, float, float]]:
+    """``name -> (value, sigma, nominal)`` of the run's odometry calibration states with a
+    sigma (the states and their nominal values: ``odofuse.estimators.graph.calibration``).
 
-    The filters give ``extra["calibration"][name] = {"value", "sigma"}``; the batch smoother
+    The filters give ``extra["calibration"][name] = {"value", "sigma"}``; the graph back ends
     ``extra["calibration"][name]`` (the value) and ``extra["calibration_sigma"][name]``.
     """
     cal, sig = extra.get("calibration") or {}, extra.get("calibration_sigma") or {}
+    if not cal:  # no calibration: the graph package is not loaded for nothing
+        return {}
+    from odofuse.estimators.graph.calibration import nominal_values
+
     out = {}
-    for name in NOMINAL:
+    for name, nominal in nominal_values().items():
         v = cal.get(name)
         value, sigma = (
             (v.get("value"), v.get("sigma")) if isinstance(v, dict) else (v, sig.get(name))
         )
         if value is not None and sigma is not None and math.isfinite(value) and sigma > 0:
-            out[name] = (float(value), float(sigma))
+            out[name] = (float(value), float(sigma), nominal)
     return out
 
 
@@ -57,11 +53,11 @@ def geometry_advice(robot: dict, extra: dict, alpha: float = ADVICE_ALPHA) -> li
     """
     z_crit = NormalDist().inv_cdf(1.0 - alpha / 2.0)
     lines = []
-    for name, (value, sigma) in calibration_estimates(extra).items():
-        z = (value - NOMINAL[name]) / sigma
+    for name, (value, sigma, nominal) in calibration_estimates(extra).items():
+        z = (value - nominal) / sigma
         if abs(z) <= z_crit:
             continue
-        fit = f"{value:.4g} +- {sigma:.2g}, {abs(z):.1f} sigma from {NOMINAL[name]:g}"
+        fit = f"{value:.4g} +- {sigma:.2g}, {abs(z):.1f} sigma from {nominal:g}"
         lines.append(f"{_what(name, value, robot)} ({fit}; odometry calibration)")
     return lines
 

@@ -116,6 +116,12 @@ def default_sigmas(drive: str) -> tuple[float, ...]:
     return _ODO_CAL[drive][2]
 
 
+def nominal_values() -> dict[str, float]:
+    """Every drive's calibration state name -> its nominal value (``_ODO_CAL``)."""
+    pairs = (zip(names, nominal, strict=True) for names, nominal, _ in _ODO_CAL.values())
+    return {n: m for pair in pairs for n, m in pair}
+
+
 def odometry_calibration_for(model, value, key, source) -> OdometryCalibration | None:
     """The :class:`OdometryCalibration` of ``options.<est>.odometry_calibration``.
 
