@@ -9,6 +9,10 @@ against the simulated truth, position NEES, keyframes, the estimator's runtime, 
 fixed-lag update latency (median / p99 / max) and the runtime ratio with / without the compass
 (the keyframes follow the keyframe policy, so the target is a ratio near 1; judged: iSAM2 and
 fixed-lag under a minute). Asserts nothing.
+
+``python benchmarks/bench_ros2_bag.py read`` times reading that bag instead (MCAP and sqlite3
+storage, best of 5, interleaved): the columnar decoding of ``read_bag`` against message-by-message
+deserialisation (``columnar=False``) in the same process, and checks they give the same log.
 """
 
 from __future__ import annotations
@@ -24,6 +28,31 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
+
+
+def read() -> None:
+    from _timing import best_of
+    from rosbag_sim import simulate_robot, write_robot_bag
+    from test_ros2 import JOINTS, TOPICS, _same_log
+
+    from odofuse.io.bags import read_bag
+
+    robot = simulate_robot()
+    with tempfile.TemporaryDirectory() as tmp:
+        for storage in ("mcap", "sqlite3"):
+            bag = write_robot_bag(Path(tmp) / f"run_{storage}", robot, storage)
+            n = sum(len(s) for s in read_bag(bag, TOPICS, JOINTS).streams.values())
+            _same_log(read_bag(bag, TOPICS, JOINTS), read_bag(bag, TOPICS, JOINTS, columnar=False))
+            ref = col = float("inf")
+            for _ in range(5):
+                ref = min(
+                    ref, best_of(lambda b=bag: read_bag(b, TOPICS, JOINTS, columnar=False), 1)
+                )
+                col = min(col, best_of(lambda b=bag: read_bag(b, TOPICS, JOINTS), 1))
+            print(
+                f"{storage:8} {n} rows: message by message {ref:.3f} s, columnar {col:.3f} s "
+                f"({ref / col:.1f}x), the same log"
+            )
 
 
 def main(estimators) -> None:
@@ -76,4 +105,6 @@ def main(estimators) -> None:
 
 
 if __name__ == "__main__":
+    if sys.argv[1:] == ["read"]:
+        sys.exit(read())
     main(sys.argv[1].split(",") if len(sys.argv) > 1 else ["ekf", "smoother", "isam2", "fixed_lag"])

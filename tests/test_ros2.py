@@ -97,6 +97,69 @@ def test_bag_streams_both_storages(bags, robot):
     assert ros["frames"]["gyro_2"] == "imu2_link"
 
 
+def _same_log(a, b):
+    assert list(a.streams) == list(b.streams) and a.repairs == b.repairs and a.ros == b.ros
+    for name, s in a.streams.items():
+        o = b.streams[name]
+        assert s.columns == o.columns
+        np.testing.assert_array_equal(s.t, o.t)
+        np.testing.assert_array_equal(s.values, o.values)
+
+
+def test_columnar_decoding_equals_message_by_message(bags, monkeypatch):
+    from odofuse.io import cdr
+
+    decoded = []
+
+    def counted(raws, msgtype, *args):
+        cols = decode(raws, msgtype, *args)
+        decoded.append((msgtype, cols is not None))
+        return cols
+
+    decode = cdr.decode
+    monkeypatch.setattr(cdr, "decode", counted)
+    for path in bags.values():
+        decoded.clear()
+        _same_log(read_bag(path, TOPICS, JOINTS), read_bag(path, TOPICS, JOINTS, columnar=False))
+        # every stream of the simulated robot took the columnar path
+        assert len(decoded) == 5 and all(ok for _, ok in decoded), decoded
+
+
+def test_messages_of_several_layouts_are_decoded_one_by_one(tmp_path, bags):
+    """A topic whose joint order, frame or sequence lengths change between messages: each
+    message is matched by name as before (the columnar path applies to one layout only)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    with AnyReader([bags["mcap"]], default_typestore=ts) as r:
+        keep = ("/tf_static", "/joint_states", "/imu/data")
+        conns = [c for c in r.connections if c.topic in keep]
+        items = [(c, ns, r.deserialize(d, c.msgtype)) for c, ns, d in r.messages(conns)][:400]
+    with Writer(tmp_path / "mixed", version=9) as w:
+        out = {c.topic: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in conns}
+        for k, (c, ns, msg) in enumerate(items):
+            if c.topic == "/joint_states" and k % 3 == 0:  # the same joints, swapped
+                msg.name = msg.name[::-1]
+                msg.position = msg.position[::-1].copy()
+            w.write(out[c.topic], ns, ts.serialize_cdr(msg, c.msgtype))
+    log = read_bag(tmp_path / "mixed", joints=JOINTS)
+    _same_log(log, read_bag(tmp_path / "mixed", joints=JOINTS, columnar=False))
+    full = read_bag(bags["mcap"], TOPICS, JOINTS).streams["wheels"]
+    w = log.streams["wheels"]
+    np.testing.assert_array_equal(w.values, full.values[: len(w)])
+    # one message in another frame of the same length: the frame check still sees it
+    with Writer(tmp_path / "frames", version=9) as w:
+        out = {c.topic: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in conns}
+        for k, (c, ns, msg) in enumerate(items):
+            if c.topic == "/imu/data" and k == 200:
+                msg.header.frame_id = "imu_lynx"
+            w.write(out[c.topic], ns, ts.serialize_cdr(msg, c.msgtype))
+    with pytest.raises(InputError, match=r"messages in several frames \(imu_link, imu_lynx"):
+        read_bag(tmp_path / "frames", joints=JOINTS)
+
+
 def test_joint_velocity_integrated(tmp_path, robot):
     short = dataclasses.replace(robot, t=robot.t[:2001], truth=robot.truth[:2001])
     short = dataclasses.replace(short, wheels=robot.wheels[:2001], gyro=robot.gyro[:2001])
@@ -158,15 +221,19 @@ def test_covariance_conventions():
     known = np.diag([1e-4, 1e-4, 4e-4]).reshape(-1)
     minus = np.r_[-1.0, np.zeros(8)]
     zero = np.zeros(9)
-    (cols, vals), compass = ros_msgs.imu_columns([imu(minus, known)])
+
+    def imu_columns(msgs, yaw_offset=0.0):
+        return ros_msgs.imu_columns(ros_msgs.columns(msgs, ros_msgs.IMU), yaw_offset)
+
+    (cols, vals), compass = imu_columns([imu(minus, known)])
     assert cols == ("wz", "sigma") and vals[0, 1] == pytest.approx(0.02) and compass is None
-    (cols, _), compass = ros_msgs.imu_columns([imu(zero, zero)])  # unknown: no noise column
+    (cols, _), compass = imu_columns([imu(zero, zero)])  # unknown: no noise column
     assert cols == ("wz",) and compass is None
-    (cols, _), _ = ros_msgs.imu_columns([imu(known, minus)])  # rate "not provided"
+    (cols, _), _ = imu_columns([imu(known, minus)])  # rate "not provided"
     assert cols == ("wz",)
     yaw = 0.3
     quat = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
-    _, (ccols, cvals, keep) = ros_msgs.imu_columns(
+    _, (ccols, cvals, keep) = imu_columns(
         [imu(known, known, quat), imu(minus, known, quat)], yaw_offset=0.1
     )
     assert ccols == ("heading", "sigma") and keep.tolist() == [True, False]

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from odofuse.errors import InputError
-from odofuse.io import ros_msgs
+from odofuse.io import cdr, ros_msgs
 from odofuse.io.log import SensorLog, Stream
 from odofuse.io.ros_msgs import odometry_increments  # noqa: F401  (public, used by tests)
 
@@ -67,6 +67,27 @@ def _normalise_type(msgtype: str) -> str:
 def stream_name(kind: str, k: int) -> str:
     """Stream name of the k-th (0-based) topic of a kind: ``gyro``, ``gyro_2``, ..."""
     return kind if k == 0 else f"{kind}_{k + 1}"
+
+
+def _kind(stream: str) -> str:
+    """The kind of a stream name (``gyro_2`` -> ``gyro``)."""
+    return stream.rsplit("_", 1)[0] if stream[-1].isdigit() else stream
+
+
+def _decoded(reader, msgtype: str, bag_ns: list, data: list, columnar: bool) -> tuple:
+    """``(t, columns)`` of one stream's messages (:func:`ros_msgs.columns`), or ``(None,
+    messages)`` for ``/tf_static``: decoded at once when ``columnar`` and they share one CDR
+    layout (:func:`odofuse.io.cdr.decode`), else message by message."""
+    if msgtype == TF_TYPE:
+        return None, [reader.deserialize(d, msgtype) for d in data]
+    if columnar and reader.is2:
+        stamp = ("header.stamp.sec", "header.stamp.nanosec")
+        cols = cdr.decode(data, msgtype, reader.typestore, ros_msgs.FIELDS[msgtype] + stamp)
+        if cols is not None:
+            return ros_msgs.stamps(cols.pop(stamp[0]), cols.pop(stamp[1]), bag_ns), cols
+    msgs = [reader.deserialize(d, msgtype) for d in data]
+    t = np.array([ros_msgs.stamp(m, ns) for m, ns in zip(msgs, bag_ns, strict=True)])
+    return t, ros_msgs.columns(msgs, msgtype)
 
 
 def _choose_topics(reader, topics: dict | None, source: str) -> dict[str, tuple[str, list]]:
@@ -116,7 +137,9 @@ def _choose_topics(reader, topics: dict | None, source: str) -> dict[str, tuple[
     return chosen
 
 
-def read_bag(path: str | Path, topics: dict | None = None, joints: dict | None = None) -> SensorLog:
+def read_bag(
+    path: str | Path, topics: dict | None = None, joints: dict | None = None, columnar: bool = True
+) -> SensorLog:
     """Read a ROS 2 bag folder (``.db3`` or MCAP storage), a ``.mcap``/``.db3`` file inside one,
     or a ROS 1 ``.bag`` into a ``SensorLog``.
 
@@ -128,6 +151,10 @@ def read_bag(path: str | Path, topics: dict | None = None, joints: dict | None =
         ``{kind: topic or [topics]}`` overriding the defaults by message type.
     joints : dict, optional
         ``{drive input name: joint name}`` for the JointState streams (``log.joints``).
+    columnar : bool
+        Decode each topic's ROS 2 messages at once where they share one layout
+        (:mod:`odofuse.io.cdr`, the same numbers); False decodes message by message, as a
+        ROS 1 bag always is (the reference the tests compare it with).
 
     Returns
     -------
@@ -151,32 +178,40 @@ def read_bag(path: str | Path, topics: dict | None = None, joints: dict | None =
         and (path.parent / "metadata.yaml").exists()
     ):
         path = path.parent
-    raw: dict[str, list] = {}
+    raw: dict[str, tuple] = {}
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             chosen = _choose_topics(reader, topics, source)
             conn_stream = {c.id: s for s, (_, cs) in chosen.items() for c in cs}
             conns = [c for _, cs in chosen.values() for c in cs]
+            payloads: dict[str, tuple[list, list]] = {}
             for conn, bag_ns, data in reader.messages(connections=conns):
-                stream = conn_stream[conn.id]
-                msg = reader.deserialize(data, conn.msgtype)
-                raw.setdefault(stream, []).append((ros_msgs.stamp(msg, bag_ns), msg))
+                stream = payloads.setdefault(conn_stream[conn.id], ([], []))
+                stream[0].append(bag_ns)
+                stream[1].append(data)
+            for stream, (bag_ns, data) in payloads.items():
+                msgtype = STREAM_MSGS.get(_kind(stream), TF_TYPE)
+                raw[stream] = _decoded(reader, msgtype, bag_ns, data, columnar)
     except InputError:
         raise
     except Exception as exc:  # rosbags raises its own error types for unreadable bags
         raise InputError(f"cannot read bag: {exc}", source) from None
-    edges = ros_msgs.tf_edges([m for _, m in raw.pop(TF_STATIC, [])])
+    edges = ros_msgs.tf_edges(raw.pop(TF_STATIC, (None, []))[1])
     ros = _frames(raw, chosen, edges, source)
     repairs: dict[str, int] = {}
     streams: dict[str, Stream] = {}
-    for stream, items in raw.items():
-        t = np.array([s for s, _ in items])
+    for stream, (t, cols) in raw.items():
         order = np.argsort(t, kind="stable")
-        if np.any(order != np.arange(t.size)):
-            repairs[f"{stream}.reordered"] = int(np.count_nonzero(order != np.arange(t.size)))
-        items = [items[i] for i in order]
+        moved = np.count_nonzero(order != np.arange(t.size))
+        if moved:
+            repairs[f"{stream}.reordered"] = int(moved)
+            t = t[order]
+            cols = {
+                k: v[order] if isinstance(v, np.ndarray) else [v[i] for i in order]
+                for k, v in cols.items()
+            }
         ctx = (source, chosen[stream][0], repairs, joints, ros)
-        for s in _convert(stream, items, ctx):
+        for s in _convert(stream, t, cols, ctx):
             if len(s):
                 streams[s.name] = s
     if not streams:
@@ -188,22 +223,21 @@ def read_bag(path: str | Path, topics: dict | None = None, joints: dict | None =
 
 def _frames(raw: dict, chosen: dict, edges: dict, source: str) -> dict:
     """Base/odom frames, each sensor stream's frame and, with ``/tf_static``, its mount."""
-    odom = next((raw[s] for s in raw if s.split("_")[0] == "odometry" and raw[s]), None)
-    base = (str(odom[0][1].child_frame_id).lstrip("/") if odom else "") or DEFAULT_BASE_FRAME
+    odom = next((raw[s][1] for s in raw if s.split("_")[0] == "odometry" and len(raw[s][0])), None)
+    base = (odom["child_frame_id"][0].lstrip("/") if odom else "") or DEFAULT_BASE_FRAME
     ros: dict = {
         "base_frame": base,
-        "odom_frame": (ros_msgs.frame_of(odom[0][1]) or None) if odom else None,
+        "odom_frame": (odom["header.frame_id"][0].lstrip("/") or None) if odom else None,
         "frames": {},
         "mounts": {},
         "message_noise": {},
         "tf_static": bool(edges),
     }
-    for stream, items in raw.items():
-        kind = stream.rsplit("_", 1)[0] if stream[-1].isdigit() else stream
-        if kind not in ("gyro", "gps") or not items:
+    for stream, (t, cols) in raw.items():
+        if _kind(stream) not in ("gyro", "gps") or not len(t):
             continue
         topic = chosen[stream][0]
-        frames = sorted({ros_msgs.frame_of(m) for _, m in items})
+        frames = sorted({f.lstrip("/") for f in cols["header.frame_id"]})
         if len(frames) > 1:
             raise InputError(
                 f"topic {topic}: messages in several frames ({', '.join(frames)})", source
@@ -224,26 +258,24 @@ def _frames(raw: dict, chosen: dict, edges: dict, source: str) -> dict:
     return ros
 
 
-def _convert(stream: str, items, ctx) -> list[Stream]:
+def _convert(stream: str, t: np.ndarray, cols: dict, ctx) -> list[Stream]:
     source, topic, repairs, joints, ros = ctx
-    t = np.array([s for s, _ in items])
-    msgs = [m for _, m in items]
-    kind = stream.rsplit("_", 1)[0] if stream[-1].isdigit() else stream
+    kind = _kind(stream)
     suffix = stream[len(kind) :]
     noise = ros["message_noise"]
     if kind == "wheels":
-        cols, vals = ros_msgs.joint_columns(t, msgs, joints, source, topic, repairs, stream)
-        return [Stream(stream, source, t, cols, vals)]
+        names, vals = ros_msgs.joint_columns(t, cols, joints, source, topic, repairs, stream)
+        return [Stream(stream, source, t, names, vals)]
     if kind == "odometry":
-        if len(msgs) < 2:
+        if len(t) < 2:
             return []
-        ti, cols, vals = ros_msgs.odometry_columns(t, msgs)
-        if "var_ds" in cols:
+        ti, names, vals = ros_msgs.odometry_columns(t, cols)
+        if "var_ds" in names:
             noise[stream] = ["var_ds", "var_dtheta"]
-        return [Stream(stream, source, ti, cols, vals)]
+        return [Stream(stream, source, ti, names, vals)]
     if kind == "gyro":
         yaw_offset = ros["mounts"].get(stream, [0.0, 0.0, 0.0])[2]
-        (gcols, gvals), compass = ros_msgs.imu_columns(msgs, yaw_offset)
+        (gcols, gvals), compass = ros_msgs.imu_columns(cols, yaw_offset)
         out = [Stream(stream, source, t, gcols, gvals)]
         if "sigma" in gcols:
             noise[stream] = ["sigma"]
@@ -255,10 +287,10 @@ def _convert(stream: str, items, ctx) -> list[Stream]:
             ros["frames"][name] = ros["frames"].get(stream, ros["base_frame"])
         return out
     if kind == "gps":
-        cols, vals, keep = ros_msgs.navsat_columns(msgs)
+        names, vals, keep = ros_msgs.navsat_columns(cols)
         if not keep.all():
             repairs[f"{stream}.no_fix_dropped"] = int(np.count_nonzero(~keep))
-        if "sigma" in cols:
+        if "sigma" in names:
             noise[stream] = ["sigma"]
-        return [Stream(stream, source, t[keep], cols, vals)]
+        return [Stream(stream, source, t[keep], names, vals)]
     return []  # pragma: no cover

@@ -15,12 +15,66 @@ Covariance conventions (REP-145 and the ``sensor_msgs`` message comments):
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 
 from odofuse import se2
 from odofuse.errors import InputError
+
+IMU, NAVSAT = "sensor_msgs/msg/Imu", "sensor_msgs/msg/NavSatFix"
+ODOMETRY, JOINT_STATE = "nav_msgs/msg/Odometry", "sensor_msgs/msg/JointState"
+_QUATERNION = ("x", "y", "z", "w")
+#: The fields odofuse reads of each message type, beside ``header.stamp`` (:func:`stamp`):
+#: the columns the converters below take (:func:`columns`, or a bag's columnar decoding).
+FIELDS = {
+    JOINT_STATE: ("name", "position", "velocity"),
+    ODOMETRY: (
+        "header.frame_id",
+        "child_frame_id",
+        "pose.pose.position.x",
+        "pose.pose.position.y",
+        *(f"pose.pose.orientation.{c}" for c in _QUATERNION),
+        "pose.covariance",
+        "twist.covariance",
+    ),
+    IMU: (
+        "header.frame_id",
+        *(f"orientation.{c}" for c in _QUATERNION),
+        "orientation_covariance",
+        "angular_velocity.z",
+        "angular_velocity_covariance",
+    ),
+    NAVSAT: (
+        "header.frame_id",
+        "status.status",
+        "latitude",
+        "longitude",
+        "position_covariance",
+        "position_covariance_type",
+    ),
+}
+_TEXT = {"header.frame_id", "child_frame_id", "name"}
+
+
+def columns(msgs, msgtype: str) -> dict:
+    """The :data:`FIELDS` of deserialised messages ``msgs`` of ``msgtype`` as columns: numbers
+    ``(N,)``, fixed arrays ``(N, k)``, sequences ``(N, k)`` when every message has k elements
+    (else a list of arrays), strings a list of N strings, joint names a list of tuples."""
+    out: dict = {}
+    for path in FIELDS[msgtype]:
+        names = path.split(".")
+        values = [functools.reduce(getattr, names, m) for m in msgs]
+        if path in _TEXT:
+            out[path] = [v if isinstance(v, str) else tuple(v) for v in values]
+            continue
+        arrays = [np.asarray(v, dtype=float) for v in values]
+        if all(a.shape == arrays[0].shape for a in arrays):
+            out[path] = np.array(arrays).reshape(len(arrays), *arrays[0].shape)
+        else:
+            out[path] = arrays
+    return out
 
 
 def stamp(msg, bag_ns: int) -> float:
@@ -38,6 +92,12 @@ def stamp(msg, bag_ns: int) -> float:
     return bag_ns * 1e-9
 
 
+def stamps(sec, nanosec, bag_ns) -> np.ndarray:
+    """:func:`stamp` of N messages from their ``header.stamp`` columns and receive times."""
+    sec, nanosec = np.asarray(sec), np.asarray(nanosec)
+    return np.where((sec != 0) | (nanosec != 0), sec + nanosec * 1e-9, np.asarray(bag_ns) * 1e-9)
+
+
 def frame_of(msg) -> str:
     """``header.frame_id`` without a leading ``/`` (``""`` when the message has none)."""
     header = getattr(msg, "header", None)
@@ -49,9 +109,22 @@ def yaw(q) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
-def _unknown(cov) -> bool:
+def _yaws(cols: dict, prefix: str, keep=None) -> np.ndarray:
+    """:func:`yaw` of the quaternion columns ``<prefix>x .. <prefix>w`` (rows ``keep``), with
+    the same floating-point operations (``math.atan2`` on each row)."""
+    x, y, z, w = (np.asarray(cols[prefix + c], dtype=float) for c in _QUATERNION)
+    if keep is not None:
+        x, y, z, w = x[keep], y[keep], z[keep], w[keep]
+    num, den = 2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)
+    return np.array([math.atan2(a, b) for a, b in zip(num.tolist(), den.tolist(), strict=True)])
+
+
+def _unknown(cov) -> np.ndarray:
+    """Per row of covariances ``(N, k)``: unknown (all zero) or not provided (``[0] == -1``)."""
     c = np.asarray(cov, dtype=float)
-    return c.size == 0 or c[0] == -1.0 or not np.any(c)
+    if c.shape[-1] == 0:
+        return np.ones(len(c), dtype=bool)
+    return (c[:, 0] == -1.0) | ~np.any(c, axis=1)
 
 
 def odometry_increments(t, poses) -> tuple[np.ndarray, np.ndarray]:
@@ -81,8 +154,9 @@ def odometry_increments(t, poses) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(t, dtype=float)[1:], np.column_stack([ds, se2.wrap(np.diff(p[:, 2]))])
 
 
-def odometry_columns(t, msgs) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
-    """``nav_msgs/Odometry`` -> increments, with their variances when the messages give them.
+def odometry_columns(t, cols: dict) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+    """``nav_msgs/Odometry`` columns (:func:`columns`) -> increments, with their variances
+    when the messages give them.
 
     ``var_ds = var(v_x) dt^2`` and ``var_dtheta = var(omega_z) dt^2`` from the twist covariance
     (child frame, indices 0 and 35) over each message interval ``dt``; when the twist covariance
@@ -98,19 +172,15 @@ def odometry_columns(t, msgs) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
         ``("ds", "dtheta")`` or ``("ds", "dtheta", "var_ds", "var_dtheta")``.
     values : ndarray (N - 1, C)
     """
-    poses = np.array(
-        [
-            [m.pose.pose.position.x, m.pose.pose.position.y, yaw(m.pose.pose.orientation)]
-            for m in msgs
-        ]
-    )
+    xy = [np.asarray(cols[f"pose.pose.position.{c}"], dtype=float) for c in "xy"]
+    poses = np.column_stack([*xy, _yaws(cols, "pose.pose.orientation.")])
     ti, inc = odometry_increments(t, poses)
     dt = np.diff(np.asarray(t, dtype=float))
-    twist = [np.asarray(m.twist.covariance, dtype=float) for m in msgs]
-    if not any(_unknown(c) for c in twist[1:]):
-        var = np.array([[c[0], c[35]] for c in twist[1:]]) * (dt**2)[:, None]
+    twist = np.asarray(cols["twist.covariance"], dtype=float)
+    if not np.any(_unknown(twist[1:])):
+        var = twist[1:][:, [0, 35]] * (dt**2)[:, None]
     else:
-        P = np.array([np.asarray(m.pose.covariance, dtype=float).reshape(6, 6) for m in msgs])
+        P = np.asarray(cols["pose.covariance"], dtype=float).reshape(-1, 6, 6)
         dP = np.diff(P, axis=0)
         c, s = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
         along = c * c * dP[:, 0, 0] + 2 * c * s * dP[:, 0, 1] + s * s * dP[:, 1, 1]
@@ -121,16 +191,24 @@ def odometry_columns(t, msgs) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
 
 
 def joint_columns(
-    t, msgs, joints: dict[str, str] | None, source: str, topic: str, repairs: dict, stream: str
+    t,
+    cols: dict,
+    joints: dict[str, str] | None,
+    source: str,
+    topic: str,
+    repairs: dict,
+    stream: str,
 ) -> tuple[tuple[str, ...], np.ndarray]:
-    """``sensor_msgs/JointState`` -> cumulative joint angles (rad), one column per joint.
+    """``sensor_msgs/JointState`` columns (:func:`columns`) -> cumulative joint angles (rad),
+    one column per joint.
 
     Parameters
     ----------
     t : ndarray (N,)
         Message times (s).
-    msgs : list
-        The messages (joint order may change between them: joints are matched by name).
+    cols : dict
+        The messages' ``name``, ``position`` and ``velocity`` (joint order may change between
+        messages: joints are matched by name).
     joints : dict or None
         ``{column: joint name}`` (the config's ``log.joints``, e.g. ``{left: left_wheel_joint}``);
         ``None``: one column per joint of the first message, named after the joint.
@@ -144,7 +222,8 @@ def joint_columns(
     columns : tuple of str
     values : ndarray (N, C)
     """
-    names = tuple(msgs[0].name)
+    names_of = cols["name"]
+    names = tuple(names_of[0])
     if not names:
         raise InputError(f"JointState on {topic} has no joint names", source, column=stream)
     if joints:
@@ -157,36 +236,44 @@ def joint_columns(
                 source,
                 column=f"log.joints.{key}",
             )
-        columns, wanted = tuple(joints), tuple(joints.values())
+        columns_, wanted = tuple(joints), tuple(joints.values())
     else:
-        columns = wanted = names
-    use_velocity = any(len(m.position) == 0 for m in msgs)
+        columns_ = wanted = names
+    use_velocity = any(len(p) == 0 for p in cols["position"])
     field = "velocity" if use_velocity else "position"
-    vals = np.empty((len(msgs), len(wanted)))
-    for k, m in enumerate(msgs):
-        data = dict(zip(m.name, np.asarray(getattr(m, field), dtype=float), strict=False))
-        try:
-            vals[k] = [data[n] for n in wanted]
-        except KeyError as exc:
-            raise InputError(
-                f"JointState message {k + 1} on {topic} has no {field} for joint {exc}",
-                source,
-                column=stream,
-            ) from None
+    data, vals = cols[field], None
+    if isinstance(data, np.ndarray) and all(n == names for n in names_of):
+        # every message has these joints in this order: one lookup (the loop's zip and dict)
+        index = dict(zip(names, range(data.shape[1]), strict=False))
+        if all(n in index for n in wanted):  # else the loop names the first message
+            vals = data[:, [index[n] for n in wanted]].astype(float)
+    if vals is None:
+        vals = np.empty((len(names_of), len(wanted)))
+        for k, (msg_names, values) in enumerate(zip(names_of, data, strict=True)):
+            row = dict(zip(msg_names, np.asarray(values, dtype=float), strict=False))
+            try:
+                vals[k] = [row[n] for n in wanted]
+            except KeyError as exc:
+                raise InputError(
+                    f"JointState message {k + 1} on {topic} has no {field} for joint {exc}",
+                    source,
+                    column=stream,
+                ) from None
     if use_velocity:
         dt = np.diff(np.asarray(t, dtype=float))
         steps = 0.5 * (vals[1:] + vals[:-1]) * dt[:, None]
         vals = np.vstack([np.zeros((1, len(wanted))), np.cumsum(steps, axis=0)])
-        repairs[f"{stream}.velocity_integrated"] = len(msgs)
-    return columns, vals
+        repairs[f"{stream}.velocity_integrated"] = len(names_of)
+    return columns_, vals
 
 
-def imu_columns(msgs, yaw_offset: float = 0.0):
-    """``sensor_msgs/Imu`` -> gyro rows and, where the orientation is valid, compass rows.
+def imu_columns(cols: dict, yaw_offset: float = 0.0):
+    """``sensor_msgs/Imu`` columns (:func:`columns`) -> gyro rows and, where the orientation
+    is valid, compass rows.
 
     Parameters
     ----------
-    msgs : list
+    cols : dict
     yaw_offset : float
         Yaw of the IMU frame in the robot's base frame (rad, from ``/tf_static``): the
         robot's heading is the IMU's yaw minus it. The yaw rate of a planar robot is the
@@ -204,53 +291,37 @@ def imu_columns(msgs, yaw_offset: float = 0.0):
         IMU without magnetometer publishes) or whose quaternion is zero has none. ``None`` when
         no message has one.
     """
-    wz = np.array([[m.angular_velocity.z] for m in msgs]).reshape(-1, 1)
-    av = [np.asarray(m.angular_velocity_covariance, dtype=float) for m in msgs]
-    if msgs and not any(_unknown(c) or c[8] <= 0 for c in av):
-        gyro = (("wz", "sigma"), np.column_stack([wz, np.sqrt([c[8] for c in av])]))
+    wz = np.asarray(cols["angular_velocity.z"], dtype=float).reshape(-1, 1)
+    av = np.asarray(cols["angular_velocity_covariance"], dtype=float)
+    if len(wz) and not np.any(_unknown(av) | (av[:, 8] <= 0)):
+        gyro = (("wz", "sigma"), np.column_stack([wz, np.sqrt(av[:, 8])]))
     else:
         gyro = (("wz",), wz)
-    oc = [np.asarray(m.orientation_covariance, dtype=float) for m in msgs]
-    q = [m.orientation for m in msgs]
-    keep = np.array(
-        [
-            not _unknown(c) and c[8] > 0 and (qq.x, qq.y, qq.z, qq.w) != (0.0, 0.0, 0.0, 0.0)
-            for c, qq in zip(oc, q, strict=True)
-        ],
-        dtype=bool,
-    )
+    oc = np.asarray(cols["orientation_covariance"], dtype=float)
+    zero = np.logical_and.reduce([np.asarray(cols[f"orientation.{c}"]) == 0 for c in _QUATERNION])
+    keep = ~_unknown(oc) & (oc[:, 8] > 0) & ~zero
     if not keep.any():
         return gyro, None
-    heading = se2.wrap(np.array([yaw(qq) for qq, k in zip(q, keep, strict=True) if k]) - yaw_offset)
-    sig = np.sqrt([c[8] for c, k in zip(oc, keep, strict=True) if k])
-    return gyro, (("heading", "sigma"), np.column_stack([heading, sig]), keep)
+    heading = se2.wrap(_yaws(cols, "orientation.", keep) - yaw_offset)
+    return gyro, (("heading", "sigma"), np.column_stack([heading, np.sqrt(oc[keep, 8])]), keep)
 
 
-def navsat_columns(msgs):
-    """``sensor_msgs/NavSatFix`` -> ``lat, lon`` (deg) [+ ``sigma`` (m)] and the kept mask.
+def navsat_columns(cols: dict):
+    """``sensor_msgs/NavSatFix`` columns (:func:`columns`) -> ``lat, lon`` (deg) [+ ``sigma``
+    (m)] and the kept mask.
 
     Fixes with ``status.status < 0`` (no fix) or non-finite lat/lon are dropped (mask False).
     ``sigma = sqrt((c_ee + c_nn) / 2)`` of the ENU ``position_covariance`` when every kept fix
     has a known one (``position_covariance_type`` 1 approximated, 2 diagonal known or 3 known,
     and positive east/north variances).
     """
-    keep = np.array(
-        [
-            m.status.status >= 0 and math.isfinite(m.latitude) and math.isfinite(m.longitude)
-            for m in msgs
-        ],
-        dtype=bool,
-    )
-    kept = [m for m, k in zip(msgs, keep, strict=True) if k]
-    ll = np.array([[m.latitude, m.longitude] for m in kept]).reshape(-1, 2)
-    known = [
-        m.position_covariance_type != 0
-        and m.position_covariance[0] > 0
-        and m.position_covariance[4] > 0
-        for m in kept
-    ]
-    if kept and all(known):
-        sig = np.sqrt([0.5 * (m.position_covariance[0] + m.position_covariance[4]) for m in kept])
+    lat, lon = (np.asarray(cols[c], dtype=float) for c in ("latitude", "longitude"))
+    keep = (np.asarray(cols["status.status"]) >= 0) & np.isfinite(lat) & np.isfinite(lon)
+    ll = np.column_stack([lat[keep], lon[keep]])
+    pc = np.asarray(cols["position_covariance"], dtype=float)[keep]
+    known = (np.asarray(cols["position_covariance_type"])[keep] != 0) & (pc[:, 0] > 0)
+    if keep.any() and np.all(known & (pc[:, 4] > 0)):
+        sig = np.sqrt(0.5 * (pc[:, 0] + pc[:, 4]))
         return ("lat", "lon", "sigma"), np.column_stack([ll, sig]), keep
     return ("lat", "lon"), ll, keep
 

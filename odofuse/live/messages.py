@@ -135,8 +135,9 @@ class TopicDecoder:
         if len(msg.position) == 0:
             raise BadMessage("undecodable", f"{self.topic}: JointState without positions")
         try:
+            one = ros_msgs.columns([msg], ros_msgs.JOINT_STATE)
             cols, vals = ros_msgs.joint_columns(
-                np.array([t]), [msg], self.joints, self.topic, self.topic, {}, "wheels"
+                np.array([t]), one, self.joints, self.topic, self.topic, {}, "wheels"
             )
         except InputError as exc:
             raise BadMessage("undecodable", str(exc)) from None
@@ -189,7 +190,9 @@ class TopicDecoder:
         _finite(msg.angular_velocity.z, what=f"{self.topic} angular velocity")
         _psd(msg.angular_velocity_covariance, 3, f"{self.topic} angular velocity covariance")
         _psd(msg.orientation_covariance, 3, f"{self.topic} orientation covariance")
-        (gcols, gvals), compass = ros_msgs.imu_columns([msg], self.yaw_offset)
+        (gcols, gvals), compass = ros_msgs.imu_columns(
+            ros_msgs.columns([msg], ros_msgs.IMU), self.yaw_offset
+        )
         out = []
         if "main" in self.streams:
             out.append(self._row(self.streams["main"], t, gcols, gvals[0]))
@@ -201,7 +204,7 @@ class TopicDecoder:
 
     def _gps(self, t: float, msg) -> list[Reading]:
         _psd(msg.position_covariance, 3, f"{self.topic} position covariance")
-        cols, vals, keep = ros_msgs.navsat_columns([msg])
+        cols, vals, keep = ros_msgs.navsat_columns(ros_msgs.columns([msg], ros_msgs.NAVSAT))
         if not keep[0]:
             if msg.status.status < 0:
                 raise BadMessage("no_fix", f"{self.topic}: no fix (status {msg.status.status})")
