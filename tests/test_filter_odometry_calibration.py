@@ -68,6 +68,49 @@ def test_nominal_jacobian_is_the_graphs():
     np.testing.assert_allclose(DIFF.apply(u, np.array([1.0, 1.0, 1.03]), 0.1), 1.03 * u)
 
 
+def _jacobian_reference(cal, u, p, dt):
+    """``jacobian`` as array code, as it was before its plain-float path."""
+    from odofuse.estimators.graph.calibration import side_means
+
+    if cal.drive == "increments":
+        return np.array([[u[0], 0.0, 0.0], [0.0, u[1], dt]])
+    n, C = cal.wheels_per_side, np.asarray(cal.track)
+    E, Eb = p[0], p[1]
+    right = np.arange(2 * n) >= n
+    us = u * np.where(right, 2.0 * E / (1.0 + E), 2.0 / (1.0 + E))
+    dus = u * np.where(np.arange(2 * n) >= n, 2.0, -2.0) / (1.0 + E) ** 2
+    dE = dus + np.repeat((1.0 - 1.0 / Eb) * (C @ side_means(dus, n)), n)
+    dEb = np.repeat(C @ side_means(us, n) / Eb**2, n)
+    if len(cal.names) == 2:
+        return np.stack([dE, dEb], -1)
+    Es = p[2]
+    f = us + np.repeat((1.0 - 1.0 / Eb) * (C @ side_means(us, n)), n)
+    return np.stack([Es * dE, Es * dEb, f], -1)
+
+
+@pytest.mark.parametrize(
+    "drive, n, m",
+    [("increments", 1, 3)]
+    + [(d, n, m) for d in ("differential", "skid_steer") for n in (1, 2, 3, 8) for m in (2, 3)],
+)
+def test_one_input_path_equals_the_array_code_bit_for_bit(drive, n, m):
+    """The filters' per-step ``apply`` (one input) and ``jacobian`` in plain floats return the
+    array code's floats exactly; the skid steer's random ``C`` is where a fused multiply-add
+    in numpy's products would show, 8 wheels a side where numpy's sums turn pairwise."""
+    rng = np.random.default_rng(100 * n + m)
+    names = DIFF.names[:m] if drive != "increments" else INC.names
+    for _ in range(300):
+        track = rng.normal(size=(2, 2)).tolist() if drive == "skid_steer" else DIFF.track
+        cal = FilterOdometryCalibration(
+            drive, names, (1,) * m, (0.05,) * m, (0,) * m, wheels_per_side=n, track=track
+        )
+        u = rng.normal(size=2 * n) * 10.0 ** rng.uniform(-6, 4, size=2 * n)
+        p = 1.0 + rng.normal(size=m) * 10.0 ** rng.uniform(-8, -0.5, size=m)
+        dt = rng.uniform(0.001, 1.0)
+        assert np.array_equal(cal.apply(u, p, dt), cal.apply(u[None], p[None], dt)[0])
+        assert np.array_equal(cal.jacobian(u, p, dt), _jacobian_reference(cal, u, p, dt))
+
+
 @pytest.mark.parametrize(
     "drive, cal, u", [("increments", INC, [0.3, 0.05]), ("differential", DIFF, [2.0, 2.6])]
 )

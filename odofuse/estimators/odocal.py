@@ -26,6 +26,7 @@ measurement model's (``calib_states``, ``calib_prior``, ``calib_walk``); the bac
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -85,42 +86,78 @@ class FilterOdometryCalibration:
         return replace(self, index=tuple(index[s] for s in self.names))
 
     # -- the transformation ----------------------------------------------------------------
+    @cached_property
+    def _C(self) -> np.ndarray:
+        """The track matrix ``C`` as floats, built once (a frozen dataclass keeps ``__dict__``)."""
+        return np.array(self.track, dtype=float)
+
+    @cached_property
+    def _sides(self) -> tuple[int, ...]:
+        """Each input's side, 0 (left) or 1 (right)."""
+        return (0,) * self.wheels_per_side + (1,) * self.wheels_per_side
+
     def apply(self, u, p, dt: float) -> np.ndarray:
         """Calibrated inputs ``u'`` ``(..., n)`` of inputs ``u`` and parameters ``p`` ``(..., m)``.
 
-        ``dt`` is the step duration (s).
+        ``dt`` is the step duration (s). One input with one parameter vector, the filters' call
+        every step (the EKF's transition, the UKF's sigma points), takes :meth:`_apply_one`: the
+        array code's dozen small numpy operations made it one of their costliest calls.
         """
         u, p = np.asarray(u, dtype=float), np.asarray(p, dtype=float)
+        if u.ndim == 1 and p.ndim == 1:
+            return self._apply_one(u.tolist(), p.tolist(), dt)
         if self.drive == "increments":
             return np.stack([p[..., 0] * u[..., 0], p[..., 1] * u[..., 1] + p[..., 2] * dt], -1)
         # imported here: the graph package is loaded only by runs that calibrate
         from odofuse.estimators.graph.calibration import side_means
 
-        n, C = self.wheels_per_side, np.asarray(self.track)
+        n, C = self.wheels_per_side, self._C
         E, Eb = p[..., 0:1], p[..., 1:2]
         us = _split_radii(u, E, n)
         shift = (1.0 - 1.0 / Eb) * (side_means(us, n) @ C.T)
         out = us + np.repeat(shift, n, axis=-1)
         return out * p[..., 2:3] if len(self.names) > 2 else out
 
+    def _apply_one(self, u: list, p: list, dt: float) -> np.ndarray:
+        """:meth:`apply` of one input in plain floats, equal to the array code bit for bit: the
+        same operations in the same order, the products with ``C`` left to numpy (its BLAS may
+        fuse multiply and add). tests/test_filter_odometry_calibration.py checks it."""
+        if self.drive == "increments":
+            return np.array([p[0] * u[0], p[1] * u[1] + p[2] * dt])
+        n, sides = self.wheels_per_side, self._sides
+        us = _split_radii_one(u, p[0], sides)
+        shift = ((1.0 - 1.0 / p[1]) * (_side_means_one(us, n) @ self._C.T)).tolist()
+        out = [x + shift[j] for x, j in zip(us, sides, strict=True)]
+        return np.array([x * p[2] for x in out] if len(self.names) > 2 else out)
+
     def jacobian(self, u, p, dt: float) -> np.ndarray:
-        """``du'/dp`` ``(n, m)`` at one input ``u`` ``(n,)`` and parameters ``p`` ``(m,)``."""
+        """``du'/dp`` ``(n, m)`` at one input ``u`` ``(n,)`` and parameters ``p`` ``(m,)``.
+
+        A two-sided drive's is :meth:`_jacobian_one`, in plain floats: the EKF calls it every
+        step, and as array code it cost five times as much.
+        """
         u, p = np.asarray(u, dtype=float), np.asarray(p, dtype=float)
         if self.drive == "increments":
             return np.array([[u[0], 0.0, 0.0], [0.0, u[1], dt]])
-        from odofuse.estimators.graph.calibration import side_means
+        return self._jacobian_one(u.tolist(), p.tolist())
 
-        n, C = self.wheels_per_side, np.asarray(self.track)
+    def _jacobian_one(self, u: list, p: list) -> np.ndarray:
+        """:meth:`jacobian` of a two-sided drive, like :meth:`_apply_one` bit for bit the array
+        code's floats."""
+        n, sides, C = self.wheels_per_side, self._sides, self._C
         E, Eb = p[0], p[1]
-        us = _split_radii(u, E, n)
-        dus = u * np.where(np.arange(2 * n) >= n, 2.0, -2.0) / (1.0 + E) ** 2  # d u_s / dE
-        dE = dus + np.repeat((1.0 - 1.0 / Eb) * (C @ side_means(dus, n)), n)
-        dEb = np.repeat(C @ side_means(us, n) / Eb**2, n)
+        us = _split_radii_one(u, E, sides)
+        d, sign = (1.0 + E) ** 2, (-2.0, 2.0)
+        dus = [x * sign[j] / d for x, j in zip(u, sides, strict=True)]  # d u_s / dE
+        k = 1.0 - 1.0 / Eb
+        dshift = (k * (C @ _side_means_one(dus, n))).tolist()
+        Cs = (C @ _side_means_one(us, n)).tolist()
+        dEb = [c / Eb**2 for c in Cs]
         if len(self.names) == 2:
-            return np.stack([dE, dEb], -1)
-        Es = p[2]
-        f = us + np.repeat((1.0 - 1.0 / Eb) * (C @ side_means(us, n)), n)
-        return np.stack([Es * dE, Es * dEb, f], -1)
+            return np.array([(a + dshift[j], dEb[j]) for a, j in zip(dus, sides, strict=True)])
+        Es, shift = p[2], [k * c for c in Cs]
+        rows = zip(dus, us, sides, strict=True)
+        return np.array([(Es * (a + dshift[j]), Es * dEb[j], b + shift[j]) for a, b, j in rows])
 
 
 def _split_radii(u, E, n: int) -> np.ndarray:
@@ -128,6 +165,26 @@ def _split_radii(u, E, n: int) -> np.ndarray:
     right wheel's angle times ``2 E / (1 + E)``, every left wheel's times ``2 / (1 + E)``."""
     right = np.arange(2 * n) >= n
     return u * np.where(right, 2.0 * E / (1.0 + E), 2.0 / (1.0 + E))
+
+
+def _split_radii_one(u: list, E: float, sides: tuple[int, ...]) -> list:
+    """:func:`_split_radii` of one input in plain floats (``sides``: each input's side)."""
+    w = (2.0 / (1.0 + E), 2.0 * E / (1.0 + E))
+    return [x * w[j] for x, j in zip(u, sides, strict=True)]
+
+
+def _side_means_one(us: list, n: int) -> np.ndarray:
+    """:func:`odofuse.estimators.graph.calibration.side_means` of one input: numpy adds fewer
+    than 8 terms one by one, which plain floats repeat exactly (from 8, pairwise: numpy's)."""
+    if n >= 8:
+        from odofuse.estimators.graph.calibration import side_means
+
+        return side_means(us, n)
+    L = R = 0.0  # as numpy's reduction: from 0.0, one term at a time (so -0.0 becomes 0.0)
+    for a, b in zip(us[:n], us[n:], strict=True):
+        L += a
+        R += b
+    return np.array((L / n, R / n))
 
 
 def filter_odometry_calibration(model, options, key: str, source: str):
