@@ -15,8 +15,8 @@ Covariance conventions (REP-145 and the ``sensor_msgs`` message comments):
 
 from __future__ import annotations
 
-import functools
 import math
+import operator
 
 import numpy as np
 
@@ -64,17 +64,18 @@ def columns(msgs, msgtype: str) -> dict:
     (else a list of arrays), strings a list of N strings, joint names a list of tuples."""
     out: dict = {}
     for path in FIELDS[msgtype]:
-        names = path.split(".")
-        values = [functools.reduce(getattr, names, m) for m in msgs]
+        values = list(map(_getters[path], msgs))
         if path in _TEXT:
             out[path] = [v if isinstance(v, str) else tuple(v) for v in values]
             continue
-        arrays = [np.asarray(v, dtype=float) for v in values]
-        if all(a.shape == arrays[0].shape for a in arrays):
-            out[path] = np.array(arrays).reshape(len(arrays), *arrays[0].shape)
-        else:
-            out[path] = arrays
+        try:
+            out[path] = np.array(values, dtype=float)
+        except ValueError:  # sequences of several lengths
+            out[path] = [np.asarray(v, dtype=float) for v in values]
     return out
+
+
+_getters = {p: operator.attrgetter(p) for paths in FIELDS.values() for p in paths}
 
 
 def stamp(msg, bag_ns: int) -> float:
@@ -124,7 +125,7 @@ def _unknown(cov) -> np.ndarray:
     c = np.asarray(cov, dtype=float)
     if c.shape[-1] == 0:
         return np.ones(len(c), dtype=bool)
-    return (c[:, 0] == -1.0) | ~np.any(c, axis=1)
+    return (c[:, 0] == -1.0) | ~c.any(axis=1)
 
 
 def odometry_increments(t, poses) -> tuple[np.ndarray, np.ndarray]:
@@ -293,17 +294,18 @@ def imu_columns(cols: dict, yaw_offset: float = 0.0):
     """
     wz = np.asarray(cols["angular_velocity.z"], dtype=float).reshape(-1, 1)
     av = np.asarray(cols["angular_velocity_covariance"], dtype=float)
-    if len(wz) and not np.any(_unknown(av) | (av[:, 8] <= 0)):
-        gyro = (("wz", "sigma"), np.column_stack([wz, np.sqrt(av[:, 8])]))
+    if len(wz) and not (_unknown(av) | (av[:, 8] <= 0)).any():
+        gyro = (("wz", "sigma"), np.concatenate([wz, np.sqrt(av[:, 8:9])], axis=1))
     else:
         gyro = (("wz",), wz)
     oc = np.asarray(cols["orientation_covariance"], dtype=float)
-    zero = np.logical_and.reduce([np.asarray(cols[f"orientation.{c}"]) == 0 for c in _QUATERNION])
-    keep = ~_unknown(oc) & (oc[:, 8] > 0) & ~zero
+    x, y, z, w = (np.asarray(cols[f"orientation.{c}"], dtype=float) for c in _QUATERNION)
+    keep = ~_unknown(oc) & (oc[:, 8] > 0) & ((x != 0) | (y != 0) | (z != 0) | (w != 0))
     if not keep.any():
         return gyro, None
     heading = se2.wrap(_yaws(cols, "orientation.", keep) - yaw_offset)
-    return gyro, (("heading", "sigma"), np.column_stack([heading, np.sqrt(oc[keep, 8])]), keep)
+    sigma = np.sqrt(oc[keep, 8])
+    return gyro, (("heading", "sigma"), np.concatenate([heading[:, None], sigma[:, None]], 1), keep)
 
 
 def navsat_columns(cols: dict):
