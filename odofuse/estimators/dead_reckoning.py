@@ -27,13 +27,15 @@ from odofuse.trajectory import EstimateResult, Trajectory
 
 
 def _heading_steps(model, U) -> tuple[np.ndarray, np.ndarray]:
-    """Wheel heading change (rad) and its error-model variance (rad^2) of each step."""
-    d, v = np.empty(len(U)), np.empty(len(U))
-    for k, u in enumerate(U):
-        delta, J = model.increment(u)
-        d[k] = delta[2]
-        v[k] = (J[2] ** 2) @ model.errors.variances(model.drive, u)
-    return d, v
+    """Wheel heading change (rad) and its error-model variance (rad^2) of each step, all steps
+    at once (the model's increment and error model take ``(N, n)`` inputs; a loop over the
+    steps took 57 us a step, 0.27 s of a 94 s log's run)."""
+    U = np.asarray(U, dtype=float)
+    if not len(U):
+        return np.empty(0), np.empty(0)
+    delta, J = model.increment(U)
+    J2 = J[:, 2]
+    return delta[:, 2].copy(), (J2 * J2 * model.errors.variances(model.drive, U)).sum(axis=1)
 
 
 #: Draws of the systematic errors' prior (scrambled Sobol points, seeded: the result is
