@@ -201,6 +201,26 @@ def _rotation_tracks(gyro_rows, models, t_odo, U, model) -> list:
     return tracks
 
 
+def _gyro_rows(stream, order, model, t_lo, t_hi) -> tuple[int, np.ndarray]:
+    """A gyro stream's samples to pre-integrate, vectorised (a loop over the rows cost 7 us a
+    sample): the count rejected (outside the odometry span, not finite, the first sample and
+    any sample at the time of the one before) and the rows ``(t_prev, t, wz, variance)``
+    ``(K, 4)``, ``wz`` and the variance as ``model.z`` / ``model.R`` give them (a ``sigma``
+    column or the model's sigma). Each sample covers the time since the previous kept one."""
+    t = stream.t[order]
+    ok = (t >= t_lo) & (t <= t_hi) & np.all(np.isfinite(stream.values[order]), axis=1)
+    idx, tk = order[ok], t[ok]
+    if idx.size < 2:
+        return int(t.size), np.empty((0, 4))
+    rows = np.column_stack([tk[:-1], tk[1:], stream["wz"][idx[1:]], np.empty(idx.size - 1)])
+    if "sigma" in stream.columns:
+        rows[:, 3] = stream["sigma"][idx[1:]] ** 2
+    else:
+        rows[:, 3] = float(model.R(None)[0, 0])
+    rows = rows[tk[1:] > tk[:-1]]  # a sample at the time of the one before covers nothing
+    return int(t.size - len(rows)), rows
+
+
 def _compass_rows(stream, order, model, t_lo, t_hi):
     """Rows of a compass stream to attach to keyframes, vectorised (the per-row loop of
     :func:`build_problem` costs seconds at 50 Hz): the count rejected (outside the odometry
@@ -264,7 +284,11 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
         if kind == "CompassHeading" and attach:
             rejected[name], heading_rows[name] = _compass_rows(stream, order, m, t_lo, t_hi)
             continue
-        prev_t = None
+        if kind == "GyroYawRate":
+            rejected[name], rows = _gyro_rows(stream, order, m, t_lo, t_hi)
+            if len(rows):
+                gyro_rows[name] = rows
+            continue
         n_rej = 0
         for i in order:
             t = float(stream.t[i])
@@ -276,17 +300,6 @@ def build_problem(log, config, estimator: str) -> GraphProblem:
                 n_rej += 1
                 continue
             meas = Measurement(name, int(i), -1, row)
-            if kind == "GyroYawRate":
-                if prev_t is None or t <= prev_t:
-                    prev_t = t if prev_t is None else prev_t
-                    n_rej += 1
-                    continue
-                row["dt"] = t - prev_t
-                gyro_rows.setdefault(name, []).append(
-                    (prev_t, t, float(m.z(row)[0]), float(m.R(row)[0, 0]))
-                )
-                prev_t = t
-                continue
             if kind in LANDMARK_SENSORS:
                 lid = int(row["id"])
                 if not options.slam and lid not in log.landmarks:
