@@ -459,7 +459,7 @@ def write_csv_log(log: SensorLog, folder: str | Path) -> tuple[list[Path], dict[
             changes[f"{name}.duplicates_dropped"] = dropped
         table = np.column_stack([s.t, s.values])
         header = ",".join(("t",) + s.columns)
-        body = "\n".join(",".join(_fmt(v) for v in row) for row in table)
+        body = "\n".join(",".join(map(_fmt, row)) for row in table.tolist())  # Python floats
         path = folder / f"{name}.csv"
         atomic_write_text(path, header + "\n" + body + "\n")
         written.append(path)
