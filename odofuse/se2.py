@@ -15,6 +15,8 @@ Every function accepts a single ``(3,)`` array or a batch ``(..., 3)`` and retur
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 TWO_PI = 2.0 * np.pi
@@ -28,6 +30,12 @@ _SERIES_BELOW = 5e-2
 def wrap(angle):
     """Wrap angles (rad) to ``[-pi, pi)``."""
     return (np.asarray(angle, dtype=float) + np.pi) % TWO_PI - np.pi
+
+
+def wrap_angle(angle: float) -> float:
+    """:func:`wrap` of one angle as a Python float: the same three operations (Python's float
+    ``%`` is numpy's floored remainder), a tenth of the time (the filters' per-step calls)."""
+    return (float(angle) + math.pi) % TWO_PI - math.pi
 
 
 def rot(theta) -> np.ndarray:

@@ -26,7 +26,7 @@ from odofuse.estimators.common import SINGULAR_PIVOT, angle_states
 from odofuse.estimators.ekf import FastIncrement, increment_function
 from odofuse.measurements import gate_threshold
 from odofuse.options import coerce
-from odofuse.se2 import wrap
+from odofuse.se2 import wrap_angle
 
 
 def _psd_sqrt(A: np.ndarray) -> np.ndarray:
@@ -113,12 +113,14 @@ class UkfBackend:
     # -- angle-aware state arithmetic ---------------------------------------------------
     def residual_x(self, a, b) -> np.ndarray:
         d = np.subtract(a, b)
-        d[self.angles] = wrap(d[self.angles])
+        for i in self.angles:  # filterpy calls it for every sigma point: scalar wraps
+            d[i] = wrap_angle(d.item(i))
         return d
 
     def state_add(self, x, dx) -> np.ndarray:
         s = np.add(x, dx)
-        s[self.angles] = wrap(s[self.angles])
+        for i in self.angles:
+            s[i] = wrap_angle(s.item(i))
         return s
 
     def x_mean(self, sigmas, Wm) -> np.ndarray:
@@ -140,7 +142,7 @@ class UkfBackend:
         out = s.copy()
         out[0] = s[0] + c * delta[0] - sn * delta[1]
         out[1] = s[1] + sn * delta[0] + c * delta[1]
-        out[2] = wrap(s[2] + delta[2])
+        out[2] = wrap_angle(s[2] + delta[2])
         return out
 
     def predict(

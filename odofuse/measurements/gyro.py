@@ -13,7 +13,7 @@ from odofuse.measurements.base import (
     _pose_of,
     _scalar_of,
 )
-from odofuse.se2 import wrap
+from odofuse.se2 import wrap, wrap_angle
 
 
 @dataclass(frozen=True)
@@ -68,7 +68,7 @@ class GyroYawRate(MeasurementModel):
     def h(self, x, row) -> np.ndarray:
         dt = self._dt(row)
         ref = self._get(x, "gyro_theta_ref", float(x[2]))
-        return np.array([float(wrap(x[2] - ref)) / dt + self._get(x, "gyro_bias", 0.0)])
+        return np.array([wrap_angle(x[2] - ref) / dt + self._get(x, "gyro_bias", 0.0)])
 
     def h_many(self, X, row) -> np.ndarray:
         dt = self._dt(row)
