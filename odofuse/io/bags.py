@@ -223,7 +223,7 @@ def read_bag(
 
 def _frames(raw: dict, chosen: dict, edges: dict, source: str) -> dict:
     """Base/odom frames, each sensor stream's frame and, with ``/tf_static``, its mount."""
-    odom = next((raw[s][1] for s in raw if s.split("_")[0] == "odometry" and len(raw[s][0])), None)
+    odom = next((raw[s][1] for s in raw if _kind(s) == "odometry" and len(raw[s][0])), None)
     base = (odom["child_frame_id"][0].lstrip("/") if odom else "") or DEFAULT_BASE_FRAME
     ros: dict = {
         "base_frame": base,

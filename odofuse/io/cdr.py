@@ -83,8 +83,8 @@ class _Walk:
         return struct.unpack_from("<I", self.data, pos)[0]
 
     def _string(self, pos: int) -> tuple[str, int]:
-        n = self._uint32(_aligned(pos, 4))
-        start = _aligned(pos, 4) + 4
+        pos = _aligned(pos, 4)
+        n, start = self._uint32(pos), pos + 4
         self.fixed.append((start, start + n))
         return bytes(self.data[start : start + n - 1]).decode(), start + n
 

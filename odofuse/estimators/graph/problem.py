@@ -201,41 +201,40 @@ def _rotation_tracks(gyro_rows, models, t_odo, U, model) -> list:
     return tracks
 
 
-def _gyro_rows(stream, order, model, t_lo, t_hi) -> tuple[int, np.ndarray]:
-    """A gyro stream's samples to pre-integrate, vectorised (a loop over the rows cost 7 us a
-    sample): the count rejected (outside the odometry span, not finite, the first sample and
-    any sample at the time of the one before) and the rows ``(t_prev, t, wz, variance)``
-    ``(K, 4)``, ``wz`` and the variance as ``model.z`` / ``model.R`` give them (a ``sigma``
-    column or the model's sigma). Each sample covers the time since the previous kept one."""
-    t = stream.t[order]
-    ok = (t >= t_lo) & (t <= t_hi) & np.all(np.isfinite(stream.values[order]), axis=1)
-    idx, tk = order[ok], t[ok]
-    if idx.size < 2:
-        return int(t.size), np.empty((0, 4))
-    rows = np.column_stack([tk[:-1], tk[1:], stream["wz"][idx[1:]], np.empty(idx.size - 1)])
-    if "sigma" in stream.columns:
-        rows[:, 3] = stream["sigma"][idx[1:]] ** 2
-    else:
-        rows[:, 3] = float(model.R(None)[0, 0])
-    rows = rows[tk[1:] > tk[:-1]]  # a sample at the time of the one before covers nothing
-    return int(t.size - len(rows)), rows
-
-
-def _compass_rows(stream, order, model, t_lo, t_hi):
-    """Rows of a compass stream to attach to keyframes, vectorised (the per-row loop of
-    :func:`build_problem` costs seconds at 50 Hz): the count rejected (outside the odometry
-    span or not finite) and ``(t, row index, heading, variance)`` arrays in time order, the
-    heading and variance as ``model.z`` / ``model.R`` give them (a ``sigma`` column or the
-    model's sigma)."""
+def _samples(stream, order, model, t_lo, t_hi):
+    """A stream's rows in time order that the graph takes, vectorised (the per-row loop of
+    :func:`build_problem` costs seconds at 50 Hz): inside the odometry span, every value
+    finite. Returns the count rejected, their times, row indices and variances as ``model.R``
+    gives them (a ``sigma`` column or the model's sigma)."""
     t = stream.t[order]
     ok = (t >= t_lo) & (t <= t_hi) & np.all(np.isfinite(stream.values[order]), axis=1)
     idx = order[ok]
-    heading = se2.wrap(stream["heading"][idx])
     if "sigma" in stream.columns:
         var = stream["sigma"][idx] ** 2
     else:
         var = np.full(idx.size, float(model.R(None)[0, 0]))
-    return int(np.count_nonzero(~ok)), (t[ok], idx, heading, var)
+    return int(np.count_nonzero(~ok)), t[ok], idx, var
+
+
+def _gyro_rows(stream, order, model, t_lo, t_hi) -> tuple[int, np.ndarray]:
+    """A gyro stream's samples to pre-integrate (:func:`_samples`): the count rejected (also
+    the first sample and any sample at the time of the one before) and the rows ``(t_prev, t,
+    wz, variance)`` ``(K, 4)``, ``wz`` as ``model.z`` gives it. Each sample covers the time
+    since the previous kept one."""
+    _, tk, idx, var = _samples(stream, order, model, t_lo, t_hi)
+    if idx.size < 2:
+        return len(order), np.empty((0, 4))
+    rows = np.column_stack([tk[:-1], tk[1:], stream["wz"][idx[1:]], var[1:]])
+    rows = rows[tk[1:] > tk[:-1]]  # a sample at the time of the one before covers nothing
+    return len(order) - len(rows), rows
+
+
+def _compass_rows(stream, order, model, t_lo, t_hi):
+    """Rows of a compass stream to attach to keyframes (:func:`_samples`): the count rejected
+    and ``(t, row index, heading, variance)`` arrays in time order, the heading as
+    ``model.z`` gives it."""
+    rejected, tk, idx, var = _samples(stream, order, model, t_lo, t_hi)
+    return rejected, (tk, idx, se2.wrap(stream["heading"][idx]), var)
 
 
 def build_problem(log, config, estimator: str) -> GraphProblem:

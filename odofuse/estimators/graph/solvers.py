@@ -232,13 +232,18 @@ def _extra(problem: GraphProblem, fac: Factors, values, estimator: str) -> dict:
     return extra
 
 
-def calibration_keys(problem: GraphProblem, values) -> list:
-    """The keys of the run's calibration states in ``values``: each sensor state's final key
-    and the odometry calibration vector."""
-    keys = [problem.final_key(name) for name in problem.calib]
+def _calibration_states(problem: GraphProblem, values) -> list[tuple[tuple[str, ...], int]]:
+    """``(names, key)`` of the run's calibration states in ``values``: each sensor state's
+    final key (one name) and the odometry calibration vector (its names, in order)."""
+    states = [((name,), problem.final_key(name)) for name in problem.calib]
     if problem.odometry_calibration is not None:
-        keys.append(problem.odometry_key)
-    return [k for k in keys if values.exists(k)]
+        states.append((problem.odometry_calibration.names, problem.odometry_key))
+    return [(names, key) for names, key in states if values.exists(key)]
+
+
+def calibration_keys(problem: GraphProblem, values) -> list:
+    """The keys of the run's calibration states in ``values`` (:func:`_calibration_states`)."""
+    return [key for _, key in _calibration_states(problem, values)]
 
 
 def calibration_sigmas(problem: GraphProblem, values, cov_of) -> dict:
@@ -247,14 +252,9 @@ def calibration_sigmas(problem: GraphProblem, values, cov_of) -> dict:
     sensors' states and the wheels' (:mod:`odofuse.status.geometry` advises from them); empty
     when there are none."""
     sigma = {}
-    for name in problem.calib:
-        key = problem.final_key(name)
-        if values.exists(key):
-            sigma[name] = float(np.sqrt(cov_of(key)[0, 0]))
-    oc = problem.odometry_calibration
-    if oc is not None and values.exists(problem.odometry_key):
-        sd = np.sqrt(np.diag(cov_of(problem.odometry_key)))
-        sigma.update({n: float(v) for n, v in zip(oc.names, sd, strict=True)})
+    for names, key in _calibration_states(problem, values):
+        sd = np.sqrt(np.diag(cov_of(key))[: len(names)])
+        sigma.update({n: float(v) for n, v in zip(names, sd, strict=True)})
     return {"calibration_sigma": sigma} if sigma else {}
 
 
