@@ -7,6 +7,7 @@ simulated log (consistent without a fault, the GPS's NIS checks firing with one)
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -136,26 +137,32 @@ def test_a_row_that_nothing_predicts_is_not_tested():
 
 
 # --------------------------------------------------------------- through odofuse run
+def _shifted_gps(clean: Path, folder: Path, t0: float, t1: float, dx: float) -> Path:
+    """A copy of the log folder of config ``clean`` in ``folder`` whose GPS fixes over
+    ``[t0, t1)`` s are ``dx`` m off in x (multipath); its config."""
+    import csv
+    import shutil
+
+    shutil.copytree(clean.parent, folder)
+    gps = folder / "gps.csv"
+    rows = list(csv.reader(gps.open(encoding="utf-8")))
+    for r in rows[1:]:
+        if t0 <= float(r[0]) < t1:
+            r[1] = repr(float(r[1]) + dx)
+    with gps.open("w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh).writerows(rows)
+    return folder / "config.yaml"
+
+
 @pytest.fixture(scope="module")
 def lap(tmp_path_factory):
     """One lap (94 s) of the trust scenarios' figure eight with its ``odofuse simulate``
     config, and a copy whose GPS fixes are 5 m off in x over 40-55 s (multipath)."""
-    import csv
-    import shutil
-
     from test_cross_check_skipped import _simulated_log
 
     root = tmp_path_factory.mktemp("lap")
     clean = _simulated_log(root / "clean")
-    shutil.copytree(clean.parent, root / "fault")
-    gps = root / "fault" / "gps.csv"
-    rows = list(csv.reader(gps.open(encoding="utf-8")))
-    for r in rows[1:]:
-        if 40.0 <= float(r[0]) < 55.0:
-            r[1] = repr(float(r[1]) + 5.0)
-    with gps.open("w", newline="", encoding="utf-8") as fh:
-        csv.writer(fh).writerows(rows)
-    return clean, root / "fault" / "config.yaml"
+    return clean, _shifted_gps(clean, root / "fault", 40.0, 55.0, 5.0)
 
 
 @pytest.mark.parametrize("estimator", ["fixed_lag", "isam2"])
@@ -195,6 +202,32 @@ def test_incremental_graph_says_a_gps_offset_itself_when_the_second_opinion_cann
     (skip,) = [f for f in m["findings"] if f["check"] == "cross_check_skipped"]
     assert not skip["degrades"] and "rests on the run's own checks" in skip["message"]
     assert f"warning: {estimator}: [nis" in m["_stdout"]
+
+
+def test_the_smoother_counts_its_readings_beyond_the_gate_at_its_optimum(lap, tmp_path):
+    """Issue 25: the batch smoother's gate loss sets a multipath burst aside, so its estimate
+    can hold while its outlier fraction stays under 10 %: on the status benchmark's 2 m GPS
+    logs (seeds 7011, 7019) it said ``ok`` at 7-8 of 15 fixes beyond the gate. The filters'
+    rejection count on its residuals at the optimum says so; on the matching log it stays
+    quiet and is counted in the run's budget at ``nis_alpha``."""
+    from test_cross_check_skipped import _run
+
+    clean = _run(lap[0], "smoother", tmp_path / "clean")
+    assert clean["status"] == "ok", clean["warnings"]
+    assert clean["alpha"]["checks"]["rejection_count:gps"] == 1e-3
+    assert "rejection_count:gyro" not in clean["alpha"]["checks"]  # factors between poses
+    # 9 of the 94 fixes 5 m (5 sigmas) off: under the outlier fraction, and the only check
+    # that fires (before it the run said ``ok``); the count's null allows a real receiver's
+    # few gross fixes (3 %: 7 of 20 at this evaluation, docs/trust.md), so 6 would not
+    fault = _shifted_gps(lap[0], tmp_path / "fault", 40.0, 49.0, 5.0)
+    m = _run(fault, "smoother", tmp_path / "out")
+    assert m["status"] == "degraded"
+    assert [f["check"] for f in m["findings"] if f["degrades"]] == ["rejection_count"]
+    (f,) = [f for f in m["findings"] if f["check"] == "rejection_count"]
+    assert f["sensor"] == "gps" and f["figure"] >= 7
+    assert 20.0 <= f["t_start"] and f["t_end"] <= 69.0  # windows that hold the 40-49 s burst
+    assert "beyond the gate at the optimum" in f["message"]
+    assert "warning: smoother: [rejection_count] gps" in m["_stdout"]
 
 
 def test_current_values_reads_the_whole_estimate_where_a_marginal_is_indeterminate():

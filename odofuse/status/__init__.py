@@ -108,15 +108,17 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "rejection_count",
-        ("status/monitors.py",),
-        "the same as nis (every gated stream)",
-        "rejections among the last nis_window readings against the binomial bound of the "
-        "gate's own rejection probability (1 - gate) plus the gross_fraction a real sensor "
-        "has (3 %), every nis_window / 4 readings, alpha spent over the evaluations "
+        ("status/monitors.py", "status/graph_checks.py"),
+        "the same as nis (every gated stream); the batch smoother on its residuals at the "
+        "optimum (every gated sensor stream, not a gyro)",
+        "rejections (the smoother: residuals beyond the gate) among the last nis_window "
+        "readings against the binomial bound of the gate's own rejection probability "
+        "(1 - gate) plus the gross_fraction a real sensor has (3 %), every nis_window / 4 "
+        "readings, alpha spent over the evaluations "
         "(Bonferroni)",
         "nis_alpha per fused gated stream (1e-3)",
         ("rejection_count",),
-        ("tests/test_innovation_mean.py",),
+        ("tests/test_innovation_mean.py", "tests/test_graph_innovations.py"),
     ),
     Check(
         "calibration_drift",

@@ -424,6 +424,16 @@ def compare(
     return block, found, advice
 
 
+#: Sensor kinds whose factors lie between poses: no row of theirs is tested against a
+#: prediction or counted beyond a gate in a graph back end.
+BETWEEN = ("gyro", "loop_closures")
+
+
+def _gated(config, stream: str) -> bool:
+    """Whether ``stream``'s readings pass a gate (a stream without one cannot fire a count)."""
+    return getattr(config.sensors[stream], "gate", 0.999) is not None
+
+
 def alpha_budget(config, log) -> dict:
     """The run's false-alarm rate and its split over the checks that can fire on a log that
     matches its config (docs/trust.md, "The promise"; Bonferroni: the union's probability is
@@ -435,7 +445,8 @@ def alpha_budget(config, log) -> dict:
     gyro-vs-wheels test (``heading_alpha``), the EKF's and UKF's calibration drift test
     (``drift_alpha``, counted whenever they fuse a sensor; the other estimators carry an
     EKF's in the second opinion's scope, :func:`companion_applies`), the batch smoother's residual
-    windows per odometry and gyro stream (``WINDOW_ALPHA``), the time-stamp test per fused absolute
+    windows per odometry and gyro stream (``WINDOW_ALPHA``) and rejection count per gated
+    sensor stream that is not between poses (``nis_alpha``), the time-stamp test per fused absolute
     stream (``options.status.latency_alpha``: a graph run's own, or the reference's that a
     filter takes, :func:`with_reference_latency`). What is left of ``alpha_run`` goes to the
     second opinion when it applies, half to its consistency test (``cross_check_nees``) and
@@ -443,11 +454,12 @@ def alpha_budget(config, log) -> dict:
     band: a filter's ``variance_factor`` finding, the others' skip); the smoother run as the
     estimate spends half of what is left on the same test of its own residuals
     (``variance_factor``, :func:`own_test`); an estimator whose skipped check degrades (not
-    in :data:`DRIFT_EVIDENCE`) also carries the smoother's residual windows and time-stamp
-    tests (``reference_status``: a degraded smoother skips the check). The other checks (a
-    covariance not positive definite, a solver that did not converge, a stream mostly
-    rejected or silent, a calibration 5 prior sigmas out, a slip run, ...) cannot fire on a
-    matching log, or with a probability below 1e-5 (docs/trust.md); they are not counted.
+    in :data:`DRIFT_EVIDENCE`) also carries the smoother's residual windows, rejection counts
+    and time-stamp tests (``reference_status``: a degraded smoother skips the check). The
+    other checks (a covariance not positive definite, a solver that did not converge, a
+    stream mostly rejected or silent, a calibration 5 prior sigmas out, a slip run, ...)
+    cannot fire on a matching log, or with a probability below 1e-5 (docs/trust.md); they
+    are not counted.
 
     Returns
     -------
@@ -475,15 +487,13 @@ def alpha_budget(config, log) -> dict:
         # fixed-lag and iSAM2 (also with slam: graph.isam2_slam) test their sensor rows (not
         # the gyro's or the loop closures', factors between poses) at the filters' defaults
         nis_opts = NIS_OPTIONS if graph else config.estimator_options(est)
-        between = ("gyro", "loop_closures")
-        tested = [n for n in fused if not graph or sensor_kind(config, n) not in between]
+        tested = [n for n in fused if not graph or sensor_kind(config, n) not in BETWEEN]
         nis = float(nis_opts.nis_alpha)
         checks.update({f"nis:{n}": nis for n in sorted(tested)})
         checks.update({f"nis_run:{n}": nis for n in sorted(tested)})
         checks.update({f"innovation_mean:{n}": nis for n in sorted(scanned & set(tested))})
         # the rejection count of every gated stream (a stream without a gate cannot fire it)
-        gated = [n for n in tested if getattr(config.sensors[n], "gate", 0.999) is not None]
-        checks.update({f"rejection_count:{n}": nis for n in sorted(gated)})
+        checks.update({f"rejection_count:{n}": nis for n in sorted(tested) if _gated(config, n)})
         drift = float(getattr(nis_opts, "drift_alpha", 0.0))
         if drift > 0.0 and fused:  # the EKF's and UKF's calibration drift check
             checks["calibration_drift"] = drift
@@ -498,9 +508,13 @@ def alpha_budget(config, log) -> dict:
             )
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
     gyros = [n for n in fused if sensor_kind(config, n) == "gyro"]
-    windows = {f"residual_windows:{n}": WINDOW_ALPHA for n in [odo, *gyros] if n}
+    # the smoother's residual checks: windows of its odometry and gyros, and the rejection
+    # count of every gated sensor stream but the factors between poses (graph_checks)
+    smoother = {f"residual_windows:{n}": WINDOW_ALPHA for n in [odo, *gyros] if n}
+    counted = [n for n in fused if sensor_kind(config, n) not in BETWEEN and _gated(config, n)]
+    smoother.update({f"rejection_count:{n}": float(NIS_OPTIONS.nis_alpha) for n in counted})
     if est == "smoother":
-        checks.update(windows)
+        checks.update(smoother)
     applies = skip_reason(config, log) is None
     # the time-stamp test (status.latency): a graph run's own; a filter takes the reference's
     lat_alpha = float(config.estimator_options("status").latency_alpha)
@@ -509,8 +523,8 @@ def alpha_budget(config, log) -> dict:
         checks.update(lat)
     if applies and est not in DRIFT_EVIDENCE:
         # the smoother's own degraded status on a matching log skips the check, and that
-        # skip degrades this run (:func:`skipped_finding`): its windows' false alarms count
-        checks["reference_status"] = sum(windows.values()) + sum(lat.values())
+        # skip degrades this run (:func:`skipped_finding`): its checks' false alarms count
+        checks["reference_status"] = sum(smoother.values()) + sum(lat.values())
     in_run = sum(checks.values())
     if applies:
         share = max(a - in_run, 0.0) / 2.0

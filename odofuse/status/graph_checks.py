@@ -28,6 +28,10 @@ truth:
   probability. At a least-squares optimum the residuals' covariance is the noise model's
   minus what the estimate absorbed, so a window's sum is at most chi-square distributed
   with that dimension when the noise model is right: the test can only be conservative.
+* rejection count (:func:`rejection_count_findings`): the filters' count of readings beyond
+  their gate among ``nis_window`` consecutive ones, on each gated sensor stream's residuals
+  at the optimum, against the binomial bound of the filters' null (the gate's own probability
+  plus a real sensor's few gross readings, ``gross_fraction``; ``nis_alpha`` over the run).
 
 Also owns the slip note of a graph run (:func:`slip_findings`; the widening itself is
 :func:`odofuse.estimators.graph.factors.slip_scales`).
@@ -216,6 +220,7 @@ def graph_findings(
                 )
             )
     out += window_findings(problem, residuals, optimum and not stitched)
+    out += rejection_count_findings(problem, residuals, optimum and not stitched)
     out += outage_findings(problem)
     out += slip_findings(problem, slip_scales(problem))
     out += calibration_findings(problem, values) + gauge_findings(problem)
@@ -234,6 +239,78 @@ def graph_findings(
                     t_start=float(odo["t"][idx[0]]),
                     t_end=float(odo["t"][idx[-1]]),
                     figure=float(odo["jump"][idx].max()),
+                )
+            )
+    return out
+
+
+def rejection_count_findings(problem, residuals: dict, optimum: bool = True) -> list[Finding]:
+    """The filters' rejection count on the batch smoother's residuals at its optimum.
+
+    For each sensor stream with a gate (not a gyro: its factors lie between poses, as in
+    :mod:`odofuse.estimators.graph.innovations`), its factors in time order are scanned as a
+    filter's readings are (:func:`odofuse.status.monitors.count_bound`, at the incremental
+    graphs' :data:`~odofuse.estimators.graph.innovations.NIS_OPTIONS`): every
+    ``nis_window / 4`` factors, those among the last ``nis_window`` whose whitened chi-square
+    (Gaussian part of the noise model: a robust loss does not hide them) is beyond the gate,
+    against the binomial bound of the filters' null
+    (:func:`odofuse.status.monitors.count_probability`: the gate's own probability
+    ``1 - gate`` plus the ``gross_fraction`` of gross readings a real sensor has, 3 %),
+    ``nis_alpha`` spent over the evaluations. At a least-squares optimum a residual's
+    covariance is the noise model's minus what the estimate absorbed, so on a matching log
+    each factor is beyond its gate with probability at most that of a filter's innovation.
+    A burst of gross readings that the graph's gate loss sets aside (GPS multipath at 4
+    sigmas) leaves its residuals beyond the gate, where the estimate can hold (the loss is
+    working) and the outlier fraction of the whole stream stays under
+    :data:`OUTLIER_FRACTION`; a real GNSS receiver's two or three gross fixes in a window do
+    not reach the bound (docs/trust.md, "A real sensor's gross readings"). Only for a batch
+    optimum (``optimum``: the smoother); iSAM2 and fixed-lag count their predicted
+    innovations (:mod:`odofuse.estimators.graph.innovations`).
+    """
+    from odofuse.estimators.graph.innovations import NIS_OPTIONS
+    from odofuse.measurements import gate_threshold
+    from odofuse.status.monitors import count_bound, count_probability, mean_stride
+
+    if not optimum:
+        return []
+    w, alpha = int(NIS_OPTIONS.nis_window), float(NIS_OPTIONS.nis_alpha)
+    stride = mean_stride(w)
+    out = []
+    for stream, m in sorted(problem.models.items()):
+        r = residuals.get(stream)
+        if stream in problem.gyro or r is None or r["chi2"].size < w:
+            continue
+        gate = gate_threshold(getattr(m, "gate", None), int(m.dim))
+        p = count_probability(gate, int(m.dim), float(NIS_OPTIONS.gross_fraction))
+        if p <= 0.0:
+            continue
+        order = np.argsort(r["t"], kind="stable")
+        t = r["t"][order]
+        beyond = np.concatenate([[0], np.cumsum(r["chi2"][order] > gate)])
+        hits, worst, bound, span = 0, 0, 0, None
+        for j, end in enumerate(range(w, t.size + 1, stride), start=1):
+            k, _ = count_bound(j, w, p, alpha)
+            count = int(beyond[end] - beyond[end - w])
+            if count >= k:
+                hits += 1
+                if count > worst:
+                    worst, bound = count, k
+                first = span[0] if span else float(t[end - w])
+                span = (first, float(t[end - 1]))
+        if hits:
+            out.append(
+                Finding(
+                    "rejection_count",
+                    f"{worst} of {w} consecutive readings beyond the gate at the optimum (a "
+                    f"matching log with a real sensor's few gross readings puts {p:.3g} of "
+                    f"them there; {bound} or more at <= {alpha:g} over the run), {hits} "
+                    "window(s): the estimate and this sensor "
+                    "disagree (gross readings that the robust loss set aside, or a noise "
+                    "model more optimistic than the readings)",
+                    sensor=stream,
+                    t_start=span[0],
+                    t_end=span[1],
+                    figure=float(worst),
                 )
             )
     return out
