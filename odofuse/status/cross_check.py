@@ -765,10 +765,12 @@ def companion_findings(config, log) -> tuple[Finding, ...]:
     findings, each saying that the EKF saw it (:func:`odofuse.status.drift.seen_by_ekf`); ()
     when the EKF finds nothing.
 
-    The EKF's calibration path is the model's martingale only while the EKF itself is
-    consistent: an EKF degraded by any other check (NIS windows, recoveries, rejection runs)
-    cannot judge the drift (its own failure moves the calibration), and neither can an EKF
-    that does not run; both leave a note that does not degrade (the run's other checks stand)."""
+    The EKF's calibration path is the model's martingale only while the EKF itself holds the
+    track: an EKF degraded by a check of its own failure (recoveries, rejection runs, ...; not
+    its NIS tests, which test the log against the config's model as the scan does:
+    :data:`odofuse.status.drift.MODEL`) cannot judge the drift (its failure moves the
+    calibration), and neither can an EKF that does not run; both leave a note that does not
+    degrade (the run's other checks stand)."""
     from odofuse.estimators import run_estimator
     from odofuse.status.drift import cannot_judge, seen_by_ekf
 

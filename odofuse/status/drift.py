@@ -157,6 +157,11 @@ def drift_of(loc) -> Drift | None:
     return Drift(list(index), list(index.values()), walk, owners, opts.drift_alpha, opts.drift_grid)
 
 
+#: The companion EKF's checks that test its innovations against the config's model (the
+#: log's departure from it, which another estimator of the log shares), not its own failure.
+MODEL = ("nis", "nis_run")
+
+
 def seen_by_ekf(found) -> tuple[Finding, ...]:
     """What an EKF of the same log and config, with findings ``found``, tells another
     estimator about the log (the companion of :data:`odofuse.status.cross_check.COMPANION`,
@@ -166,14 +171,17 @@ def seen_by_ekf(found) -> tuple[Finding, ...]:
     (a calibration that moved more than its walk allows, innovations whose mean is off
     zero), which the other estimator runs too.
 
-    The EKF's calibration path and innovations are the model's only while the EKF itself is
-    consistent: an EKF that is also degraded by another check (NIS windows, recoveries,
-    rejection runs) cannot judge (its own failure moved them), and says so in a note that
-    does not degrade."""
+    The EKF's calibration path and innovations are the model's only while the EKF itself
+    holds the track: an EKF that is also degraded by a check of its own failure (recoveries,
+    rejection runs, a covariance or calibration out of bounds, ...) cannot judge (its failure
+    moved them), and says so in a note that does not degrade. Its NIS tests (:data:`MODEL`)
+    are not such a check: like the scan, they test its innovations against the config's
+    model, which the other estimator shares (a gyro bias step raises the run's NIS beside
+    the scan and the drift: docs/trust.md, "The companion EKF's NIS tests")."""
     own = ("calibration_drift", "innovation_mean")
     drift = [f for f in found if f.check == "calibration_drift" and f.degrades]
     mean = [f for f in found if f.check == "innovation_mean" and f.degrades]
-    other = sorted({f.check for f in found if f.degrades and f.check not in own})
+    other = sorted({f.check for f in found if f.degrades and f.check not in own + MODEL})
     if drift and other:
         return (
             cannot_judge(
