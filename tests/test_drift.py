@@ -312,8 +312,8 @@ def test_an_ekf_degraded_by_its_own_checks_cannot_judge_the_drift(monkeypatch):
     found = cross_check.companion_findings(cfg, log)
     assert "calibration_drift" in {f.check for f in found}
     assert all(f.degrades and f.message.startswith("seen by an EKF") for f in found)
-    also = [Finding("recovery", "re-opened 2 time(s)", sensor="ranges")]
-    monkeypatch.setattr(cross_check, "assess", lambda result: [*result.findings, *also])
+    also = Finding("recovery", "re-opened 2 time(s)", sensor="ranges")
+    monkeypatch.setattr(cross_check, "assess", lambda result: [*result.findings, also])
     (note,) = cross_check.companion_findings(cfg, log)
     assert not note.degrades
     assert note.message.endswith(
@@ -322,6 +322,9 @@ def test_an_ekf_degraded_by_its_own_checks_cannot_judge_the_drift(monkeypatch):
     # Its NIS tests are not its own failure: like the scan they test its innovations against
     # the config's model, which the other estimator shares (fresh seed 9415's bias step: the
     # smoother was ok at NEES 99 while the EKF said nis_run, the scan and the drift)
-    also = [Finding("nis", "mean NIS above its band", sensor="gps")]
-    also.append(Finding("nis_run", "mean NIS of the run above its band", sensor="gps"))
+    nis = [
+        Finding("nis", "mean NIS above its band", sensor="gps"),
+        Finding("nis_run", "mean NIS of the run above its band", sensor="gps"),
+    ]
+    monkeypatch.setattr(cross_check, "assess", lambda result: [*result.findings, *nis])
     assert cross_check.companion_findings(cfg, log) == found

@@ -304,9 +304,9 @@ def rejection_count_findings(problem, residuals: dict, optimum: bool = True) -> 
                     f"{worst} of {w} consecutive readings beyond the gate at the optimum (a "
                     f"matching log with a real sensor's few gross readings puts {p:.3g} of "
                     f"them there; {bound} or more at <= {alpha:g} over the run), {hits} "
-                    "window(s): the estimate and this sensor "
-                    "disagree (gross readings that the robust loss set aside, or a noise "
-                    "model more optimistic than the readings)",
+                    "window(s): the estimate and this sensor disagree (gross readings that "
+                    "the robust loss set aside, or a noise model more optimistic than the "
+                    "readings)",
                     sensor=stream,
                     t_start=span[0],
                     t_end=span[1],
