@@ -255,6 +255,7 @@ def test_every_companion_estimator_carries_the_same_finding_from_one_shared_ekf(
     monkeypatch.setattr("odofuse.status.cross_check.companion_findings", counted)
     ekf = estimate(dataclasses.replace(cfg, estimator="ekf"), log)[0]
     (want,) = [f.message for f in ekf.findings if f.check == "calibration_drift"]
+    (scan,) = [f.message for f in ekf.findings if f.check == "innovation_mean"]  # its GPS
     ref = smoother_reference(cfg, log)
     for est in sorted(cross_check.COMPANION):
         run_cfg = dataclasses.replace(cfg, estimator=est)
@@ -263,6 +264,12 @@ def test_every_companion_estimator_carries_the_same_finding_from_one_shared_ekf(
         found = [f for f in m["findings"] if f["check"] == "calibration_drift"]
         assert [f["message"] for f in found] == [f"seen by an EKF of this log and config: {want}"]
         assert m["status"] == "degraded" and m["alpha"]["checks"]["calibration_drift"] == 1e-3
+        # the EKF's innovation-mean scan too, dead reckoning included (session 44), budgeted
+        found = [f for f in m["findings"] if f["message"].startswith("seen by an EKF")]
+        assert [f["message"] for f in found if f["check"] == "innovation_mean"] == [
+            f"seen by an EKF of this log and config: {scan}"
+        ]
+        assert m["alpha"]["checks"]["companion_innovation_mean:gps"] == 1e-3
         if est == "dead_reckoning":  # its own check is still counted beside the companion
             assert m["alpha"]["checks"]["gyro_wheels"] == 1e-3
     assert len(runs) == 1  # one EKF for the five runs of the log (the shared reference's)

@@ -102,7 +102,7 @@ CHECKS: tuple[Check, ...] = (
         "chi-square(dim), every nis_window / 4 readings, alpha spent over the evaluations "
         "(Bonferroni)",
         "nis_alpha per fused stream (1e-3); the estimators that carry an EKF's drift check "
-        "(COMPANION, not dead reckoning) carry its scans too (options.ekf.nis_alpha each)",
+        "(COMPANION) carry its scans too (options.ekf.nis_alpha each)",
         ("innovation_mean", "companion_innovation_mean"),
         ("tests/test_innovation_mean.py",),
     ),

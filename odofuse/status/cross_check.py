@@ -502,10 +502,10 @@ def alpha_budget(config, log) -> dict:
     if companion_applies(config, log):  # an EKF's, for the others (COMPANION)
         ekf = config.estimator_options("ekf")
         checks["calibration_drift"] = float(ekf.drift_alpha)
-        if est != "dead_reckoning":  # and its innovation-mean scans (drift.seen_by_ekf)
-            checks.update(
-                {f"companion_innovation_mean:{n}": float(ekf.nis_alpha) for n in sorted(scanned)}
-            )
+        # and its innovation-mean scans (drift.seen_by_ekf)
+        checks.update(
+            {f"companion_innovation_mean:{n}": float(ekf.nis_alpha) for n in sorted(scanned)}
+        )
     odo = next((n for n in ODOMETRY_STREAMS if n in streams), None)
     gyros = [n for n in fused if sensor_kind(config, n) == "gyro"]
     # the smoother's residual checks: windows of its odometry and gyros, and the rejection
@@ -798,8 +798,6 @@ def _with_companion(config, log, result: EstimateResult, ref: Reference | None =
     log) when given, else those of an EKF of ``config``."""
     drift = ref.drift if ref is not None and ref.drift is not None else None
     found = drift() if drift is not None else companion_findings(config, log)
-    if config.estimator == "dead_reckoning":  # it fuses none of the sensors the scans test
-        found = tuple(f for f in found if f.check != "innovation_mean")
     return dataclasses.replace(result, findings=(*result.findings, *found)) if found else result
 
 

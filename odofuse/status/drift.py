@@ -166,10 +166,12 @@ def seen_by_ekf(found) -> tuple[Finding, ...]:
     """What an EKF of the same log and config, with findings ``found``, tells another
     estimator about the log (the companion of :data:`odofuse.status.cross_check.COMPANION`,
     offline and live): its ``calibration_drift`` and ``innovation_mean`` findings, each
-    saying the EKF saw them (dead reckoning, which fuses no absolute sensor, takes the first
-    only: ``cross_check._with_companion``). Both say the log departs from the config's model
-    (a calibration that moved more than its walk allows, innovations whose mean is off
-    zero), which the other estimator runs too.
+    saying the EKF saw them. Both say the log departs from the config's model (a
+    calibration that moved more than its walk allows, innovations whose mean is off zero),
+    which the other estimator runs too; dead reckoning, which fuses no absolute sensor, takes
+    both as it takes the batch smoother's findings about the log (a gyro bias step at a
+    turn's reversal is invisible to its own gyro-against-wheels windows: docs/trust.md,
+    "Dead reckoning carries the companion EKF's scan").
 
     The EKF's calibration path and innovations are the model's only while the EKF itself
     holds the track: an EKF that is also degraded by a check of its own failure (recoveries,
