@@ -83,17 +83,23 @@ RATES = {"gyro": 20.0, "gps": 1.0, "ranges": 2.0}
 #: deg/s); a multipath burst moves 15 s of fixes by 8 m (4 to 16 GPS sigmas); the wheel radius
 #: or the track is 3 % off (the robot's, not the config's); the ranges read 5 % long (0.2-0.5 m
 #: at 4-10 m, 1.5 to 10 range sigmas); the range timestamps are 0.5 s late (0.2 m of travel
-#: at 0.4 m/s, 0.7 to 4 range sigmas).
+#: at 0.4 m/s, 0.7 to 4 range sigmas). The differential robot drives a figure eight of two
+#: circles, turning left for the first 47 s and right for the next 47 s: a bias step at 45 s is
+#: at the reversal, where it is the same signal as a track-width error; the step at 60 s is the
+#: same fault inside the second circle (docs/trust.md, "The gyro in the innovation-mean scan").
 FAULTS = {
     "slip_burst": ("gyro_gps", "simulated: left wheel 40 % slip over 30-33 s"),
     "stuck_encoder": ("gyro_gps", "left counter frozen over 30-40 s"),
     "gyro_bias_step": ("gyro_gps", "gyro bias +0.03 rad/s from 45 s"),
+    "gyro_bias_step_60s": ("gyro_gps", "gyro bias +0.03 rad/s from 60 s"),
     "gps_multipath": ("gyro_gps", "fixes over 40-55 s moved 8 m east"),
     "wheel_radius_3pct": ("gyro_gps", "simulated: true wheel radii 3 % larger"),
     "track_width_3pct": ("gyro_gps", "simulated: true track 3 % wider"),
     "range_5pct_long": ("gyro_ranges", "ranges x 1.05"),
     "range_time_shift": ("gyro_ranges", "range timestamps +0.5 s"),
 }
+#: Bias-step fault -> the time (s) the gyro's bias steps by 0.03 rad/s.
+BIAS_STEP_AT = {"gyro_bias_step": 45.0, "gyro_bias_step_60s": 60.0}
 QUICK_FAULTS = ("stuck_encoder", "gps_multipath", "range_5pct_long")
 #: ``--real-robot``: not a fault but what a real robot of this kind has, which the config a user
 #: writes should call ``ok`` (counted like the nominal logs): the differential robot with gyro
@@ -188,17 +194,17 @@ def inject(log, fault: str | None, seed: int = 0):
             v[k, st.columns.index("x")] += rng.uniform(25.0, 45.0)
         return _with_stream(log, Stream(st.name, st.source, st.t, st.columns, v))
     if fault is None or fault not in (
-        "gyro_bias_step",
+        *BIAS_STEP_AT,
         "gps_multipath",
         "range_5pct_long",
         "range_time_shift",
     ):
         return log
-    name = {"gyro_bias_step": "gyro", "gps_multipath": "gps"}.get(fault, "ranges")
+    name = "gyro" if fault in BIAS_STEP_AT else "gps" if fault == "gps_multipath" else "ranges"
     st = log.streams[name]
     t, v = st.t.copy(), st.values.copy()
-    if fault == "gyro_bias_step":
-        v[t >= 45.0, 0] += 0.03
+    if fault in BIAS_STEP_AT:
+        v[t >= BIAS_STEP_AT[fault], 0] += 0.03
     elif fault == "gps_multipath":
         v[(t >= 40.0) & (t < 55.0), st.columns.index("x")] += 8.0
     elif fault == "range_5pct_long":

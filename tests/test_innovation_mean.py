@@ -21,13 +21,14 @@ from odofuse.status import monitors
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 
-def _feed(opts, white, d=None):
+def _feed(opts, white, d=None, dt=1.0, rate=False):
     """The streaming checks' state after accepted readings with whitened innovations
-    ``white`` (n, d), 1 s apart, each NIS ``|white|^2``."""
+    ``white`` (n, d), ``dt`` s apart, each NIS ``|white|^2`` (``rate``: a rate stream's)."""
     d = white.shape[1] if d is None else d
     st = monitors._Live()
     for k, v in enumerate(white.tolist()):
-        st = monitors.advance(st, float(k), True, math.fsum(x * x for x in v), math.inf, d, opts, v)
+        nis = math.fsum(x * x for x in v)
+        st = monitors.advance(st, k * dt, True, nis, math.inf, d, opts, v, rate)
     return st
 
 
@@ -72,6 +73,38 @@ def test_false_alarm_rate_on_white_innovations_is_within_alpha(d):
     n, length = 400, 150
     fired = sum(_feed(opts, rng.standard_normal((length, d))).mhits > 0 for _ in range(n))
     assert fired <= binom.ppf(0.99, n, opts.nis_alpha), fired
+
+
+def test_a_rate_streams_blocks_keep_the_false_alarm_rate_within_alpha():
+    # a gyro's readings at 20 Hz enter the scan summed over blocks of >= 1 s, each block's
+    # sum / sqrt(n) N(0, 1) under the model: 200 white streams of 75 s, alpha 0.05 a stream
+    opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05)
+    rng = np.random.default_rng(7)
+    n, length = 200, 1500
+    states = [_feed(opts, rng.standard_normal((length, 1)), dt=0.05, rate=True) for _ in range(n)]
+    assert {st.blen for st in states} == {21}  # 1 s at 20 Hz, both ends: 21 readings a block
+    assert all(st.bk == length // 21 for st in states)
+    fired = sum(st.mhits > 0 for st in states)
+    assert fired <= binom.ppf(0.99, n, opts.nis_alpha), fired
+
+
+def test_a_rate_streams_small_bias_is_found_in_its_blocks_not_in_windows_of_readings():
+    # A gyro's innovation is its rate against the wheels' heading change over 50 ms, whose
+    # noise the wheels dominate: a 0.03 rad/s bias step under an innovation sigma of 0.067
+    # rad/s (bench_status's noise-1 robot) is 0.45 sigma a reading. From the MDE formula
+    # (mean_mde over sqrt(21) readings a block) the blocked scan sees 0.45 sigma within
+    # 30 s at the default alpha; windows of 20 single readings need 1.2 sigma.
+    opts = EkfOptions()
+    j = 1 + (30 - 20) // 5  # an evaluation 30 s into the run
+    per_block = monitors.mean_mde(j, 20, 1, 1.0, opts) / math.sqrt(21)
+    assert per_block < 0.45 < monitors.mean_mde(j * 21, 20, 1, 1.0, opts)
+    rng = np.random.default_rng(8)
+    white = rng.standard_normal((2000, 1))
+    white[1200:] += 0.45  # from 60 s on
+    blocked = _feed(opts, white, dt=0.05, rate=True)
+    assert blocked.mhits > 0 and 40.0 <= blocked.m_t0  # a window (20 s) before the step
+    assert _feed(opts, white, dt=0.05).mhits == 0
+    assert _feed(opts, white[:1200], dt=0.05, rate=True).mhits == 0  # before the step
 
 
 def test_a_bias_the_nis_windows_miss_is_found_and_clears_a_window_later():

@@ -301,6 +301,34 @@ def test_results_report_the_mde_of_every_gate_and_window_in_metrics():
     assert not [f for f in assess(py) if f.check == "inert"]
 
 
+def test_a_gyros_mde_is_at_the_innovation_covariance_its_readings_meet(monkeypatch):
+    """A gyro is measured against a heading clone that every reading resets, so the state
+    covariance after it says nothing of the wheels' heading noise the next reading meets: the
+    MDE must still be at the innovation covariance the readings had (``mde_of`` adds the
+    heading noise of the reading's interval; before, it reported the gyro's own 0.005 rad/s
+    here, a twelfth of the innovations' sigma)."""
+    from gyro_sim import gyro_localizer
+
+    from odofuse.measurements import gate_threshold
+
+    seen = []
+    update = ekf.EkfBackend.update
+
+    def record(self, model, row):
+        out = update(self, model, row)
+        seen.append(float(self.last_innovation[1][0, 0]))
+        return out
+
+    monkeypatch.setattr(ekf.EkfBackend, "update", record)
+    loc = gyro_localizer(ekf.EkfBackend, 2000, name="ekf")
+    mde = monitors.mde_of(loc)["gyro"]
+    z = NormalDist().inv_cdf(loc.options.mde_power)
+    sigma = mde["gate"] / (math.sqrt(gate_threshold(0.999, 1)) + z)
+    assert sigma == pytest.approx(math.sqrt(np.median(seen)), rel=0.02)
+    assert sigma > 10 * 0.005  # the wheels' heading noise, not the gyro's own
+    assert mde["nis_window"] < mde["gate"]
+
+
 def test_a_gate_that_can_never_fire_is_reported_inert():
     log, truth = simulate(36, steps=400)
     log = _with_gps(log, truth, 36)

@@ -164,6 +164,7 @@ class Localizer:
         self._x_probe = np.zeros_like(x)  # any state of the right length, for input checks
         self._watch, self._fate = None, inputs.USED
         self._last_row: dict[str, dict] = {}  # each stream's last applied reading (its MDE)
+        self._last_step = None  # (u, span) of the last odometry step (a clone stream's MDE)
         self._z_span: dict[str, tuple] = {}  # each stream's reading range (min, max)
         self._slow = (-math.inf, [], None)  # health(): (pose count, findings, time), track checks
         self._version = 0  # readings applied or dropped: health() recomputes what they change
@@ -340,6 +341,7 @@ class Localizer:
         due = []
         while self._pending and self._pending[0][0] <= t:
             due.append(self._pending.pop(0))
+        self._last_step = (u, t - self.t)
         self._process_step(self.t, t, u, due)
         self._odom_u.append(u)
         if len(self._odom_u) >= _ODOM_BATCH:

@@ -147,8 +147,8 @@ class LiveHealth:
         the window failed; ``nan`` before the first window is complete).
     mean_ratios : dict
         Sensor -> the innovation-mean scan's last evaluation over its bound (above 1 the
-        window's mean innovation is off zero; ``nan`` before the first), for the streams
-        measured against the world.
+        window's mean innovation is off zero; ``nan`` before the first), for every stream
+        (a gyro's over its blocks: :data:`MEAN_BLOCK_S`).
     t : float
         Filter time (s) the answer is for.
     """
@@ -255,6 +255,12 @@ class _Live(NamedTuple):
     mworst: float = 0.0  # the largest statistic over its bound
     mfailing: bool = False  # above its bound now (hysteresis: one window of readings)
     mgood: int = 0  # consecutive evaluations inside the bound while failing
+    # A rate stream's readings enter the scan in blocks of MEAN_BLOCK_S (:func:`_rate_block`)
+    bsum: tuple = ()  # the open block's summed whitened innovations
+    bn: int = 0  # readings in the open block
+    bt0: float = math.nan  # time of its first reading
+    blen: int = 0  # readings in the last closed block (its MDE)
+    bk: int = 0  # blocks closed
     # The rejection count (:func:`_count`): the last nis_window readings' gate decisions
     rk: int = 0  # evaluations
     rhits: int = 0  # evaluations at or above their bound
@@ -434,19 +440,23 @@ def whiten(y, S) -> tuple | None:
     return tuple(float(v) for v in np.linalg.solve(L, y))
 
 
-def _scan(st: _Live, kw: dict, t: float, white, w: int, d: int, stride: int, opts) -> None:
+def _scan(
+    st: _Live, kw: dict, t: float, white, w: int, d: int, stride: int, opts, n=None, t0=None
+) -> None:
     """The innovation-mean scan after one accepted reading with whitened innovation
     ``white`` (into ``kw``): every ``stride`` (:func:`mean_stride`) readings, the last ``w``
     whitened innovations' sum ``s`` gives ``|s|^2 / w``, chi-square(``d``) under the filter's
     own model, against :func:`mean_bound`. It sees a bias that the NIS hardly does: a 1 m offset
-    under a 2 m GPS adds a quarter to each NIS but shares its sign over tens of readings."""
+    under a 2 m GPS adds a quarter to each NIS but shares its sign over tens of readings.
+    A rate stream passes its blocks instead (:func:`_rate_block`): ``n`` the block's count, ``t0``
+    its first reading's time."""
     if white is None or len(white) != d or not all(math.isfinite(v) for v in white):
         return
-    win = st.mwin + ((t, *white),)
+    win = st.mwin + ((t if t0 is None else t0, *white),)
     if len(win) > w:
         win = win[1:]
     kw["mwin"] = win
-    n = st.tn + 1
+    n = st.tn + 1 if n is None else n
     if len(win) < w or (n - w) % stride:
         return
     j = st.mk + 1
@@ -464,8 +474,35 @@ def _scan(st: _Live, kw: dict, t: float, white, w: int, d: int, stride: int, opt
         kw["mfailing"], kw["mgood"] = _still_failing(st.mgood, w, stride)
 
 
+#: s: a rate stream's whitened innovations (a gyro's: :attr:`FilterMonitor.rate_streams`) enter the
+#: innovation-mean scan summed over blocks of at least this time, so that its window of
+#: ``nis_window`` blocks spans as long as a 1 Hz sensor's window of ``nis_window`` readings. A
+#: gyro's innovation is its rate against the wheels' heading change over one reading's interval,
+#: whose noise the wheels dominate (docs/trust.md, "The gyro in the innovation-mean scan"): a
+#: window of 20 readings at 20 Hz sees a bias of a sixth of that noise only after 36 windows.
+MEAN_BLOCK_S = 1.0
+
+
+def _rate_block(st: _Live, kw: dict, t: float, white, d: int):
+    """Add one accepted reading's whitened innovation to the open block (into ``kw``);
+    returns the block's normalised sum ``sum / sqrt(n)`` (``N(0, I)`` under the filter's own
+    model, as one reading's) when the block reaches :data:`MEAN_BLOCK_S`, else None."""
+    if white is None or len(white) != d or not all(math.isfinite(v) for v in white):
+        return None
+    if st.bn == 0:
+        acc, n, t0 = tuple(white), 1, t
+    else:
+        acc, n, t0 = tuple(a + v for a, v in zip(st.bsum, white, strict=True)), st.bn + 1, st.bt0
+    if t - t0 < MEAN_BLOCK_S:
+        kw.update(bsum=acc, bn=n, bt0=t0)
+        return None
+    kw.update(bsum=(), bn=0, bt0=math.nan, blen=n, bk=st.bk + 1)
+    root = math.sqrt(n)
+    return tuple(a / root for a in acc), t0
+
+
 def advance(
-    st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts, white=None
+    st: _Live, t: float, ok: bool, nis: float, gate: float, d: int, opts, white=None, rate=False
 ) -> _Live:
     """The streaming checks after one gated reading (the Localizer's live health and the
     offline run's findings both come from here: docs/filters.md, "Live health").
@@ -477,7 +514,8 @@ def advance(
       (ArduPilot EKF3's persistence and hysteresis); below the band is a note;
     * rejection runs: ``reject_run`` consecutive rejections make the stream failing too;
     * the innovation-mean scan (:func:`_scan`) of a stream given its whitened innovations
-      ``white`` (the absolute sensors: :attr:`FilterMonitor.mean_streams`);
+      ``white`` (:attr:`FilterMonitor.mean_streams`), a ``rate`` stream's in blocks
+      (:func:`_rate_block`);
     * the rejection count (:func:`_count`) of the last ``nis_window`` readings;
     * reading times, for the outage check.
     """
@@ -504,8 +542,12 @@ def advance(
                 kw["longest"], kw["long_t0"], kw["long_t1"] = run, kw.get("run_t0", st.run_t0), t
         return st._replace(**kw)
     kw["run"] = 0
-    if white is not None:
+    if white is not None and not rate:
         _scan(st, kw, t, white, w, d, stride, opts)
+    elif white is not None:
+        block = _rate_block(st, kw, t, white, d)
+        if block is not None:
+            _scan(st, kw, t, block[0], w, d, stride, opts, n=st.bk + 1, t0=block[1])
     kw["tsum"], kw["tn"] = st.tsum + min(nis, 1e12), st.tn + 1
     wsum, wn = st.wsum + min(nis, 1e12), st.wn + 1
     if wn == 1:
@@ -602,14 +644,16 @@ def live_findings(
             )
     if st.mhits:
         _, a = mean_bound(st.mk, d, opts.nis_alpha)
+        blocks = f" blocks of >= {MEAN_BLOCK_S:g} s of" if st.bk else ""
+        unit = "blocks" if st.bk else "readings"
         now = "; failing now" if st.mfailing else ""
         out.append(
             Finding(
                 "innovation_mean",
-                f"mean of {w} whitened innovations off zero {st.mhits} time(s): |sum|^2 / {w} "
-                f"up to {_s(st.mworst)} x its chi-square({d}) bound (at <= {_s(a)} an "
-                f"evaluation, every {mean_stride(w)} readings){now}: a bias the filter does "
-                f"not model (its NIS can look right){nis_keys(s)}",
+                f"mean of {w}{blocks} whitened innovations off zero {st.mhits} time(s): "
+                f"|sum|^2 / {w} up to {_s(st.mworst)} x its chi-square({d}) bound (at <= "
+                f"{_s(a)} an evaluation, every {mean_stride(w)} {unit}){now}: a bias the "
+                f"filter does not model (its NIS can look right){nis_keys(s)}",
                 sensor=s,
                 t_start=st.m_t0,
                 t_end=st.m_t1,
@@ -763,11 +807,13 @@ class FilterMonitor:
         self._t = {s: array("d") for s in models}
         self._nis = {s: array("d") for s in models}
         self._ok = {s: array("b") for s in models}
-        #: The streams the innovation-mean scan tests: those measured against the world (no
-        #: heading clone; the gyro's innovations are whitened within seconds by the wheels'
-        #: geometry, docs/trust.md); their records keep ``dim`` whitened values a reading.
-        self.mean_streams = frozenset(
-            s for s, m in models.items() if not (m.clones() if hasattr(m, "clones") else {})
+        #: The streams the innovation-mean scan tests: every stream; their records keep
+        #: ``dim`` whitened values a reading.
+        self.mean_streams = frozenset(models)
+        #: Those measured against a heading clone (a gyro's rate against the wheels' heading
+        #: change since its previous reading): scanned in blocks of :data:`MEAN_BLOCK_S`.
+        self.rate_streams = frozenset(
+            s for s, m in models.items() if hasattr(m, "clones") and m.clones()
         )
         self._white = {s: array("d") for s in self.mean_streams}
         self._floor = {s: 0 for s in models}  # rejections before this index are handled
@@ -817,9 +863,10 @@ class FilterMonitor:
         st, gate, d, opts = self.live[s], self.gates[s], self.dims[s], self.options
         t, nis, ok = self._t[s], self._nis[s], self._ok[s]
         wy = self._white.get(s)
+        rate = s in self.rate_streams
         for j in range(n, len(t)):
             white = None if wy is None or ok[j] != 1 else tuple(wy[j * d : (j + 1) * d])
-            st = advance(st, t[j], ok[j] == 1, nis[j], gate, d, opts, white)
+            st = advance(st, t[j], ok[j] == 1, nis[j], gate, d, opts, white, rate)
         self.live[s] = st
         self._cursor[s] = len(t)
 
@@ -1037,12 +1084,33 @@ def mean_mde(j: int, w: int, d: int, s_max: float, opts) -> float:
     return (math.sqrt(bound) + z) * math.sqrt(s_max / w)
 
 
+def heading_increment_var(loc, dt: float) -> float:
+    """Variance (rad^2) of the wheels' heading change over ``dt`` s at the last odometry
+    step's rate: ``dt / span`` steps of that step's input ``u``, each adding the motion
+    model's ``(F_u Sigma_u F_u^T)_theta`` (0 before the first step)."""
+    if loc._last_step is None:
+        return 0.0
+    u, span = loc._last_step
+    if not (span > 0.0 and dt > 0.0):
+        return 0.0
+    _, P, _, _ = loc.motion_model.predict(np.zeros(3), np.zeros((3, 3)), u)
+    return float(P[2, 2]) * dt / span
+
+
 def mde_of(loc) -> dict:
     """Sensor -> ``{"gate", "nis_window"}`` (and ``"innovation_mean"`` for the streams the
     scan tests): the smallest error of a reading each check of the stream detects with
     probability ``mde_power`` (in the sensor's units), at the innovation covariance of the
     stream's last reading under the current state covariance (:func:`gate_mde`,
-    :func:`window_mde`, :func:`mean_mde`); None where no reading was seen."""
+    :func:`window_mde`, :func:`mean_mde`); None where no reading was seen.
+
+    A stream measured against a heading clone (a gyro: ``theta - theta_ref`` over the
+    reading's ``dt``) finds its clone just reset, so the covariance now says nothing of the
+    wheels' heading noise its next reading meets: that is added at the last odometry step's
+    rate (:func:`heading_increment_var`). Without it a 0.01 rad/s gyro on wheels of ``k``
+    2e-5 m reported a sixth of its innovations' sigma (docs/trust.md, "The gyro in the
+    innovation-mean scan").
+    """
     mon, opts = loc.monitor, loc.options
     mon.catch_up()
     x, Pfull = loc.backend.mean(), loc.backend.cov()
@@ -1052,6 +1120,8 @@ def mde_of(loc) -> dict:
         try:
             H = np.atleast_2d(np.asarray(model.H(x, row), dtype=float))
             S = H @ Pfull @ H.T + np.atleast_2d(model.R(row))
+            if "dt" in row and (model.clones() if hasattr(model, "clones") else {}):
+                S = S + np.outer(H[:, 2], H[:, 2]) * heading_increment_var(loc, row["dt"])
             s_max = _largest_eigenvalue(S)
         except (KeyError, ValueError, np.linalg.LinAlgError):
             continue  # a row the model cannot read at this state: no figure
@@ -1066,6 +1136,8 @@ def mde_of(loc) -> dict:
         }
         if s in mon.mean_streams:
             mean = mean_mde(mon.live[s].mk + 1, w, mon.dims[s], s_max, opts)
+            if s in mon.rate_streams:  # a block sums blen readings (_rate_block)
+                mean /= math.sqrt(max(mon.live[s].blen, 1))
             out[s]["innovation_mean"] = mean if math.isfinite(mean) else None
     return out
 

@@ -371,6 +371,8 @@ def finish(loc, log, streams, args):
         loc.rejected[s] += int(ok.size - np.count_nonzero(ok))
         loc.note_readings(s, log.streams[s], mt[mine], args["mz"][sel])  # its MDE (metrics)
     loc.backend.x, loc.backend.P = args["x"], args["P"]
+    if len(args["U"]):  # the last step, as Localizer.add_odometry keeps it (a gyro's MDE)
+        loc._last_step = (args["U"][-1], float(t[-1] - t[-2]))
     drift = loc.monitor.drift
     for k, xs, vs in zip(args["snap_k"], args["snap_x"], args["snap_v"], strict=True):
         drift.observe(float(t[k + 1]), xs, vs)
