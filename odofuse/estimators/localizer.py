@@ -454,9 +454,7 @@ class Localizer:
             row["dt"] = tm - t_ref
         self._last_row[stream] = row
         accepted, nis = self.backend.update(model, row)
-        white = None
-        if accepted and stream in self.monitor.mean_streams:
-            white = monitors.whiten(*self.backend.last_innovation[:2])
+        white = monitors.whiten(*self.backend.last_innovation[:2]) if accepted else None
         if self.monitor.observe(stream, tm, accepted, nis, white):
             accepted, nis = monitors.recover(self, stream, model, row)
         if item[1] == self._watch:
@@ -625,7 +623,7 @@ class Localizer:
             fast += H.rejection_findings(self.used, self.rejected, span)
             live = mon.live
             ratios = {s: live[s].ratio for s in live}, {s: live[s].wratio for s in live}
-            means = {s: live[s].mratio for s in mon.mean_streams}
+            means = {s: live[s].mratio for s in live}
             self._fast = (key, fast, mon.failing(), *ratios, means)
         _, fast, failing, test_ratios, nis_ratios, mean_ratios = self._fast
         fast = fast + mon.outage_findings(span)

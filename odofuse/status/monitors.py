@@ -514,7 +514,7 @@ def advance(
       (ArduPilot EKF3's persistence and hysteresis); below the band is a note;
     * rejection runs: ``reject_run`` consecutive rejections make the stream failing too;
     * the innovation-mean scan (:func:`_scan`) of a stream given its whitened innovations
-      ``white`` (:attr:`FilterMonitor.mean_streams`), a ``rate`` stream's in blocks
+      ``white`` (every stream's), a ``rate`` stream's in blocks
       (:func:`_rate_block`);
     * the rejection count (:func:`_count`) of the last ``nis_window`` readings;
     * reading times, for the outage check.
@@ -807,15 +807,14 @@ class FilterMonitor:
         self._t = {s: array("d") for s in models}
         self._nis = {s: array("d") for s in models}
         self._ok = {s: array("b") for s in models}
-        #: The streams the innovation-mean scan tests: every stream; their records keep
-        #: ``dim`` whitened values a reading.
-        self.mean_streams = frozenset(models)
-        #: Those measured against a heading clone (a gyro's rate against the wheels' heading
-        #: change since its previous reading): scanned in blocks of :data:`MEAN_BLOCK_S`.
+        #: The innovation-mean scan tests every stream; its records keep ``dim`` whitened
+        #: values a reading. The streams measured against a heading clone (a gyro's rate
+        #: against the wheels' heading change since its previous reading) are scanned in
+        #: blocks of :data:`MEAN_BLOCK_S`.
         self.rate_streams = frozenset(
             s for s, m in models.items() if hasattr(m, "clones") and m.clones()
         )
-        self._white = {s: array("d") for s in self.mean_streams}
+        self._white = {s: array("d") for s in models}
         self._floor = {s: 0 for s in models}  # rejections before this index are handled
         self.live = {s: _Live() for s in models}  # the streaming checks (advance)
         self._cursor = {s: 0 for s in models}  # readings of the record fed to advance
@@ -843,8 +842,7 @@ class FilterMonitor:
         lengths, floor, n_rec, live, n_drift = snap
         for s, n in lengths.items():
             del self._t[s][n:], self._nis[s][n:], self._ok[s][n:]
-            if s in self._white:
-                del self._white[s][n * self.dims[s] :]
+            del self._white[s][n * self.dims[s] :]
         self._floor = dict(floor)
         del self.recoveries[n_rec:]
         self.live = dict(live)
@@ -862,10 +860,9 @@ class FilterMonitor:
     def _advance(self, s: str, n: int) -> None:
         st, gate, d, opts = self.live[s], self.gates[s], self.dims[s], self.options
         t, nis, ok = self._t[s], self._nis[s], self._ok[s]
-        wy = self._white.get(s)
-        rate = s in self.rate_streams
+        wy, rate = self._white[s], s in self.rate_streams
         for j in range(n, len(t)):
-            white = None if wy is None or ok[j] != 1 else tuple(wy[j * d : (j + 1) * d])
+            white = None if ok[j] != 1 else tuple(wy[j * d : (j + 1) * d])
             st = advance(st, t[j], ok[j] == 1, nis[j], gate, d, opts, white, rate)
         self.live[s] = st
         self._cursor[s] = len(t)
@@ -882,16 +879,16 @@ class FilterMonitor:
         gate of probability ``p`` a consistent filter does that with probability
         ``(1 - p)^reject_run`` (1e-15 for 0.999 and 5): the filter, not the sensor, is off
         (or the sensor is broken for that long, which the findings then show). ``white``:
-        the reading's whitened innovation (:func:`whiten`), for a stream of
-        :attr:`mean_streams` (None: not known; the scan skips the reading).
+        the reading's whitened innovation (:func:`whiten`; None: not known, the scan skips
+        the reading).
         """
         self._t[stream].append(t)
         self._nis[stream].append(nis if math.isfinite(nis) else 1e300)
         self._ok[stream].append(1 if accepted else 0)
-        wy = self._white.get(stream)
-        if wy is not None:
-            d = self.dims[stream]
-            wy.extend(white if white is not None and len(white) == d else (math.nan,) * d)
+        d = self.dims[stream]
+        self._white[stream].extend(
+            white if white is not None and len(white) == d else (math.nan,) * d
+        )
         self._advance(stream, self._cursor[stream])
         if accepted or not self.options.recovery:
             return False
@@ -1098,11 +1095,11 @@ def heading_increment_var(loc, dt: float) -> float:
 
 
 def mde_of(loc) -> dict:
-    """Sensor -> ``{"gate", "nis_window"}`` (and ``"innovation_mean"`` for the streams the
-    scan tests): the smallest error of a reading each check of the stream detects with
-    probability ``mde_power`` (in the sensor's units), at the innovation covariance of the
-    stream's last reading under the current state covariance (:func:`gate_mde`,
-    :func:`window_mde`, :func:`mean_mde`); None where no reading was seen.
+    """Sensor -> ``{"gate", "nis_window", "innovation_mean"}``: the smallest error of a
+    reading each check of the stream detects with probability ``mde_power`` (in the sensor's
+    units), at the innovation covariance of the stream's last reading under the current
+    state covariance (:func:`gate_mde`, :func:`window_mde`, :func:`mean_mde`); None where no
+    reading was seen.
 
     A stream measured against a heading clone (a gyro: ``theta - theta_ref`` over the
     reading's ``dt``) finds its clone just reset, so the covariance now says nothing of the
@@ -1120,7 +1117,7 @@ def mde_of(loc) -> dict:
         try:
             H = np.atleast_2d(np.asarray(model.H(x, row), dtype=float))
             S = H @ Pfull @ H.T + np.atleast_2d(model.R(row))
-            if "dt" in row and (model.clones() if hasattr(model, "clones") else {}):
+            if s in mon.rate_streams and "dt" in row:
                 S = S + np.outer(H[:, 2], H[:, 2]) * heading_increment_var(loc, row["dt"])
             s_max = _largest_eigenvalue(S)
         except (KeyError, ValueError, np.linalg.LinAlgError):
@@ -1134,11 +1131,10 @@ def mde_of(loc) -> dict:
             "gate": gate if math.isfinite(gate) else None,
             "nis_window": window if math.isfinite(window) else None,
         }
-        if s in mon.mean_streams:
-            mean = mean_mde(mon.live[s].mk + 1, w, mon.dims[s], s_max, opts)
-            if s in mon.rate_streams:  # a block sums blen readings (_rate_block)
-                mean /= math.sqrt(max(mon.live[s].blen, 1))
-            out[s]["innovation_mean"] = mean if math.isfinite(mean) else None
+        mean = mean_mde(mon.live[s].mk + 1, w, mon.dims[s], s_max, opts)
+        if s in mon.rate_streams:  # a block sums blen readings (_rate_block)
+            mean /= math.sqrt(max(mon.live[s].blen, 1))
+        out[s]["innovation_mean"] = mean if math.isfinite(mean) else None
     return out
 
 
@@ -1295,8 +1291,7 @@ def forget_readings(monitor: FilterMonitor, keep: int, snapshots) -> list:
     for s, k in drop.items():
         if k:
             del monitor._t[s][:k], monitor._nis[s][:k], monitor._ok[s][:k]
-            if s in monitor._white:
-                del monitor._white[s][: k * monitor.dims[s]]
+            del monitor._white[s][: k * monitor.dims[s]]
             monitor._floor[s] = max(0, monitor._floor[s] - k)
             monitor._cursor[s] -= k
     n_rec = min((n for _, _, n, *_ in snaps), default=len(monitor.recoveries))

@@ -174,7 +174,7 @@ def observe(mon, isam, fac, graph, new_values, read=None) -> list:
         meas = streams[pos]
         t = float(fac.p.kt[meas.keyframe])
         ok = bool(nis <= mon.gates[meas.stream])
-        mon.observe(meas.stream, t, ok, nis, white if meas.stream in mon.mean_streams else None)
+        mon.observe(meas.stream, t, ok, nis, white)
         verdicts.append((pos, meas, ok))
     return verdicts
 
