@@ -160,9 +160,10 @@ def user_config(sc: dict, noise: dict) -> dict:
     """The config a user writes for the robot of ``sc``: geometry, error model, sigmas."""
     robot = dict(sc["robot"])
     if robot["drive"] == "increments":
-        # var(ds) = k_ds |ds|, var(dtheta) = k_dtheta |dtheta| + ...: the simulator's k per
-        # input; Siegwart's per-wheel k of the wheeled drives otherwise
-        motion = {"k": [noise["k"], noise["k"]]}
+        # var(ds) = k |ds|, var(dtheta) = k |dtheta|: the simulator's k per input, drawn alone
+        # (k_theta_ds 0: the default's distance-driven heading variance is not in these logs);
+        # Siegwart's per-wheel k of the wheeled drives otherwise
+        motion = {"k": [noise["k"], noise["k"]], "k_theta_ds": 0.0}
     else:
         motion = {"k_r": noise["k"], "k_l": noise["k"]}
     sensors = {name: {"sigma": float(spec["sigma"])} for name, spec in sc["sensors"].items()}

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from odofuse.drives import make_drive
 from odofuse.io.log import SensorLog, Stream
 from odofuse.teaching.scenario import Simulation
 
@@ -50,6 +51,10 @@ def run_config(sim: Simulation, estimator: str = "ekf") -> dict:
         motion.update(k_r=k, k_l=k)
     else:
         motion["k"] = k
+    if hasattr(make_drive(sc.drive, **sc.geometry), "heading_input"):
+        # The simulator draws each input's noise alone (var(dtheta) = k |dtheta|); the default
+        # k_theta_ds (a two-wheel robot's heading variance per metre) would add k |ds| more
+        motion["k_theta_ds"] = 0.0
     sensors: dict = {}
     if sc.gyro is not None:
         sensors["gyro"] = {"sigma": float(max(sc.gyro.sigma, 1e-6)), "calibrate": True}
