@@ -440,6 +440,12 @@ def whiten(y, S) -> tuple | None:
     return tuple(float(v) for v in np.linalg.solve(L, y))
 
 
+def _usable(white, d: int) -> bool:
+    """Whether ``white`` is a finite whitened innovation of dimension ``d`` (the scan's and a
+    rate stream's blocks skip any other reading)."""
+    return white is not None and len(white) == d and all(math.isfinite(v) for v in white)
+
+
 def _scan(
     st: _Live, kw: dict, t: float, white, w: int, d: int, stride: int, opts, n=None, t0=None
 ) -> None:
@@ -450,7 +456,7 @@ def _scan(
     under a 2 m GPS adds a quarter to each NIS but shares its sign over tens of readings.
     A rate stream passes its blocks instead (:func:`_rate_block`): ``n`` the block's count, ``t0``
     its first reading's time."""
-    if white is None or len(white) != d or not all(math.isfinite(v) for v in white):
+    if not _usable(white, d):
         return
     win = st.mwin + ((t if t0 is None else t0, *white),)
     if len(win) > w:
@@ -487,7 +493,7 @@ def _rate_block(st: _Live, kw: dict, t: float, white, d: int):
     """Add one accepted reading's whitened innovation to the open block (into ``kw``);
     returns the block's normalised sum ``sum / sqrt(n)`` (``N(0, I)`` under the filter's own
     model, as one reading's) when the block reaches :data:`MEAN_BLOCK_S`, else None."""
-    if white is None or len(white) != d or not all(math.isfinite(v) for v in white):
+    if not _usable(white, d):
         return None
     if st.bn == 0:
         acc, n, t0 = tuple(white), 1, t
