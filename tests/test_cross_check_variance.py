@@ -128,12 +128,12 @@ def _twin_chain(seed: int, k_wheels: float, k_twin: float, n: int = 150):
 
 def _plain(step, settled, c, moving, iterations):
     """Förstner's plain iteration (what variance._squarem accelerates)."""
-    for _ in range(iterations):
+    for passes in range(1, iterations + 1):
         new = step(c)
-        if settled(c, new):
-            return new, True
+        if settled(c, new, passes):
+            return new, True, passes
         c = new
-    return c, False
+    return c, False, iterations
 
 
 @pytest.mark.parametrize(("seed", "k_wheels", "k_twin"), [(3, 1.5, 0.7), (4, 1.0, 1.0)])

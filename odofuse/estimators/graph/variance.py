@@ -245,41 +245,47 @@ def _error_samples(A, lu0, row_scale, cols, values, position_keys, k, seed, meth
 def _squarem(step, settled, c, moving, iterations: int):
     """Fixed point of ``step`` (dict -> dict of positive components) from ``c``, accelerated
     by SQUAREM's scheme S3 (Varadhan & Roland, "Simple and globally convergent methods for
-    accelerating the convergence of any EM algorithm", Scand. J. Statist. 35 (2008)) in the
-    logarithms of the components ``moving()`` names (so every step stays positive), clamped
-    to :data:`VC_BOUNDS`: from ``c0``, ``c1 = step(c0)``, ``c2 = step(c1)``, ``r = l1 - l0``,
-    ``d = l2 - 2 l1 + l0``, ``alpha = -max(|r| / |d|, 1)``, ``l = l0 - 2 alpha r + alpha^2 d``
-    (``alpha = -1`` is ``l2``: the plain iteration), then ``step`` from there. Ends when
-    ``settled(before, after)`` holds for a pass or after ``iterations`` passes; returns the
-    components and whether it settled."""
-    lo, hi = math.log(VC_BOUNDS[0]), math.log(VC_BOUNDS[1])
+    accelerating the convergence of any EM algorithm", Scand. J. Statist. 35 (2008)): two
+    passes ``c1 = step(c0)``, ``c2 = step(c1)``, then a pass from their extrapolation
+    (:func:`_extrapolate`) over the components ``moving()`` names. Ends when
+    ``settled(before, after, passes)`` holds for a pass or after ``iterations`` passes;
+    returns the components, whether they settled, and the passes."""
     passes = 0
-    while True:
-        chain = [c]
-        for _ in range(2):
-            if passes >= iterations:
-                return chain[-1], False
-            passes += 1
-            chain.append(step(chain[-1]))
-            if settled(chain[-2], chain[-1]):
-                return chain[-1], True
-        c0, c1, c2 = chain
-        gs = sorted(moving())
-        r = np.array([math.log(c1[g] / c0[g]) for g in gs])
-        d = np.array([math.log(c2[g] / c1[g]) for g in gs]) - r
-        norm_r, norm_d = float(np.linalg.norm(r)), float(np.linalg.norm(d))
-        alpha = -max(norm_r / norm_d, 1.0) if norm_d > 0.0 else -1.0
-        c = dict(c2)
-        for j, g in enumerate(gs):
-            lg = math.log(c0[g]) - 2.0 * alpha * r[j] + alpha * alpha * d[j]
-            c[g] = math.exp(min(max(lg, lo), hi))
-        if passes >= iterations:
-            return c2, False
+
+    def advance(c0):
+        nonlocal passes
         passes += 1
-        after = step(c)
-        if settled(c, after):
-            return after, True
-        c = after
+        c1 = step(c0)
+        return c1, settled(c0, c1, passes)
+
+    while passes < iterations:
+        c1, done = advance(c)
+        if done or passes >= iterations:
+            return c1, done, passes
+        c2, done = advance(c1)
+        if done or passes >= iterations:
+            return c2, done, passes
+        c, done = advance(_extrapolate(c, c1, c2, sorted(moving())))
+        if done:
+            return c, True, passes
+    return c, False, passes
+
+
+def _extrapolate(c0: dict, c1: dict, c2: dict, gs) -> dict:
+    """SQUAREM's S3 point from three successive components, in the logarithms of those named
+    by ``gs`` (so it stays positive), clamped to :data:`VC_BOUNDS`; the others as in ``c2``:
+    ``r = l1 - l0``, ``d = l2 - 2 l1 + l0``, ``alpha = -max(|r| / |d|, 1)``,
+    ``l = l0 - 2 alpha r + alpha^2 d`` (``alpha = -1`` gives ``l2``, the plain iteration)."""
+    lo, hi = math.log(VC_BOUNDS[0]), math.log(VC_BOUNDS[1])
+    l0 = np.array([math.log(c0[g]) for g in gs])
+    r = np.array([math.log(c1[g] / c0[g]) for g in gs])
+    d = np.array([math.log(c2[g] / c1[g]) for g in gs]) - r
+    norm_r, norm_d = float(np.linalg.norm(r)), float(np.linalg.norm(d))
+    alpha = -max(norm_r / norm_d, 1.0) if norm_d > 0.0 else -1.0
+    out = dict(c2)
+    for g, lg in zip(gs, l0 - 2.0 * alpha * r + alpha * alpha * d, strict=True):
+        out[g] = math.exp(min(max(float(lg), lo), hi))
+    return out
 
 
 def one_blas_thread(fn):
@@ -425,12 +431,11 @@ def variance_components(
     def position_scale(c: dict) -> float:
         return sum(c[g] * per_group[g] for g in rows) / model if model > 0 else 1.0
 
-    passes, red, bounded = 0, {}, set()
+    red, bounded = {}, set()
 
     def step(c: dict) -> dict:
         """One Förstner pass from components ``c``: the components its residuals give."""
-        nonlocal passes, red
-        passes += 1
+        nonlocal red
         weight = np.empty(m)
         for g, idx in rows.items():
             weight[idx] = 1.0 / c[g]
@@ -452,9 +457,9 @@ def variance_components(
                     bounded.add(g)  # kept at its bound from now on
         return new
 
-    def settled(c: dict, new: dict) -> bool:
-        """No component moved by :data:`VC_TOLERANCE` of its sd, or the position scale by
-        :data:`SCALE_TOLERANCE`, in the pass from ``c`` to ``new``."""
+    def settled(c: dict, new: dict, passes: int) -> bool:
+        """No component moved by :data:`VC_TOLERANCE` of its sd, or (after the first pass)
+        the position scale by :data:`SCALE_TOLERANCE`, in the pass from ``c`` to ``new``."""
         moved = max(
             (abs(new[g] / c[g] - 1.0) / math.sqrt(2.0 / max(red[g], MIN_REDUNDANCY)) for g in rows),
             default=0.0,
@@ -465,7 +470,7 @@ def variance_components(
     # SQUAREM (Varadhan & Roland 2008): two passes, a step along their squared extrapolation
     # in log components, and a pass from there; a log whose gyro and wheel heading increments
     # the estimate cannot tell apart moves 2 % a pass toward its fixed point, over 300 passes
-    scale, converged = _squarem(step, settled, scale, lambda: free - bounded, iterations)
+    scale, converged, passes = _squarem(step, settled, scale, lambda: free - bounded, iterations)
     out_groups = {
         g: {
             "variance_factor": float(scale[g]),
