@@ -8,6 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from gyro_sim import gyro_localizer
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from odofuse.estimators.particle import ParticleBackend, weighted_cov
 from odofuse.status import pose_checks
@@ -124,3 +126,33 @@ def test_collapse_over_a_window_reads_only_the_record_after_its_first_pose(first
     # a fall to report, except in the last window: the gyro's readings are all before it,
     # so its poses are one interval between gyro readings, whose trough is its lowest pose
     assert bool(window) == (first < 7)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    logv=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=12),
+    gps=st.lists(st.tuples(st.floats(0.0, 12.0), st.sampled_from([0, 1])), max_size=4),
+    gyro=st.lists(st.tuples(st.floats(0.0, 12.0), st.sampled_from([0, 1])), max_size=4),
+)
+def test_the_collapse_checks_shortcut_never_hides_a_fall(logv, gps, gyro):
+    # The live health's pass skips the exact check when the smallest heading variance is at
+    # least COLLAPSE_RATIO of the largest (pose_checks._may_have_fallen): on any window and
+    # any record of readings, the exact check then finds nothing either, and otherwise the
+    # check is the exact one.
+    v = 10.0 ** np.array(logv)
+    t = np.arange(float(len(v)))
+    P = np.tile(np.eye(3), (len(v), 1, 1)) * v[:, None, None]
+    gps, gyro = sorted(gps), sorted(gyro)
+    mon = SimpleNamespace(
+        _t={"gps": [a for a, _ in gps], "gyro": [a for a, _ in gyro]},
+        _ok={"gps": [b for _, b in gps], "gyro": [b for _, b in gyro]},
+    )
+    models = {"gps": SimpleNamespace(clones=dict), "gyro": SimpleNamespace(clones=lambda: {"r": 2})}
+    loc = SimpleNamespace(models=models, monitor=mon)
+    found = pose_checks.collapse_findings(loc, t, P)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pose_checks, "_may_have_fallen", lambda v: True)
+        exact = pose_checks.collapse_findings(loc, t, P)
+    assert found == exact
+    if not pose_checks._may_have_fallen(v):
+        assert exact == []
