@@ -98,9 +98,10 @@ CHECKS: tuple[Check, ...] = (
         "innovation_mean",
         ("status/monitors.py",),
         "the same as nis, for every fused stream (a gyro's in blocks of >= 1 s)",
-        "|sum|^2 / nis_window of the last nis_window whitened innovations (L^-1 y, S = L L^T; "
-        "a gyro's summed over blocks of >= MEAN_BLOCK_S, over sqrt(n)), chi-square(dim), every "
-        "nis_window / 4 readings or blocks, alpha spent over the evaluations (Bonferroni)",
+        "|sum|^2 / L of the last L whitened innovations (L^-1 y, S = L L^T; a gyro's summed "
+        "over blocks of >= MEAN_BLOCK_S, over sqrt(n)), L = nis_window and 2, 4, 8 times as "
+        "long (MEAN_SCALES), chi-square(dim), every nis_window / 4 readings or blocks, alpha "
+        "spent over the evaluations and split over the windows (Bonferroni)",
         "nis_alpha per fused stream (1e-3); the estimators that carry an EKF's drift check "
         "(COMPANION) carry its scans too (options.ekf.nis_alpha each)",
         ("innovation_mean", "companion_innovation_mean"),
@@ -126,9 +127,10 @@ CHECKS: tuple[Check, ...] = (
         "EKF, UKF, Localizer (live), with calibration states; offline, every other estimator "
         "in the second opinion's scope carries an EKF's of the same log and config "
         "(COMPANION), and so does a live particle Localizer (Localizer.companion)",
-        "a calibration estimate's change between snapshots drift_grid s apart (lags 1, 2, 4, "
-        "... snapshots) over the variance its updates and random walk explain, Bonferroni "
-        "over the comparisons and states, alpha spent over the run's snapshots",
+        "the calibration states' change between snapshots drift_grid s apart (lags 1, 2, 4, "
+        "... snapshots), jointly: d' C^+ d against chi-square(rank C), C the covariance its "
+        "updates and random walk explain; Bonferroni over the comparisons, alpha spent over "
+        "the run's snapshots",
         "drift_alpha (1e-3)",
         ("calibration_drift",),
         ("tests/test_drift.py",),
