@@ -429,7 +429,7 @@ class Localizer:
         track.append(t1, self.backend.mean(), self.backend.cov())
         drift = self.monitor.drift
         if drift is not None and t1 >= drift.next_t:
-            drift.observe(t1, self.backend.mean(), self.backend.cov())
+            drift.observe(t1, self.backend.mean(), np.diagonal(self.backend.cov()))
             self._book = None  # the monitor's snapshot changed
 
     def _predict(self, u, dt, dtheta_gyro, frac, var_g, scale=1.0) -> None:

@@ -273,7 +273,7 @@ def prepare(log, config, estimator: str = "ekf"):
     nis = np.zeros(len(mt))
     wy = np.full((len(mt), 2), np.nan)
     snap_k = snapshot_steps(t, loc.monitor.drift)
-    snap_x, snap_v = np.empty((len(snap_k), len(x))), np.empty((len(snap_k), len(x), len(x)))
+    snap_x, snap_v = np.empty((len(snap_k), len(x))), np.empty((len(snap_k), len(x)))
     args = dict(
         x=x, P=P, walk=loc.backend.walk, tt=t, U=U, integ=integ,
         M=M, K=K, floor=floor, rate=rate,

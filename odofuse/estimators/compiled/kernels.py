@@ -1076,7 +1076,7 @@ def filter_offline(
         ``acc`` is 1 accepted, 0 rejected, 2 a clone-only first gyro reading.
     wy : (J, 2) out: each accepted reading's whitened innovation (:func:`_whiten`).
     snap_k : (K,) increasing steps after which the state is copied to ``snap_x`` (K, n) and
-        the covariance to ``snap_v`` (K, n, n) (the calibration drift check's
+        the covariance's diagonal to ``snap_v`` (K, n) (the calibration drift check's
         snapshots, :class:`odofuse.status.drift.Drift`).
     slip_g : (N,) or None
         Robust odometry (``monitors.step_slip_scale``, :func:`step_slip`): each step's gyro
@@ -1149,8 +1149,7 @@ def filter_offline(
         if si < snap_k.shape[0] and snap_k[si] == k:
             for a in range(n):
                 snap_x[si, a] = x[a]
-                for b in range(n):
-                    snap_v[si, a, b] = P[a, b]
+                snap_v[si, a] = P[a, a]
             si += 1
         # The continuous odometry pose (uncalibrated increments), for map_to_odom.
         w = vx = vy = 0.0
