@@ -198,9 +198,7 @@ def test_nominal_windows_fail_at_the_stated_rate():
 )
 def test_live_status_equals_the_offline_status(estimator):
     for seed, offset in ((31, None), (32, (20.0, 60.0, 2.0, -1.0))):
-        # 160 s: 100 s after the burst to recover (the scan's longest window, 160 fixes at 2 Hz,
-        # holds the burst for 80 s after it ends: monitors.MEAN_SCALES; 120 s before them)
-        log, truth = simulate(seed, steps=1600)
+        log, truth = simulate(seed, steps=1200)  # 120 s: 30 s after the burst to recover
         log = _with_gps(log, truth, seed, offset)
         cfg = _config(estimator)
         loc, answers = _live(log, cfg, estimator)

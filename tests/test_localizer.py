@@ -307,7 +307,6 @@ def test_live_localizer_memory_is_flat_after_the_first_window(monkeypatch):
     # A live Localizer keeps the late window's poses and its monitor's last readings only;
     # here the monitor keeps 50 readings, trimmed every 256 steps, so the steady state is
     # reached within the first 1,000 steps of a fix every other step.
-    import gc
     import tracemalloc
 
     import odofuse.estimators.localizer as localizer_module
@@ -333,20 +332,14 @@ def test_live_localizer_memory_is_flat_after_the_first_window(monkeypatch):
     run(1, 1000)
     tracemalloc.start()
     try:
-        # gc.collect() empties CPython's free lists (up to 2,000 tuples of each size under 20),
-        # which tracemalloc counts as held: with the innovation-mean scan's longer windows
-        # (session 48) it counted up to 0.5 MB of them over the first 20,000 readings, none
-        # after a collection, while RSS stayed flat over 10^6 readings
         run(1000, 2000)
-        gc.collect()
         first = tracemalloc.get_traced_memory()[0]
         run(2000, 4000)
-        gc.collect()
         second = tracemalloc.get_traced_memory()[0]
     finally:
         tracemalloc.stop()
     # 2,000 more steps and 1,000 more fixes: the old history would add ~660 kB here.
-    assert second - first < 4096, (first, second)  # the old history: ~660 kB
+    assert second - first < 4096, (first, second)
     assert used == {"used": 999, "buffered": 1000}  # the late ones replayed at once
     assert loc.used["gps"] >= 1998 and loc.rejected["gps"] == 0
     assert len(loc.trajectory()) <= 512 and len(loc._steps) <= 7

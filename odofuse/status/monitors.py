@@ -13,8 +13,7 @@ filters' other options in :class:`odofuse.declarations.FilterOptions` (EKF, UKF,
   covariance conditioning and growth, calibration states that ran to their bounds or
   collapsed, a heading that rested on a gyro bias still being learnt over most of the run);
 * the streaming checks (:func:`advance`: test ratio, NIS windows with persistence and
-  hysteresis, the innovation-mean scan over windows of ``nis_window`` and 2, 4 and 8 times
-  as long, rejection runs, reading times; O(1) work and memory per reading)
+  hysteresis, the innovation-mean scan, rejection runs, reading times; O(1) per reading)
   that both
   :meth:`Localizer.health <odofuse.estimators.localizer.Localizer.health>` (a
   :class:`LiveHealth`) and the offline result read, and the minimal detectable errors of
@@ -36,7 +35,6 @@ import math
 from array import array
 from collections.abc import Mapping
 from dataclasses import dataclass
-from operator import add
 from statistics import NormalDist
 from typing import NamedTuple
 
@@ -148,10 +146,9 @@ class LiveHealth:
         Sensor -> the last complete NIS window's mean over its chi-square bound (above 1
         the window failed; ``nan`` before the first window is complete).
     mean_ratios : dict
-        Sensor -> the innovation-mean scan's last evaluation over its bound, the largest
-        over its windows (:data:`MEAN_SCALES`; above 1 a window's mean innovation is off
-        zero; ``nan`` before the first), for every stream (a gyro's over its blocks:
-        :data:`MEAN_BLOCK_S`).
+        Sensor -> the innovation-mean scan's last evaluation over its bound (above 1 the
+        window's mean innovation is off zero; ``nan`` before the first), for every stream
+        (a gyro's over its blocks: :data:`MEAN_BLOCK_S`).
     t : float
         Filter time (s) the answer is for.
     """
@@ -248,21 +245,16 @@ class _Live(NamedTuple):
     long_t1: float = math.nan
     tsum: float = 0.0  # NIS of every accepted reading, summed (the run's NIS test)
     tn: int = 0
-    # The innovation-mean scan (every stream; :func:`_scan`, :func:`mean_bound`)
+    # The innovation-mean scan (absolute streams; :func:`mean_bound`)
     mwin: tuple = ()  # the last nis_window accepted readings' (t, whitened innovation)
     mk: int = 0  # evaluations of the scan
-    mratio: float = math.nan  # the last evaluation's largest statistic over its bound
-    mhits: int = 0  # evaluations with a window above its bound
+    mratio: float = math.nan  # the last evaluation's statistic over its bound
+    mhits: int = 0  # evaluations above their bound
     m_t0: float = math.nan  # first window above its bound: its first reading's time
     m_t1: float = math.nan  # last window above its bound: its last reading's time
     mworst: float = 0.0  # the largest statistic over its bound
-    mwlen: int = 0  # the length (readings or blocks) of the window of mworst
     mfailing: bool = False  # above its bound now (hysteresis: one window of readings)
     mgood: int = 0  # consecutive evaluations inside the bound while failing
-    # The scan's longer windows (MEAN_SCALES): running sums and their snapshots, O(1) memory
-    mm: int = 0  # usable whitened innovations summed into mcum
-    mcum: tuple = ()  # their running sum (d values)
-    msnap: tuple = ()  # (count, t, mm, mcum) before every stride-th reading, the last few
     # A rate stream's readings enter the scan in blocks of MEAN_BLOCK_S (:func:`_rate_block`)
     bsum: tuple = ()  # the open block's summed whitened innovations
     bn: int = 0  # readings in the open block
@@ -320,31 +312,6 @@ def mean_stride(w: int) -> int:
     return max(int(w) // 4, 1)
 
 
-#: The innovation-mean scan tests, at each evaluation, windows of ``w``, ``2 w``, ``4 w`` and
-#: ``8 w`` readings (blocks), ``w = nis_window``: scales ``s = 0 .. MEAN_SCALES - 1`` (chosen a
-#: priori). A bias of unknown duration gives evidence that grows as the square root of how
-#: long it lasts, which a window of fixed length caps: a gyro bias step 34 s before the end of
-#: a log left the 20-block window at 0.94 of its bound where 40 blocks of the same data had
-#: z 5.3. The longest window is 8 x 20 = 160 readings (160 s at 1 Hz, or 160 blocks of 1 s);
-#: each scale gets ``6 / (pi^2 (s + 1)^2)`` of its evaluation's share (:func:`mean_bound`), so
-#: the window of ``w`` has 0.61 of the share it had alone: its MDE is 1-3 % larger.
-MEAN_SCALES = 4
-
-
-def mean_windows(w: int) -> tuple[int, ...]:
-    """The window lengths (readings or blocks) of the scan's scales for ``w = nis_window``:
-    ``w`` and ``2^s w`` rounded down to a whole number of strides (:func:`mean_stride`; exact
-    when ``w`` is a multiple of 4), so that a window starts where a snapshot of the running
-    sums was taken (:func:`_scan`)."""
-    return _mean_windows(max(int(w), 1), MEAN_SCALES)
-
-
-@functools.lru_cache(maxsize=256)
-def _mean_windows(w: int, scales: int) -> tuple[int, ...]:
-    stride = mean_stride(w)
-    return (w,) + tuple(stride * (2**s * w // stride) for s in range(1, scales))
-
-
 def _still_failing(good: int, w: int, stride: int) -> tuple[bool, int]:
     """``(failing, good)`` of a failing scan or count after one more evaluation inside its
     bound (``good`` such evaluations before it, one every ``stride`` readings): it recovers
@@ -354,35 +321,20 @@ def _still_failing(good: int, w: int, stride: int) -> tuple[bool, int]:
 
 
 @functools.lru_cache(maxsize=4096)
-def _mean_bound(block: int, d: int, alpha: float, scale: int = 0) -> tuple[float, float]:
-    """``(bound, a)`` of the window of scale ``scale`` (:data:`MEAN_SCALES`) at the scan's
-    evaluations ``2^b <= j < 2^(b+1)`` (block ``b``): the ``1 - a`` quantile of
-    chi-square(``d``), ``a`` the evaluation's :func:`_share` (the NIS windows' spending, one
-    evaluation at a time) times ``6 / (pi^2 (scale + 1)^2)``, the same rule over its scales
-    (their weights sum to less than 1). Bonferroni: valid however the overlapping windows
-    and scales are correlated."""
-    a = _share(block, alpha) * 6.0 / (math.pi**2 * (scale + 1) ** 2)
+def _mean_bound(block: int, d: int, alpha: float) -> tuple[float, float]:
+    """``(bound, a)`` of the scan's evaluations ``2^b <= j < 2^(b+1)`` (block ``b``): the
+    ``1 - a`` quantile of chi-square(``d``), ``a`` the evaluation's :func:`_share` (the NIS
+    windows' spending, one evaluation at a time: Bonferroni, valid however the overlapping
+    windows are correlated)."""
+    a = _share(block, alpha)
     from odofuse import chi2
 
     return float(chi2.ppf(1.0 - a, d)), a
 
 
-def mean_bound(j: int, d: int, alpha: float, scale: int = 0) -> tuple[float, float]:
-    """``(bound, a)`` of the window of scale ``scale`` (0: ``nis_window``; ``s``: ``2^s``
-    times as long) at the ``j``-th (1-based) evaluation of the innovation-mean scan."""
-    return _mean_bound(_block(j), int(d), float(alpha), int(scale))
-
-
-@functools.lru_cache(maxsize=4096)
-def _scales(block: int, w: int, d: int, alpha: float, scales: int) -> tuple:
-    """``((length, snapshots back, bound), ...)`` of the longer windows (scales ``1 ..
-    scales - 1``) of an evaluation of block ``block`` (:func:`_scan`; one cached call an
-    evaluation)."""
-    stride = mean_stride(w)
-    return tuple(
-        (size, size // stride, _mean_bound(block, d, alpha, s)[0])
-        for s, size in enumerate(_mean_windows(w, scales)[1:], start=1)
-    )
+def mean_bound(j: int, d: int, alpha: float) -> tuple[float, float]:
+    """``(bound, a)`` of the ``j``-th (1-based) evaluation of the innovation-mean scan."""
+    return _mean_bound(_block(j), int(d), float(alpha))
 
 
 @functools.lru_cache(maxsize=256)
@@ -498,67 +450,32 @@ def _scan(
     st: _Live, kw: dict, t: float, white, w: int, d: int, stride: int, opts, n=None, t0=None
 ) -> None:
     """The innovation-mean scan after one accepted reading with whitened innovation
-    ``white`` (into ``kw``). Every ``stride`` (:func:`mean_stride`) readings, the sum ``s`` of
-    the last ``L`` whitened innovations gives ``|s|^2 / L``, chi-square(``d``) under the
-    filter's own model, against :func:`mean_bound`, for each window length ``L`` of
-    :func:`mean_windows` (``w`` and 2, 4, 8 times as long: :data:`MEAN_SCALES`) that the
-    readings so far fill. It sees a bias that the NIS hardly does: a 1 m offset under a 2 m GPS
-    adds a quarter to each NIS but shares its sign over tens of readings; the longer windows
-    see a smaller bias that lasts longer. The evaluation's ratio (``mratio``) is its largest
-    over the windows; it is inside only when every window is.
-
-    O(1) work and memory a reading: the window of ``w`` is kept (``mwin``, its sum exact), the
-    longer ones are differences of the running sum ``mcum`` and its snapshots ``msnap``,
-    taken before every ``stride``-th reading (the last ``8 w / stride``). A reading without a
-    usable whitened innovation is counted by the schedule but not summed: a longer window
-    then divides by the usable readings it holds (still chi-square(``d``)).
-
-    A rate stream passes its blocks instead (:func:`_rate_block`): ``n`` the block's count,
-    ``t0`` its first reading's time."""
-    n = st.tn + 1 if n is None else n
-    first = t if t0 is None else t0
-    snaps = st.msnap
-    if (n - 1 - w) % stride == 0:  # a snapshot of the sums before this reading
-        keep = _mean_windows(w, MEAN_SCALES)[-1] // stride
-        if len(snaps) >= keep:
-            snaps = snaps[len(snaps) - keep + 1 :]
-        snaps += ((n - 1, first, st.mm, st.mcum or (0.0,) * d),)
-        kw["msnap"] = snaps
+    ``white`` (into ``kw``): every ``stride`` (:func:`mean_stride`) readings, the last ``w``
+    whitened innovations' sum ``s`` gives ``|s|^2 / w``, chi-square(``d``) under the filter's
+    own model, against :func:`mean_bound`. It sees a bias that the NIS hardly does: a 1 m offset
+    under a 2 m GPS adds a quarter to each NIS but shares its sign over tens of readings.
+    A rate stream passes its blocks instead (:func:`_rate_block`): ``n`` the block's count, ``t0``
+    its first reading's time."""
     if not _usable(white, d):
         return
-    win = st.mwin + ((first, *white),)
+    win = st.mwin + ((t if t0 is None else t0, *white),)
     if len(win) > w:
         win = win[1:]
-    cum = tuple(map(add, st.mcum, white)) if st.mcum else tuple(white)
-    kw.update(mwin=win, mcum=cum, mm=st.mm + 1)
+    kw["mwin"] = win
+    n = st.tn + 1 if n is None else n
     if len(win) < w or (n - w) % stride:
         return
     j = st.mk + 1
-    block, alpha = _block(j), float(opts.nis_alpha)
     sums = [math.fsum(e[1 + i] for e in win) for i in range(d)]
-    ratio = math.fsum(v * v for v in sums) / w / _mean_bound(block, d, alpha)[0]
-    fired = (ratio, w, win[0][0]) if ratio > 1.0 else None
-    best = (ratio, w)
-    for size, back, bound in _scales(block, w, d, alpha, MEAN_SCALES):
-        if len(snaps) < back:
-            break
-        snap = snaps[-back]
-        m = st.mm + 1 - snap[2]
-        if snap[0] != n - size or m < 1:
-            continue  # a reading fed without its innovation broke the schedule: skip it
-        r = math.dist(cum, snap[3]) ** 2 / m / bound
-        if r > best[0]:
-            best = (r, size)
-        if r > 1.0 and fired is None:
-            fired = (r, size, snap[1])  # the shortest window that fired: its start
-    ratio = best[0]
+    stat = math.fsum(v * v for v in sums) / w
+    bound, _ = mean_bound(j, d, opts.nis_alpha)
+    ratio = stat / bound
     kw.update(mk=j, mratio=ratio)
-    if fired is not None:
+    if ratio > 1.0:
         kw.update(mhits=st.mhits + 1, mfailing=True, mgood=0, m_t1=t)
-        if ratio > st.mworst:
-            kw.update(mworst=ratio, mwlen=best[1])
+        kw["mworst"] = max(st.mworst, ratio)
         if st.mhits == 0:
-            kw["m_t0"] = fired[2]
+            kw["m_t0"] = win[0][0]
     elif st.mfailing:
         kw["mfailing"], kw["mgood"] = _still_failing(st.mgood, w, stride)
 
@@ -602,9 +519,9 @@ def advance(
       make the stream failing, ``health_recover`` consecutive windows inside it clear that
       (ArduPilot EKF3's persistence and hysteresis); below the band is a note;
     * rejection runs: ``reject_run`` consecutive rejections make the stream failing too;
-    * the innovation-mean scan (:func:`_scan`, windows of ``nis_window`` readings and 2, 4
-      and 8 times as long: :data:`MEAN_SCALES`) of a stream given its whitened innovations
-      ``white`` (every stream's), a ``rate`` stream's in blocks (:func:`_rate_block`);
+    * the innovation-mean scan (:func:`_scan`) of a stream given its whitened innovations
+      ``white`` (every stream's), a ``rate`` stream's in blocks
+      (:func:`_rate_block`);
     * the rejection count (:func:`_count`) of the last ``nis_window`` readings;
     * reading times, for the outage check.
     """
@@ -732,20 +649,16 @@ def live_findings(
                 )
             )
     if st.mhits:
-        # the evaluation's share, spent over its windows (mean_bound)
-        a = sum(mean_bound(st.mk, d, opts.nis_alpha, k)[1] for k in range(MEAN_SCALES))
+        _, a = mean_bound(st.mk, d, opts.nis_alpha)
         blocks = f" blocks of >= {MEAN_BLOCK_S:g} s of" if st.bk else ""
         unit = "blocks" if st.bk else "readings"
         now = "; failing now" if st.mfailing else ""
-        sizes = ", ".join(str(n) for n in mean_windows(w))
-        size = st.mwlen or w
         out.append(
             Finding(
                 "innovation_mean",
-                f"mean of {size}{blocks} whitened innovations off zero {st.mhits} time(s): "
-                f"|sum|^2 / {size} up to {_s(st.mworst)} x its chi-square({d}) bound "
-                f"(windows of {sizes} {unit} at <= {_s(a)} an evaluation, every "
-                f"{mean_stride(w)} {unit}){now}: a bias the "
+                f"mean of {w}{blocks} whitened innovations off zero {st.mhits} time(s): "
+                f"|sum|^2 / {w} up to {_s(st.mworst)} x its chi-square({d}) bound (at <= "
+                f"{_s(a)} an evaluation, every {mean_stride(w)} {unit}){now}: a bias the "
                 f"filter does not model (its NIS can look right){nis_keys(s)}",
                 sensor=s,
                 t_start=st.m_t0,
@@ -1164,12 +1077,9 @@ def slip_run_findings(stream, a: float, b: float, unit: str) -> list:
 
 def mean_mde(j: int, w: int, d: int, s_max: float, opts) -> float:
     """Smallest constant error of ``w`` readings that the innovation-mean scan's ``j``-th
-    evaluation detects with probability ``mde_power`` in its window of ``w`` (scale 0, at its
-    share of the evaluation's alpha: :func:`mean_bound`): ``(sqrt(bound) + z_power) *
+    evaluation detects with probability ``mde_power``: ``(sqrt(bound) + z_power) *
     sqrt(s_max / w)`` (:func:`gate_mde`'s argument for a window's whitened sum, whose mean
-    along the error is ``sqrt(w) |b| / sqrt(s_max)`` in the worst direction). The longer
-    windows (:data:`MEAN_SCALES`) detect smaller errors that persist over them: about
-    ``sqrt(2^s)`` times smaller over ``2^s w`` readings, less their higher bound."""
+    along the error is ``sqrt(w) |b| / sqrt(s_max)`` in the worst direction)."""
     if not s_max > 0.0:
         return math.inf
     bound, _ = mean_bound(j, d, opts.nis_alpha)
