@@ -197,7 +197,7 @@ def health_cost(m: int, reps: int = 7) -> None:
     streaming checks' own time per reading, timed alone; and ``health()`` timed inside the
     run at 1 Hz, 10 Hz and every step (the fastest run's mean per call). The two timed-alone
     figures hold on a loaded machine, where whole runs vary by tens of percent."""
-    from odofuse.status import monitors
+    from odofuse.status import streaming
 
     best = {False: 0.0, True: 0.0}
     calls = {50: math.inf, 5: math.inf, 1: math.inf}
@@ -215,10 +215,10 @@ def health_cost(m: int, reps: int = 7) -> None:
     nis = np.random.default_rng(1).chisquare(2, 20_000).tolist()
     per = math.inf
     for _ in range(reps):
-        st = monitors._Live()
+        st = streaming.StreamState()
         t0 = time.perf_counter()
         for k, v in enumerate(nis):
-            st = monitors.advance(st, float(k), True, v, gate, 2, opts)
+            st = streaming.advance(st, float(k), True, v, gate, 2, opts)
         per = min(per, (time.perf_counter() - t0) / len(nis))
     print(f"\nlive health cost, {m:,} steps, best of {reps} interleaved runs in this process")
     print(

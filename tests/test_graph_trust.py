@@ -1,7 +1,7 @@
 """The graph back end on issue 10's scenarios: it holds or says ``degraded``, never silently.
 
 Robust odometry in the graph (:func:`odofuse.estimators.graph.factors.slip_scales`, the filters'
-:func:`odofuse.status.monitors.slip_scale` on keyframe intervals) and the residual-window
+:func:`odofuse.status.slip_scale` on keyframe intervals) and the residual-window
 check (:func:`odofuse.status.graph_checks.window_findings`), on the one-lap scenarios of
 :mod:`odofuse.teaching.trust_scenarios` (seed 7) and on synthetic inputs.
 """
@@ -22,7 +22,7 @@ from odofuse.estimators.graph.factors import slip_scales  # noqa: E402
 from odofuse.estimators.graph.problem import GraphProblem, GyroIncrements  # noqa: E402
 from odofuse.measurements import gate_threshold  # noqa: E402
 from odofuse.status import graph_checks as health  # noqa: E402
-from odofuse.status import monitors  # noqa: E402
+from odofuse.status.slip import slip_scale  # noqa: E402
 from odofuse.teaching import trust_scenarios as ts  # noqa: E402
 
 _CACHE: dict = {}
@@ -102,7 +102,7 @@ def test_slip_scales_are_the_filters_rule_with_runs_of_intervals():
     s = slip_scales(p)
     np.testing.assert_allclose(s, [1.0, 100.0, 300.0, 1.0, 100.0])
     gate = gate_threshold(0.999, 1)
-    assert s[2] == pytest.approx(monitors.slip_scale(0.1, 1e-4, 1e-8, gate, 0.1))
+    assert s[2] == pytest.approx(slip_scale(0.1, 1e-4, 1e-8, gate, 0.1))
     # the bias prior's sigma widens the test: 0.1 rad over 0.5 s against sigma_b = 0.1 rad/s
     assert np.all(slip_scales(_problem([0.0] * 3, [0.1] * 3, bias_sigma=0.1)) == 1.0)
     # a walking bias widens it with time: sigma_b^2 + walk^2 t at the interval's end t

@@ -3,7 +3,7 @@ false-alarm rate on white innovations, a bias it sees that the NIS windows miss,
 hysteresis, and the same finding from the compiled and the Python EKF.
 
 White innovations are drawn from seeded ``numpy.random.default_rng`` streams; the bias test's
-size was fixed from the formula (:func:`monitors.mean_mde`) before it was run.
+size was fixed from the formula (:func:`mean_mde`) before it was run.
 """
 
 import dataclasses
@@ -16,7 +16,8 @@ import pytest
 from scipy.stats import binom, chi2
 
 from odofuse.declarations import EkfOptions
-from odofuse.status import monitors
+from odofuse.status import monitors, streaming
+from odofuse.status.mde import mean_mde
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
@@ -25,10 +26,10 @@ def _feed(opts, white, d=None, dt=1.0, rate=False):
     """The streaming checks' state after accepted readings with whitened innovations
     ``white`` (n, d), ``dt`` s apart, each NIS ``|white|^2`` (``rate``: a rate stream's)."""
     d = white.shape[1] if d is None else d
-    st = monitors._Live()
+    st = streaming.StreamState()
     for k, v in enumerate(white.tolist()):
         nis = math.fsum(x * x for x in v)
-        st = monitors.advance(st, k * dt, True, nis, math.inf, d, opts, v, rate)
+        st = streaming.advance(st, k * dt, True, nis, math.inf, d, opts, v, rate)
     return st
 
 
@@ -43,25 +44,25 @@ def test_mean_bound_spends_alpha_over_the_evaluations():
     # over every evaluation is alpha
     alpha = 1e-3
     total = sum(
-        2**b * monitors._mean_bound(b, 2, alpha)[1] for b in range(60)
+        2**b * streaming._mean_bound(b, 2, alpha)[1] for b in range(60)
     )  # the tail past 2^60 evaluations is below 1e-19
     assert total == pytest.approx(alpha, rel=2e-2)
-    bound, a = monitors.mean_bound(1, 1, alpha)
+    bound, a = streaming.mean_bound(1, 1, alpha)
     assert a == pytest.approx(alpha * 6 / math.pi**2)
     assert bound == pytest.approx(chi2.ppf(1 - a, 1))
-    assert monitors.mean_bound(3, 2, alpha)[0] == monitors.mean_bound(2, 2, alpha)[0]
-    assert monitors.mean_stride(20) == 5 and monitors.mean_stride(3) == 1
+    assert streaming.mean_bound(3, 2, alpha)[0] == streaming.mean_bound(2, 2, alpha)[0]
+    assert streaming.mean_stride(20) == 5 and streaming.mean_stride(3) == 1
 
 
 def test_whiten_is_the_lower_cholesky_solve():
     S = np.array([[4.0, 1.2], [1.2, 0.9]])
     y = np.array([1.5, -0.7])
     L = np.linalg.cholesky(S)
-    assert monitors.whiten(y, S) == pytest.approx(tuple(np.linalg.solve(L, y)), rel=1e-12)
-    assert monitors.whiten([3.0], [[4.0]]) == (1.5,)
+    assert streaming.whiten(y, S) == pytest.approx(tuple(np.linalg.solve(L, y)), rel=1e-12)
+    assert streaming.whiten([3.0], [[4.0]]) == (1.5,)
     S3 = np.diag([1.0, 4.0, 9.0])
-    assert monitors.whiten([1.0, 2.0, 3.0], S3) == pytest.approx((1.0, 1.0, 1.0))
-    assert monitors.whiten(y, np.array([[1.0, 2.0], [2.0, 1.0]])) is None  # not PD
+    assert streaming.whiten([1.0, 2.0, 3.0], S3) == pytest.approx((1.0, 1.0, 1.0))
+    assert streaming.whiten(y, np.array([[1.0, 2.0], [2.0, 1.0]])) is None  # not PD
 
 
 @pytest.mark.parametrize("d", [1, 2])
@@ -96,8 +97,8 @@ def test_a_rate_streams_small_bias_is_found_in_its_blocks_not_in_windows_of_read
     # 30 s at the default alpha; windows of 20 single readings need 1.2 sigma.
     opts = EkfOptions()
     j = 1 + (30 - 20) // 5  # an evaluation 30 s into the run
-    per_block = monitors.mean_mde(j, 20, 1, 1.0, opts) / math.sqrt(21)
-    assert per_block < 0.45 < monitors.mean_mde(j * 21, 20, 1, 1.0, opts)
+    per_block = mean_mde(j, 20, 1, 1.0, opts) / math.sqrt(21)
+    assert per_block < 0.45 < mean_mde(j * 21, 20, 1, 1.0, opts)
     rng = np.random.default_rng(8)
     white = rng.standard_normal((2000, 1))
     white[1200:] += 0.45  # from 60 s on
@@ -133,15 +134,15 @@ def test_a_bias_the_nis_windows_miss_is_found_and_clears_a_window_later():
     assert not any(failing_at[k] for k in range(0, 120))
     # one evaluation this late detects 1.3 sigma with less than mde_power (several
     # evaluations saw the bias here): its minimal detectable error is above it
-    mde = monitors.mean_mde(st.mk + 1, 20, 2, 1.0, opts)
+    mde = mean_mde(st.mk + 1, 20, 2, 1.0, opts)
     assert 1.3 < mde < 2.0
 
 
 def test_the_mde_is_detected_with_its_power():
     opts = EkfOptions()
     w, d, j = 20, 2, 8
-    mde = monitors.mean_mde(j, w, d, 1.0, opts)
-    bound = monitors.mean_bound(j, d, opts.nis_alpha)[0]
+    mde = mean_mde(j, w, d, 1.0, opts)
+    bound = streaming.mean_bound(j, d, opts.nis_alpha)[0]
     rng = np.random.default_rng(5)
     sums = rng.standard_normal((100_000, w, d)).sum(axis=1)
     sums[:, 0] += w * mde
@@ -176,28 +177,28 @@ def test_compiled_and_python_ekf_give_the_same_scan():
 
 
 def test_rejection_count_bound_is_the_binomial_tail():
-    p = monitors.reject_probability(chi2.ppf(0.999, 2), 2)
+    p = streaming.reject_probability(chi2.ppf(0.999, 2), 2)
     assert p == pytest.approx(1e-3, rel=1e-9)
-    assert monitors.reject_probability(math.inf, 2) == 0.0
+    assert streaming.reject_probability(math.inf, 2) == 0.0
     # first evaluation: share 6.08e-4; P(Bin(20, 1e-3) >= 2) = 1.9e-4 fits, >= 1 (0.0198) not
-    k, a = monitors.count_bound(1, 20, p, 1e-3)
+    k, a = streaming.count_bound(1, 20, p, 1e-3)
     assert k == 2 and a == pytest.approx(1e-3 * 6 / math.pi**2)
     assert binom.sf(k - 1, 20, p) <= a < binom.sf(k - 2, 20, p)
-    k8, a8 = monitors.count_bound(8, 20, p, 1e-3)
+    k8, a8 = streaming.count_bound(8, 20, p, 1e-3)
     assert k8 == 3 and binom.sf(k8 - 1, 20, p) <= a8 < binom.sf(k8 - 2, 20, p)
-    assert monitors.count_bound(1, 20, 0.0, 1e-3)[0] == 1  # P(>= 1) = 0: one would fire
+    assert streaming.count_bound(1, 20, 0.0, 1e-3)[0] == 1  # P(>= 1) = 0: one would fire
 
 
 def test_the_count_null_adds_the_gross_fraction_to_the_gate():
     gate = float(chi2.ppf(0.999, 2))
-    assert monitors.count_probability(gate, 2, 0.0) == pytest.approx(1e-3, rel=1e-9)
+    assert streaming.count_probability(gate, 2, 0.0) == pytest.approx(1e-3, rel=1e-9)
     # Huber's contaminated model: 3 % gross readings, the rest rejected at 1e-3
-    p = monitors.count_probability(gate, 2, 0.03)
+    p = streaming.count_probability(gate, 2, 0.03)
     assert p == pytest.approx(1e-3 + 0.999 * 0.03, rel=1e-12)
-    assert monitors.count_probability(math.inf, 2, 0.03) == 0.0  # no gate: no rejection
+    assert streaming.count_probability(math.inf, 2, 0.03) == 0.0  # no gate: no rejection
     assert EkfOptions().gross_fraction == 0.03
     # the first evaluation: two gross fixes among 20 (P 0.12 at 3.1 %) no longer fire
-    k, a = monitors.count_bound(1, 20, p, 1e-3)
+    k, a = streaming.count_bound(1, 20, p, 1e-3)
     assert k == 5 and binom.sf(k - 1, 20, p) <= a < binom.sf(k - 2, 20, p)
 
 
@@ -209,9 +210,9 @@ def test_rejection_count_false_alarm_rate_is_within_alpha():
     rng = np.random.default_rng(21)
     fired = 0
     for _ in range(400):
-        st = monitors._Live()
+        st = streaming.StreamState()
         for k, v in enumerate(rng.chisquare(1, 150).tolist()):
-            st = monitors.advance(st, float(k), v <= gate, v, gate, 1, opts)
+            st = streaming.advance(st, float(k), v <= gate, v, gate, 1, opts)
         fired += st.rhits > 0
     assert fired <= binom.ppf(0.99, 400, opts.nis_alpha), fired
 
@@ -220,11 +221,11 @@ def _gross_stream_fires(opts, rng, n: int = 150, share: float = 0.03) -> bool:
     """Whether the count fires on one consistent stream of ``n`` readings (gate 0.999, 2-D)
     a share ``share`` of which is gross (always rejected)."""
     gate = float(chi2.ppf(0.999, 2))
-    st = monitors._Live()
+    st = streaming.StreamState()
     gross = rng.random(n) < share
     for k, v in enumerate(rng.chisquare(2, n).tolist()):
         nis = 1e3 if gross[k] else v
-        st = monitors.advance(st, float(k), nis <= gate, nis, gate, 2, opts)
+        st = streaming.advance(st, float(k), nis <= gate, nis, gate, 2, opts)
     return st.rhits > 0
 
 

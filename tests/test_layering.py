@@ -64,6 +64,9 @@ LAYERS: tuple[tuple[str, bool, tuple[str, ...]], ...] = (
         False,
         (
             "odofuse.estimators",
+            "odofuse.status.streaming",
+            "odofuse.status.mde",
+            "odofuse.status.slip",
             "odofuse.status.monitors",
             "odofuse.status.drift",
             "odofuse.status.pose_checks",

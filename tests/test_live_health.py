@@ -20,8 +20,9 @@ from odofuse.estimators.common import odometry_inputs
 from odofuse.estimators.localizer import assemble
 from odofuse.io.log import Stream
 from odofuse.motion import motion_model_from_config
-from odofuse.status import monitors
+from odofuse.status import monitors, streaming
 from odofuse.status.findings import assess, status_of
+from odofuse.status.mde import _largest_eigenvalue, gate_mde, mde_of, window_mde
 
 BACKENDS = {"ekf": ekf, "ukf": ukf, "particle": particle}
 GPS_SIGMA = 0.5
@@ -92,12 +93,12 @@ def _feed_windows(mon, means, t0=0.0):
 def test_persistence_and_hysteresis_of_the_nis_windows():
     opts = EkfOptions(recovery=False)  # health_persist 3, health_recover 3
     mon = monitors.FilterMonitor(opts, {"gps": SimpleNamespace(dim=2, gate=0.999)})
-    hi = monitors.window_band(1, 20, 2, opts.nis_alpha, 3)[1]
+    hi = streaming.window_band(1, 20, 2, opts.nis_alpha, 3)[1]
     bad, good = 2.0 * hi, 2.0  # above the band of every window here (it widens with k)
     # Two failing windows in a row do not make the stream failing (persistence 3).
     states, t = _feed_windows(mon, [good, bad, bad, good, bad, good])
     assert not any(s.failing for s in states) and states[-1].episodes == 0
-    hi_2 = monitors.window_band(2, 20, 2, opts.nis_alpha, 3)[1]  # the second window's band
+    hi_2 = streaming.window_band(2, 20, 2, opts.nis_alpha, 3)[1]  # the second window's band
     assert states[1].wratio == pytest.approx(bad / hi_2) and states[1].wratio > 1.0
     assert [f for f in mon.stream_findings((0.0, t)) if f.check == "nis"] == []
     # Three do; it stays failing through two passing windows, and recovers on the third.
@@ -158,13 +159,13 @@ def test_the_band_spends_the_false_alarm_probability_over_a_run_of_any_length():
     # Onset probability of window k (persist windows in a row) summed over an endless run.
     total = 0.0
     for b in range(60):
-        a = monitors.window_band(2**b, 20, 2, alpha, persist)[2]
-        assert monitors.window_band(2 ** (b + 1) - 1, 20, 2, alpha, persist)[2] == a
+        a = streaming.window_band(2**b, 20, 2, alpha, persist)[2]
+        assert streaming.window_band(2 ** (b + 1) - 1, 20, 2, alpha, persist)[2] == a
         total += 2**b * a**persist
     # The blocks' shares 6 / (pi^2 (b + 1)^2) sum to 1: the first 60 blocks to 1 - ~1/60.
     tail = 6.0 / math.pi**2 * sum(1.0 / (b + 1) ** 2 for b in range(60, 10**6))
     assert total == pytest.approx(alpha * (1.0 - tail), rel=1e-5) and total < alpha
-    lo, hi, a = monitors.window_band(1, 20, 2, alpha, persist)
+    lo, hi, a = streaming.window_band(1, 20, 2, alpha, persist)
     assert hi == pytest.approx(chi2.ppf(1 - a, 40) / 20) and lo == pytest.approx(
         chi2.ppf(a, 40) / 20
     )
@@ -183,7 +184,7 @@ def test_nominal_windows_fail_at_the_stated_rate():
         st = mon.live["gps"]
         failed += st.k > before and st.wratio > 1.0
     # Windows 2048..4000 are in block 11; the earlier ones have larger a: bound the count.
-    a = [monitors.window_band(k, 20, 2, opts.nis_alpha, 3)[2] for k in range(1, 4001)]
+    a = [streaming.window_band(k, 20, 2, opts.nis_alpha, 3)[2] for k in range(1, 4001)]
     expected = sum(a)
     assert failed <= expected + 4 * math.sqrt(expected), (failed, expected)
     assert failed >= expected - 4 * math.sqrt(expected), (failed, expected)
@@ -253,7 +254,7 @@ def test_a_range_sensor_reading_5_percent_long_degrades_live_and_offline():
 # --------------------------------------------------------------------------- what a gate can see
 def test_gate_mde_is_detected_with_its_power():
     g, S, power = chi2.ppf(0.999, 1), 0.04, 0.95
-    mde = monitors.gate_mde(g, S, power)
+    mde = gate_mde(g, S, power)
     assert mde == pytest.approx((math.sqrt(g) + NormalDist().inv_cdf(power)) * math.sqrt(S))
     rng = np.random.default_rng(3)
     y = mde + rng.normal(0.0, math.sqrt(S), 200_000)
@@ -261,25 +262,25 @@ def test_gate_mde_is_detected_with_its_power():
     # A 2-D gate: the worst direction's noise; the bound holds there too (it is conservative).
     g2 = chi2.ppf(0.999, 2)
     S2 = np.diag([0.25, 0.04])
-    m2 = monitors.gate_mde(g2, 0.25, power)
+    m2 = gate_mde(g2, 0.25, power)
     y = np.array([m2, 0.0]) + rng.normal(0.0, 1.0, (200_000, 2)) * np.sqrt(np.diag(S2))
     assert np.mean(np.einsum("ij,ij->i", y @ np.linalg.inv(S2), y) > g2) >= power
-    assert monitors.gate_mde(math.inf, S, power) == math.inf
+    assert gate_mde(math.inf, S, power) == math.inf
 
 
 def test_window_mde_is_detected_with_its_power_over_the_persistence():
     opts = EkfOptions()
     w, d, S = 20, 2, 0.3
-    mde = monitors.window_mde(0, w, d, S, opts)
+    mde = window_mde(0, w, d, S, opts)
     rng = np.random.default_rng(4)
-    hi = monitors.window_band(1, w, d, opts.nis_alpha, opts.health_persist)[1]
+    hi = streaming.window_band(1, w, d, opts.nis_alpha, opts.health_persist)[1]
     n = 20_000
     y = mde + rng.normal(0.0, math.sqrt(S), (n, opts.health_persist, w))
     z = rng.normal(0.0, math.sqrt(S), (n, opts.health_persist, w))  # the other axis
     mean = ((y * y + z * z) / S).mean(axis=2)
     detected = np.all(mean > hi, axis=1).mean()
     assert detected >= opts.mde_power - 0.01, detected
-    assert monitors.window_mde(0, w, d, S / 4, opts) == pytest.approx(mde / 2)
+    assert window_mde(0, w, d, S / 4, opts) == pytest.approx(mde / 2)
 
 
 def test_results_report_the_mde_of_every_gate_and_window_in_metrics():
@@ -321,7 +322,7 @@ def test_a_gyros_mde_is_at_the_innovation_covariance_its_readings_meet(monkeypat
 
     monkeypatch.setattr(ekf.EkfBackend, "update", record)
     loc = gyro_localizer(ekf.EkfBackend, 2000, name="ekf")
-    mde = monitors.mde_of(loc)["gyro"]
+    mde = mde_of(loc)["gyro"]
     z = NormalDist().inv_cdf(loc.options.mde_power)
     sigma = mde["gate"] / (math.sqrt(gate_threshold(0.999, 1)) + z)
     assert sigma == pytest.approx(math.sqrt(np.median(seen)), rel=0.02)
@@ -398,4 +399,4 @@ def test_the_largest_eigenvalue_in_closed_form_equals_lapack():
             S = A @ A.T + 1e-3 * np.eye(d)
             S[0, -1] += 1e-9  # a slightly asymmetric S: its symmetric part's eigenvalue
             want = np.linalg.eigvalsh(0.5 * (S + S.T))[-1]
-            assert monitors._largest_eigenvalue(S) == pytest.approx(want, rel=1e-12)
+            assert _largest_eigenvalue(S) == pytest.approx(want, rel=1e-12)

@@ -15,6 +15,7 @@ from odofuse.estimators.particle import ParticleBackend
 from odofuse.evaluation import covered, metrics
 from odofuse.io.log import SensorLog, Stream
 from odofuse.status import monitors
+from odofuse.status.slip import slip_scale
 from odofuse.teaching import trust_scenarios as ts
 from odofuse.trajectory import EstimateResult, Trajectory
 
@@ -29,8 +30,8 @@ def test_inflation_admits_the_innovation_at_its_expected_nis():
 
 def test_slip_scale_widens_only_a_disagreement_the_models_cannot_explain():
     gate = 10.83  # chi2.ppf(0.999, 1)
-    assert monitors.slip_scale(1e-3, 1e-6, 1e-8, gate) == 1.0
-    assert monitors.slip_scale(0.01, 1e-6, 1e-8, gate) == pytest.approx(100.0)
+    assert slip_scale(1e-3, 1e-6, 1e-8, gate) == 1.0
+    assert slip_scale(0.01, 1e-6, 1e-8, gate) == pytest.approx(100.0)
 
 
 def test_a_sensor_silent_for_most_of_the_run_is_an_outage_that_degrades():

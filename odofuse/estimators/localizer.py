@@ -65,6 +65,10 @@ from odofuse.estimators.history import (
 from odofuse.status import findings as H
 from odofuse.status import monitors
 from odofuse.status.drift import drift_of, seen_by_ekf
+from odofuse.status.mde import inert_findings, mde_of
+from odofuse.status.pose_checks import collapse_findings, covariance_health
+from odofuse.status.slip import slip_note, step_slip_scale
+from odofuse.status.streaming import whiten
 from odofuse.trajectory import EstimateResult, Trajectory
 
 #: Odometry inputs composed into the ``odom`` pose at once (vectorised dead reckoning).
@@ -396,7 +400,7 @@ class Localizer:
         scale = 1.0
         if self._slip_stream is not None:
             slips = self.slip_steps
-            scale = monitors.step_slip_scale(self, t0, t1, u)
+            scale = step_slip_scale(self, t0, t1, u)
             if self.slip_steps != slips:
                 self._book = None
         span = t1 - t0
@@ -454,7 +458,7 @@ class Localizer:
             row["dt"] = tm - t_ref
         self._last_row[stream] = row
         accepted, nis = self.backend.update(model, row)
-        white = monitors.whiten(*self.backend.last_innovation[:2]) if accepted else None
+        white = whiten(*self.backend.last_innovation[:2]) if accepted else None
         if self.monitor.observe(stream, tm, accepted, nis, white):
             accepted, nis = monitors.recover(self, stream, model, row)
         if item[1] == self._watch:
@@ -581,11 +585,11 @@ class Localizer:
         drift = self.monitor.drift
         if drift is not None:  # the largest |z| over its bound (odofuse.status.drift)
             extra["calibration_drift"] = {"ratio": drift.ratio(), "snapshots": len(drift)}
-        mde = monitors.mde_of(self)
+        mde = mde_of(self)
         extra["mde"] = mde
         extra.update(getattr(self.backend, "extra", lambda: {})())
         traj = self.trajectory()
-        found = self._findings(traj.t, traj.covariances) + monitors.inert_findings(self, mde)
+        found = self._findings(traj.t, traj.covariances) + inert_findings(self, mde)
         return EstimateResult(
             self.name, traj, dict(self.used), dict(self.rejected), extra, tuple(found)
         )
@@ -613,7 +617,7 @@ class Localizer:
         if comp is not None:  # the companion EKF's drift (a particle filter's, live)
             key += (comp._version, comp.slip_steps, len(comp.monitor.drift))
         if key != self._fast[0]:  # what only a reading, a slip or a drift snapshot changes
-            fast = mon.stream_findings(span, outage=False) + monitors.slip_note(self)
+            fast = mon.stream_findings(span, outage=False) + slip_note(self)
             fast += drift.findings() if drift is not None else []
             if comp is not None and _companion_saw(comp.monitor):
                 fast += seen_by_ekf(comp.health().findings)
@@ -631,9 +635,9 @@ class Localizer:
         if len(self._track) >= done + HEALTH_TRACK_EVERY:
             t, _, P = self._track.arrays()
             slow = _past_episodes(slow, float(t[0]))
-            slow += monitors.covariance_health(t, P, self.options)
-            slow += monitors.collapse_findings(self, t, P) + monitors.learning_of(self, t)
-            slow += monitors.inert_findings(self, monitors.mde_of(self))
+            slow += covariance_health(t, P, self.options)
+            slow += collapse_findings(self, t, P) + monitors.learning_of(self, t)
+            slow += inert_findings(self, mde_of(self))
             t_slow = float(t[-1])
             self._slow = (len(self._track), slow, t_slow)
         x, P_now = self.backend.mean()[:3], self.backend.cov()[:3, :3]

@@ -262,7 +262,7 @@ class ParticleBackend:
                 X[:, 3:] += self.rng.standard_normal((self.N, self.n - 3)) * sd
 
     def slip_step(self, u, span, g, run, slip, bias_idx, learn):
-        """``monitors.step_slip_scale``'s factor and run of one step in the filters' kernel
+        """``slip.step_slip_scale``'s factor and run of one step in the filters' kernel
         (:func:`~odofuse.estimators.compiled.kernels.step_slip`) on the cloud's mean and
         covariance; None on the numpy path or a drive the kernels do not cover."""
         if self._slip_terms is None:

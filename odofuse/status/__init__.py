@@ -11,9 +11,16 @@ The modules, by role (lowest import layer first; ``tests/test_layering.py``):
 * :mod:`~odofuse.status.findings`: the :class:`Finding` type, ``assess`` and ``status_of``
   (the status of a list of findings), the covariance, pose and rejection checks of any
   trajectory;
-* :mod:`~odofuse.status.monitors`: the streaming innovation checks (NIS windows with
-  persistence and hysteresis, the run's NIS, rejection runs, outages, minimal detectable
-  errors) of the filters, the fixed-lag smoother, iSAM2 and the live ``Localizer.health()``;
+* :mod:`~odofuse.status.streaming`: the streaming innovation checks of one stream (NIS
+  windows with persistence and hysteresis, the run's NIS, the innovation-mean scan, rejection
+  runs and counts, outages) of the filters, the fixed-lag smoother, iSAM2 and the live
+  ``Localizer.health()``, with their alpha-spending bounds;
+* :mod:`~odofuse.status.monitors`: the filters' monitor that feeds them, recovery after
+  divergence, and a Localizer's findings;
+* :mod:`~odofuse.status.mde`: the minimal detectable error of every gate, window and scan,
+  and the ``inert`` note;
+* :mod:`~odofuse.status.slip`: robust odometry (the wheels against the gyro) and its ``slip``
+  and ``slip_run`` findings;
 * :mod:`~odofuse.status.pose_checks`: the checks of a filter's track (covariance conditioning
   and growth, collapse, gyro-bias learning, dead reckoning's gyro-vs-wheels test);
 * :mod:`~odofuse.status.latency`: the time-stamp test on a smoother's residuals;
@@ -75,7 +82,7 @@ CHECKS: tuple[Check, ...] = (
     # ------------------------------------------------------------- consistency, counted
     Check(
         "nis",
-        ("status/monitors.py",),
+        ("status/streaming.py",),
         f"{_FILTERS}; fixed-lag and iSAM2 (their predicted innovations, with slam: true the "
         "re-sightings of landmarks already mapped; estimators/graph/innovations.py)",
         "mean NIS over nis_window accepted readings against its chi-square band, alpha spent "
@@ -86,7 +93,7 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "nis_run",
-        ("status/monitors.py",),
+        ("status/streaming.py",),
         "the same as nis",
         "mean NIS of all the stream's accepted readings against the chi-square bound of "
         "their count (from two windows' worth)",
@@ -96,7 +103,7 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "innovation_mean",
-        ("status/monitors.py",),
+        ("status/streaming.py",),
         "the same as nis, for every fused stream (a gyro's in blocks of >= 1 s)",
         "|sum|^2 / nis_window of the last nis_window whitened innovations (L^-1 y, S = L L^T; "
         "a gyro's summed over blocks of >= MEAN_BLOCK_S, over sqrt(n)), chi-square(dim), every "
@@ -108,7 +115,7 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "rejection_count",
-        ("status/monitors.py", "status/graph_checks.py"),
+        ("status/streaming.py", "status/graph_checks.py"),
         "the same as nis (every gated stream); the batch smoother on its residuals at the "
         "optimum (every gated sensor stream, not a gyro)",
         "rejections (the smoother: residuals beyond the gate) among the last nis_window "
@@ -197,7 +204,7 @@ CHECKS: tuple[Check, ...] = (
     # --------------------------------------------- faults that a matching log cannot show
     Check(
         "rejection_run",
-        ("status/monitors.py",),
+        ("status/streaming.py",),
         f"{_FILTERS}; fixed-lag, iSAM2",
         "reject_run consecutive readings beyond the sensor's gate",
         f"{_NOT} ((1 - gate)^5 = 1e-15 per reading)",
@@ -215,7 +222,7 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "outage",
-        ("status/monitors.py",),
+        ("status/streaming.py",),
         "every estimator with an absolute sensor",
         "a sensor silent for more than half of the run",
         f"{_NOT} (a fact of the log)",
@@ -224,7 +231,7 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "inert",
-        ("status/monitors.py",),
+        ("status/mde.py",),
         _FILTERS,
         "a gate that can never fire, or fires on nearly everything (minimal detectable error)",
         f"{_NOT} (a property of the config)",
@@ -233,7 +240,7 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "slip",
-        ("status/monitors.py", "status/graph_checks.py"),
+        ("status/slip.py", "status/graph_checks.py"),
         "filters and graph back ends with a gyro",
         "gyro and wheels disagreed on some steps; their wheel noise was widened (a note)",
         "never degrades",
@@ -242,7 +249,7 @@ CHECKS: tuple[Check, ...] = (
     ),
     Check(
         "slip_run",
-        ("status/monitors.py",),
+        ("status/slip.py",),
         "filters and graph back ends with a gyro",
         "gyro and wheels disagree on every step for more than 1 s",
         f"{_NOT} (50 tests at 1e-3 in a row)",

@@ -481,7 +481,7 @@ def alpha_budget(config, log) -> dict:
     fused = [str(n) for n in (config.sensors or {}) if n in streams and len(streams[n])]
     checks: dict[str, float] = {}
     graph = est in GRAPH_NIS
-    # the streams the innovation-mean scans test (a gyro's in blocks: monitors.MEAN_BLOCK_S)
+    # the streams the innovation-mean scans test (a gyro's in blocks: streaming.MEAN_BLOCK_S)
     scanned = set(fused)
     if est in DRIFT_EVIDENCE:
         # fixed-lag and iSAM2 (also with slam: graph.isam2_slam) test their sensor rows (not

@@ -15,7 +15,7 @@ The check takes a snapshot of the calibration states every ``drift_grid`` s of o
 (:class:`Drift`), compares each snapshot ``k`` with the snapshots ``1, 2, 4, ..., 2^b`` back
 (up to :data:`MAX_LAG`), and spends ``drift_alpha`` over the snapshots as the NIS windows
 spend theirs (snapshot ``k`` in block ``floor(log2 k)`` gets its share of
-:func:`odofuse.status.monitors.window_band`), split over its comparisons and states
+:func:`odofuse.status.streaming.window_band`), split over its comparisons and states
 (Bonferroni, two-sided). O(log) work per snapshot; the snapshots are a ring allocated once.
 Measured: ``benchmarks/bench_calibration_drift.py`` and ``bench_status.py``.
 """
@@ -29,7 +29,7 @@ from statistics import NormalDist
 import numpy as np
 
 from odofuse.status.findings import Finding
-from odofuse.status.monitors import window_band
+from odofuse.status.streaming import window_band
 
 #: Largest lag (in snapshots) of a comparison (21 min at the default 5 s grid).
 MAX_LAG = 256

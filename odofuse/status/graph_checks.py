@@ -249,12 +249,12 @@ def rejection_count_findings(problem, residuals: dict, optimum: bool = True) -> 
 
     For each sensor stream with a gate (not a gyro: its factors lie between poses, as in
     :mod:`odofuse.estimators.graph.innovations`), its factors in time order are scanned as a
-    filter's readings are (:func:`odofuse.status.monitors.count_bound`, at the incremental
+    filter's readings are (:func:`odofuse.status.streaming.count_bound`, at the incremental
     graphs' :data:`~odofuse.estimators.graph.innovations.NIS_OPTIONS`): every
     ``nis_window / 4`` factors, those among the last ``nis_window`` whose whitened chi-square
     (Gaussian part of the noise model: a robust loss does not hide them) is beyond the gate,
     against the binomial bound of the filters' null
-    (:func:`odofuse.status.monitors.count_probability`: the gate's own probability
+    (:func:`odofuse.status.streaming.count_probability`: the gate's own probability
     ``1 - gate`` plus the ``gross_fraction`` of gross readings a real sensor has, 3 %),
     ``nis_alpha`` spent over the evaluations. At a least-squares optimum a residual's
     covariance is the noise model's minus what the estimate absorbed, so on a matching log
@@ -269,7 +269,7 @@ def rejection_count_findings(problem, residuals: dict, optimum: bool = True) -> 
     """
     from odofuse.estimators.graph.innovations import NIS_OPTIONS
     from odofuse.measurements import gate_threshold
-    from odofuse.status.monitors import count_bound, count_probability, mean_stride
+    from odofuse.status.streaming import count_bound, count_probability, mean_stride
 
     if not optimum:
         return []
@@ -378,14 +378,14 @@ def window_findings(problem, residuals: dict, optimum: bool = True) -> list[Find
 def outage_findings(problem) -> list[Finding]:
     """A sensor silent for more than half of the run: the filters' ``outage`` check.
 
-    The rule and its bound are the filters' (:func:`odofuse.status.monitors.outage_findings`,
+    The rule and its bound are the filters' (:func:`odofuse.status.streaming.outage_findings`,
     issue 10 item 5: no score over less than half of the span without a warning; more than
     the default ``reject_run`` of the stream's readings), given the times of the rows that got a
     factor (a gyro: the ends of its keyframe intervals). Over such a gap the graph's poses
     rest on odometry alone, a drift no residual can show.
     """
     from odofuse.declarations import FilterOptions
-    from odofuse.status.monitors import outage_findings as stream_outage
+    from odofuse.status.streaming import outage_findings as stream_outage
 
     times: dict[str, list] = {}
     for meas in problem.measurements:
@@ -403,10 +403,10 @@ def outage_findings(problem) -> list[Finding]:
 
 def slip_findings(problem, scales) -> list[Finding]:
     """The (non-degrading) note of the keyframe intervals whose odometry noise was widened,
-    and the filters' ``slip_run`` (:func:`odofuse.status.monitors.slip_run_findings`): two or
+    and the filters' ``slip_run`` (:func:`odofuse.status.slip.slip_run_findings`): two or
     more consecutive slipping intervals spanning more than it (a wheel spinning free, dragged
     or with its encoder stuck; 1e-6 on a matching log)."""
-    from odofuse.status.monitors import slip_run_findings
+    from odofuse.status.slip import slip_run_findings
 
     n = int(np.count_nonzero(scales > 1.0))
     if not n:

@@ -312,7 +312,7 @@ def _slip_args(kern, loc, log, t) -> dict:
 
 
 def _record_slip(loc, t, scale, learn) -> None:
-    """The Localizer's robust-odometry record after the kernel (``monitors.step_slip_scale``
+    """The Localizer's robust-odometry record after the kernel (``slip.step_slip_scale``
     step by step): the slipping steps, the longest run of consecutive ones (the first of
     equal length) and the ``learning`` check's heading and bias covariance terms."""
     slipping = scale > 1.0
@@ -386,7 +386,7 @@ def finish(loc, log, streams, args):
 
 # --------------------------------------------------------------------- the streaming path
 def slip_step(self, u, span, g, run, slip, bias_idx, learn) -> tuple[float, float]:
-    """A kernel backend's ``slip_step``: ``monitors.step_slip_scale``'s factor and run of one
+    """A kernel backend's ``slip_step``: ``slip.step_slip_scale``'s factor and run of one
     step in the kernel :func:`run` uses (:func:`~.kernels.step_slip`), on the backend's
     state; ``learn`` (3,) receives the ``learning`` terms when ``bias_idx`` is not None."""
     _, M, K, floor, rate = self._motion_args[:5]

@@ -888,7 +888,7 @@ def _clone(x, P, dst, src):
 def _whiten(d, out, w):
     """``w[:d] = L^-1 y`` of the innovation ``y`` and its covariance ``S = L L^T`` in ``out``
     (``y0, y1, s00, s10, s11``; lower Cholesky), NaN when ``S`` is not positive definite:
-    ``status.monitors.whiten``'s formula, for the innovation-mean scan."""
+    ``status.streaming.whiten``'s formula, for the innovation-mean scan."""
     w[0] = w[1] = np.nan
     if not out[2] > 0.0:
         return
@@ -989,7 +989,7 @@ def held_rate_steps(ts, ws, tt, out):
 
 @njit(cache=True)
 def _slip_scale(d, var_odo, var_ref, gate, run):
-    """``monitors.slip_scale``: the factor widening a step's wheel input noise."""
+    """``slip.slip_scale``: the factor widening a step's wheel input noise."""
     if not var_odo > 0.0:
         return 1.0
     d2 = d * d
@@ -1001,7 +1001,7 @@ def _slip_scale(d, var_odo, var_ref, gate, run):
 
 @njit(cache=True)
 def step_slip(x, P, u, span, g, M, K, floor, rate, slip, bias_idx, run, learn):
-    """``monitors.step_slip_scale`` of one step (input ``u`` over ``span`` s, gyro heading
+    """``slip.step_slip_scale`` of one step (input ``u`` over ``span`` s, gyro heading
     change ``g``, NaN when none): ``(scale, run)``, the step's input-noise factor and the
     summed disagreement of its slip run (0 when it does not slip). ``slip`` is ``(gate,
     gyro sigma, the bias variance when the bias is not a state)``; with a bias state
@@ -1079,7 +1079,7 @@ def filter_offline(
         the covariance's diagonal to ``snap_v`` (K, n) (the calibration drift check's
         snapshots, :class:`odofuse.status.drift.Drift`).
     slip_g : (N,) or None
-        Robust odometry (``monitors.step_slip_scale``, :func:`step_slip`): each step's gyro
+        Robust odometry (``slip.step_slip_scale``, :func:`step_slip`): each step's gyro
         heading change (NaN: none); None when it is off (that specialisation compiles none
         of it). ``slip`` (3,), ``bias_idx``: see
         :func:`step_slip`; ``slip_out`` (N,) receives each step's noise factor, ``learn``

@@ -61,7 +61,7 @@ def robust_noise(base, kind: str | None, k: float | None = None):
 def slip_scales(problem: GraphProblem) -> np.ndarray:
     """Robust odometry: the factor (>= 1) of each keyframe interval's odometry covariance.
 
-    The graph's form of the filters' rule (:func:`odofuse.status.monitors.slip_scale`,
+    The graph's form of the filters' rule (:func:`odofuse.status.slip.slip_scale`,
     docs/trust.md section 2), applied to the keyframe intervals of the first fused gyro
     stream: an interval whose wheel heading change ``deltas[i, 2]`` disagrees with the gyro's
     increment (bias removed at its prior value) by ``d`` with
@@ -79,7 +79,7 @@ def slip_scales(problem: GraphProblem) -> np.ndarray:
         pose-graph odometry (the file's covariance).
     """
     from odofuse.measurements import gate_threshold
-    from odofuse.status.monitors import slip_scale
+    from odofuse.status.slip import slip_scale
 
     out = np.ones(len(problem.deltas))
     if not problem.gyro or problem.pose_graph or not problem.options.slip:

@@ -102,13 +102,13 @@ def predicted_nis(isam, graph, new_values, rows: dict, dims: dict, read=None) ->
     Returns
     -------
     dict
-        Position -> ``(NIS, whitened innovation)`` (``status.monitors.whiten`` of the
+        Position -> ``(NIS, whitened innovation)`` (``status.streaming.whiten`` of the
         noise-whitened innovation and its covariance, for the innovation-mean scan); empty
         when a factor refers to a variable that neither the smoother nor ``new_values`` holds
         (nothing predicts it), ``(nan, None)`` where the prediction's covariance is not
         positive definite.
     """
-    from odofuse.status.monitors import whiten
+    from odofuse.status.streaming import whiten
 
     keys = sorted({k for j in range(graph.size()) for k in graph.at(j).keys()})
     new = set(new_values.keys())
