@@ -338,6 +338,8 @@ def test_bad_messages_counted_never_crash(tmp_path, bag):
     np.testing.assert_array_equal(comp.loc.pose(), ref)  # all skipped
     values = dict(comp.diagnostic_values(comp.health()))
     assert values["bad/covariance"] == 1 and values["bad/time_backwards"] == 1
+    # the last skipped message, named for the operator: the garbage sent last
+    assert values["bad/last"].startswith("/imu/data: Could not deserialize 'sensor_msgs/msg/Imu'")
     for topic, _, p, _ in msgs[200:]:  # and it goes on
         comp.handle(topic, p)
     assert comp.steps == len([1 for topic, *_ in msgs if topic == "/joint_states"]) - 1

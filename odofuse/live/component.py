@@ -435,7 +435,6 @@ class Component:
     def _after_step(self, t: float, u) -> None:
         rate = self.live.publish_rate
         if rate <= 0 or t - self._t_pub >= 1.0 / rate - 1e-9:
-            self._t_pub_prev = self._t_pub
             dt = t - self._last_step_t if getattr(self, "_last_step_t", None) is not None else 0
             self.publish_estimate(t, u, dt)
             self._t_pub = t
@@ -476,6 +475,8 @@ class Component:
             vals.append((f"test_ratio/{s}", f"{r:.4f}"))
         for reason, n in sorted(self.bad.items()):
             vals.append((f"bad/{reason}", n))
+        if self.bad:  # what the last skipped message was, for the operator (topic, field, why)
+            vals.append(("bad/last", self.bad_last))
         for s, n in sorted(self.timeouts_raised.items()):
             vals.append((f"timeouts/{s}", n))
         for i, f in enumerate(h.findings):

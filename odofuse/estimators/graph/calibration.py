@@ -111,11 +111,6 @@ _ODO_CAL = {
 }
 
 
-def default_sigmas(drive: str) -> tuple[float, ...]:
-    """The default prior sigmas of ``drive``'s calibration states (``_ODO_CAL``)."""
-    return _ODO_CAL[drive][2]
-
-
 def nominal_values() -> dict[str, float]:
     """Every drive's calibration state name -> its nominal value (``_ODO_CAL``)."""
     pairs = (zip(names, nominal, strict=True) for names, nominal, _ in _ODO_CAL.values())
