@@ -79,6 +79,12 @@ class RunConfig:
                 {**self.robot, "encoder": from_mapping(EncoderOptions, enc, "robot.encoder", src)},
             )
 
+    def unfused_sensors(self) -> tuple[str, ...]:
+        """The configured sensor streams this run's estimator does not fuse: every one for
+        dead reckoning (``estimator``'s default), which estimates from the wheels alone (a gyro
+        serves only its gyro-vs-wheels check)."""
+        return tuple(self.sensors) if self.estimator == "dead_reckoning" else ()
+
     def estimator_options(self, estimator: str | None = None):
         """The typed options of ``estimator`` (default: this run's), default-filled if absent.
 

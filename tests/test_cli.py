@@ -235,6 +235,29 @@ def test_missing_config_file(tmp_path, capsys):
     assert "nope.yaml" in err and "Traceback" not in err
 
 
+def test_a_config_without_estimator_says_its_sensors_are_not_fused(tmp_path, capsys):
+    # A config that lists a gyro but forgets `estimator:` runs dead reckoning (the default),
+    # which fuses none of its sensors: the run says so under the table, through the CLI.
+    square_log(tmp_path / "log")
+    t = 1.0 + 0.1 * np.arange(1, 201)
+    gyro = "\n".join(f"{v!r},0.5" for v in t.tolist())  # 0.05 rad per 0.1 s, as the wheels
+    (tmp_path / "log" / "gyro.csv").write_text("t,wz\n" + gyro + "\n")
+    text = CONFIG.format(log="log", out="out").replace("estimator: dead_reckoning\n", "")
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(text + "sensors: {gyro: {sigma: 0.01}}\n")
+    cmd = [sys.executable, "-m", "odofuse", "run", str(cfg)]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    note = (
+        "note: dead_reckoning fuses none of the configured sensors (gyro): `estimator: ekf` "
+        "(or ukf, particle, smoother, isam2, fixed_lag) fuses them"
+    )
+    assert note in proc.stdout.splitlines(), proc.stdout
+    assert json.loads((tmp_path / "out" / "metrics.json").read_text())["status"] == "ok"
+    assert main(["run", str(cfg), "--estimator", "ekf", "-o", str(tmp_path / "ekf")]) == 0
+    assert "fuses none" not in capsys.readouterr().out
+
+
 def test_subprocess_error_has_no_traceback(tmp_path):
     cfg = make_run(tmp_path)
     replace_line(tmp_path / "log" / "odometry.csv", 3, "1.3,nan,0.05")
