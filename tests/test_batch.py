@@ -315,3 +315,22 @@ def test_a_rerun_over_fewer_logs_lists_the_stale_folders(logs, client, tmp_path,
     assert (out / "log" / "metrics.json").exists()
     rows = (out / "summary.csv").read_text(encoding="utf-8").splitlines()
     assert len(rows) == 2 and ",short," in rows[1]
+
+
+def test_a_dead_reckoning_batch_says_its_sensors_are_not_fused(logs, client, tmp_path, capsys):
+    """A fleet config that forgot `estimator:` runs dead reckoning on every log, which fuses
+    none of the configured sensors: the summary says so (as `odofuse run` does)."""
+    from odofuse.batch import print_summary
+    from odofuse.config import load_config
+
+    sensors = tuple(load_config(logs["config"]).sensors)
+    assert sensors  # the simulated config fuses GPS and ranges
+    out = tmp_path / "out"
+    dr = run_batch(logs["config"], logs["good"][2:], out, client, estimator="dead_reckoning")
+    assert dr.unfused == sensors and dr[0]["status"] == "ok"
+    print_summary(dr, out)
+    assert f"note: dead_reckoning fuses none of the configured sensors ({', '.join(sensors)})" in (
+        capsys.readouterr().out
+    )
+    fused = run_batch(logs["config"], logs["good"][2:], tmp_path / "o2", client)
+    assert fused.unfused == ()
