@@ -150,12 +150,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         print_table([row])
         if row.get("note"):
             print(f"note: {row['estimator']}: {row['note']}")
-        if config.unfused_sensors():  # a config that forgot `estimator:` gets dead reckoning
-            print(
-                f"note: dead_reckoning fuses none of the configured sensors "
-                f"({', '.join(config.unfused_sensors())}): `estimator: ekf` (or ukf, particle, "
-                "smoother, isam2, fixed_lag) fuses them"
-            )
+        if config.unfused_note():  # a config that forgot `estimator:` gets dead reckoning
+            print(config.unfused_note())
         print(f"outputs in {out}/")
         return 0
     names = [args.estimator] if args.estimator else list(DEFAULT_ESTIMATORS)

@@ -85,6 +85,16 @@ class RunConfig:
         serves only its gyro-vs-wheels check)."""
         return tuple(self.sensors) if self.estimator == "dead_reckoning" else ()
 
+    def unfused_note(self) -> str | None:
+        """The ``note:`` line of :meth:`unfused_sensors` (``odofuse run`` and ``batch``)."""
+        unfused = self.unfused_sensors()
+        if not unfused:
+            return None
+        return (
+            f"note: dead_reckoning fuses none of the configured sensors ({', '.join(unfused)}): "
+            "`estimator: ekf` (or ukf, particle, smoother, isam2, fixed_lag) fuses them"
+        )
+
     def estimator_options(self, estimator: str | None = None):
         """The typed options of ``estimator`` (default: this run's), default-filled if absent.
 

@@ -327,10 +327,10 @@ def test_a_dead_reckoning_batch_says_its_sensors_are_not_fused(logs, client, tmp
     assert sensors  # the simulated config fuses GPS and ranges
     out = tmp_path / "out"
     dr = run_batch(logs["config"], logs["good"][2:], out, client, estimator="dead_reckoning")
-    assert dr.unfused == sensors and dr[0]["status"] == "ok"
+    assert ", ".join(sensors) in dr.unfused and dr[0]["status"] == "ok"
     print_summary(dr, out)
     assert f"note: dead_reckoning fuses none of the configured sensors ({', '.join(sensors)})" in (
         capsys.readouterr().out
     )
     fused = run_batch(logs["config"], logs["good"][2:], tmp_path / "o2", client)
-    assert fused.unfused == ()
+    assert fused.unfused is None

@@ -35,12 +35,12 @@ class BatchSummary(list):
     """The summary of a batch: a list of plain dict records, one per log (SUMMARY_COLUMNS).
 
     ``stale`` lists the complete run folders of OUT that belong to none of the batch's logs;
-    ``unfused`` the configured sensors the batch's estimator does not fuse
-    (``RunConfig.unfused_sensors``: a config that forgot ``estimator:``).
+    ``unfused`` the note that the batch's estimator fuses none of the configured sensors
+    (``RunConfig.unfused_note``: a config that forgot ``estimator:``), or None.
     """
 
     stale: list = []  # noqa: RUF012 - replaced per instance by run_batch, never mutated
-    unfused: tuple = ()
+    unfused: str | None = None
 
     def to_pandas(self):
         """The records as a :class:`pandas.DataFrame` (needs pandas, not a dependency)."""

@@ -262,7 +262,7 @@ def run_batch(
     summary = BatchSummary(records)
     write_summary(root, summary)
     summary.stale = stale_folders(root, names)
-    summary.unfused = cfg.unfused_sensors()  # a config that forgot `estimator:`
+    summary.unfused = cfg.unfused_note()  # a config that forgot `estimator:`
     return summary
 
 
@@ -406,13 +406,8 @@ def print_summary(records, out: Path, file=None, started: float | None = None) -
             print(f"{r['name']}: {r['error']}", file=file)
     took = "" if started is None else f" in {time.perf_counter() - started:.1f} s"
     print(f"{len(records)} logs{took}; summary in {out}/summary.csv", file=file)
-    unfused = getattr(records, "unfused", ())
-    if unfused:
-        print(
-            f"note: dead_reckoning fuses none of the configured sensors ({', '.join(unfused)}): "
-            "`estimator: ekf` (or ukf, particle, smoother, isam2, fixed_lag) fuses them",
-            file=file,
-        )
+    if getattr(records, "unfused", None):
+        print(records.unfused, file=file)
     stale = getattr(records, "stale", None) or []
     if stale:
         shown = ", ".join(stale[:5]) + (f" and {len(stale) - 5} more" if len(stale) > 5 else "")
