@@ -150,8 +150,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         print_table([row])
         if row.get("note"):
             print(f"note: {row['estimator']}: {row['note']}")
-        if config.unfused_note():  # a config that forgot `estimator:` gets dead reckoning
-            print(config.unfused_note())
+        unfused = config.unfused_note()  # a config that forgot `estimator:`: dead reckoning
+        if unfused:
+            print(unfused)
         print(f"outputs in {out}/")
         return 0
     names = [args.estimator] if args.estimator else list(DEFAULT_ESTIMATORS)

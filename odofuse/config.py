@@ -79,20 +79,15 @@ class RunConfig:
                 {**self.robot, "encoder": from_mapping(EncoderOptions, enc, "robot.encoder", src)},
             )
 
-    def unfused_sensors(self) -> tuple[str, ...]:
-        """The configured sensor streams this run's estimator does not fuse: every one for
-        dead reckoning (``estimator``'s default), which estimates from the wheels alone (a gyro
-        serves only its gyro-vs-wheels check)."""
-        return tuple(self.sensors) if self.estimator == "dead_reckoning" else ()
-
     def unfused_note(self) -> str | None:
-        """The ``note:`` line of :meth:`unfused_sensors` (``odofuse run`` and ``batch``)."""
-        unfused = self.unfused_sensors()
-        if not unfused:
+        """The ``note:`` line of ``odofuse run`` and ``odofuse batch`` when this run's estimator
+        fuses none of the configured sensors: dead reckoning (``estimator``'s default) estimates
+        from the wheels alone (a gyro serves only its gyro-vs-wheels check); None otherwise."""
+        if self.estimator != "dead_reckoning" or not self.sensors:
             return None
         return (
-            f"note: dead_reckoning fuses none of the configured sensors ({', '.join(unfused)}): "
-            "`estimator: ekf` (or ukf, particle, smoother, isam2, fixed_lag) fuses them"
+            f"note: dead_reckoning fuses none of the configured sensors ({', '.join(self.sensors)}"
+            "): `estimator: ekf` (or ukf, particle, smoother, isam2, fixed_lag) fuses them"
         )
 
     def estimator_options(self, estimator: str | None = None):
