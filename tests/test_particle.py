@@ -188,6 +188,7 @@ def test_liu_west_resampling_keeps_the_calibration_posterior_moments():
     assert np.unique(pf.X[:, 3]).size == pf.N > unique_before
 
 
+@pytest.mark.slow(seconds=11)  # four 1000-particle runs of a 94 s log (compiled): 10.4-10.5 s alone
 def test_two_filter_seeds_agree_within_their_covariances():
     # docs/filters.md, "The calibration states' kernel": tuning log 5063 of
     # benchmarks/bench_particle_seeds.py (precise ranges, 1000 particles, the user's config).
