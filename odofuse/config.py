@@ -20,6 +20,7 @@ from pathlib import Path
 
 from odofuse.declarations import (
     ESTIMATOR_OPTIONS,
+    GRAPH_ESTIMATORS,
     EncoderOptions,
     InitialOptions,
     LogOptions,
@@ -85,9 +86,10 @@ class RunConfig:
         from the wheels alone (a gyro serves only its gyro-vs-wheels check); None otherwise."""
         if self.estimator != "dead_reckoning" or not self.sensors:
             return None
+        first, *others = FILTER_ESTIMATORS + GRAPH_ESTIMATORS
         return (
             f"note: dead_reckoning fuses none of the configured sensors ({', '.join(self.sensors)}"
-            "): `estimator: ekf` (or ukf, particle, smoother, isam2, fixed_lag) fuses them"
+            f"): `estimator: {first}` (or {', '.join(others)}) fuses them"
         )
 
     def estimator_options(self, estimator: str | None = None):
