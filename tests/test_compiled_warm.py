@@ -1,5 +1,6 @@
 """The later filter's kernels compiled in a second process (``compiled/warm.py``, issue 28),
-and the cache saves that make two compiling processes safe (``kernels._lock_cache_saves``)."""
+and the cache saves that make two compiling processes safe (``kernels._lock_cache_saves``)
+and the compile of a signature by one process at a time (``kernels._share_compiles``)."""
 
 from __future__ import annotations
 
@@ -114,3 +115,25 @@ def test_the_background_compile_fills_the_cache_the_run_then_loads(tmp_path):
     # the EKF compiled here (its event loop a miss of filter_offline too), the UKF loaded
     assert run() == [0, 1, 1, 1]
     assert run() == [1, 0, 1, 0]  # neither signature was lost from the cache's index
+
+
+_PF_COV = """
+import numpy as np
+from odofuse.estimators.compiled import kernels
+X, w, P = np.zeros((5, 3)), np.full(5, 0.2), np.empty((3, 3))
+kernels.pf_cov(X, w, np.array([2], dtype=np.int64), np.array([False, False, True]), P)
+k = kernels.pf_cov
+print(sum(k.stats.cache_hits.values()), sum(k.stats.cache_misses.values()))
+"""
+
+
+def test_processes_started_together_compile_a_signature_once(tmp_path):
+    # Three processes on an empty cache ask for the same signature at once (the workers of a
+    # batch or of this suite on a fresh install): one compiles it, the others wait and load it.
+    assert kernels.COMPILES_SHARED
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(ROOT)}
+    cmd = [sys.executable, "-c", _PF_COV]
+    procs = [subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, text=True) for _ in range(3)]
+    counts = sorted(tuple(int(v) for v in p.communicate()[0].split()[-2:]) for p in procs)
+    assert [p.returncode for p in procs] == [0, 0, 0]
+    assert counts == [(0, 1), (1, 0), (1, 0)]  # (hits, misses) of each process

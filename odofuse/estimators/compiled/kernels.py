@@ -1475,3 +1475,95 @@ def _locked(save, lock_path: str, fcntl):
 
 #: Whether two processes may compile these kernels at once (:func:`_lock_cache_saves`).
 CACHE_SAVES_LOCKED = _lock_cache_saves()
+
+
+# ------------------------------------------------------ one compile of a signature per machine
+#: Seconds a process waits for another one's compile of the same signature before it compiles
+#: it itself (a compile takes 1-20 s here; the wait only guards against a stuck process).
+COMPILE_WAIT_S = 300.0
+
+
+def _share_compiles() -> bool:
+    """Compile each signature of these kernels in one process at a time, machine-wide; whether
+    it could.
+
+    numba compiles a kernel at its first call in every process whose on-disk cache has no
+    machine code for it yet. On a fresh install, processes started together (the workers of
+    ``odofuse batch``, of the test suite, a run and its background compile) then compile the
+    same signature side by side, each for 1-20 s of a core, and only one copy is kept. With
+    this, a process that misses the cache takes an exclusive ``flock`` named after the kernel
+    and signature (a file in the cache folder) and looks again: if another process compiled
+    that signature meanwhile, it loads it; else it compiles and saves it, then lets go.
+    Different signatures (the EKF's and the UKF's ``filter_offline``: :mod:`.warm`) still
+    compile at once. A kernel's callees are locked the same way inside its compile; they never
+    call it back, so two processes cannot wait on each other.
+    """
+    try:
+        import fcntl
+
+        from numba.core.registry import CPUDispatcher
+    except ImportError:
+        return False
+    kernels = [v for v in globals().values() if isinstance(v, CPUDispatcher)]
+    try:
+        for k in kernels:
+            _compile_once(k, k._cache, k._cache._cache_file._cache_path, fcntl)
+    except AttributeError:  # another numba's cache layout: every process compiles, as before
+        return False
+    return True
+
+
+def _compile_once(kernel, cache, folder: str, fcntl) -> None:
+    """Wrap ``kernel.compile`` and ``cache.load_overload`` (:func:`_share_compiles`)."""
+    import hashlib
+    import time
+
+    load, compile_ = cache.load_overload, kernel.compile
+    held: dict = {}  # signature -> the lock file this process compiles it under
+
+    def lock(sig):
+        digest = hashlib.sha1(str(sig).encode()).hexdigest()[:16]
+        path = os.path.join(folder, f"odofuse-compile-{kernel.__name__}-{digest}.lock")
+        try:
+            os.makedirs(folder, exist_ok=True)
+            f = open(path, "a")  # noqa: SIM115 - closed when the compile ends
+        except OSError:  # a cache folder this process cannot write: compile as before
+            return None
+        deadline = time.monotonic() + COMPILE_WAIT_S
+        while True:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return f
+            except OSError:
+                if time.monotonic() > deadline:
+                    f.close()
+                    return None
+                time.sleep(0.05)
+
+    def load_or_wait(sig, target_context):
+        cres = load(sig, target_context)
+        if cres is not None or sig in held:
+            return cres
+        f = lock(sig)
+        if f is None:
+            return None
+        cres = load(sig, target_context)  # another process may have saved it meanwhile
+        if cres is not None:
+            f.close()
+            return cres
+        held[sig] = f  # this process compiles it: released once compile() returns
+        return None
+
+    def compile_once(sig):
+        try:
+            return compile_(sig)
+        finally:
+            f = held.pop(sig, None)
+            if f is not None:
+                f.close()
+
+    cache.load_overload, kernel.compile = load_or_wait, compile_once
+
+
+#: Whether each signature is compiled by one process at a time (:func:`_share_compiles`).
+COMPILES_SHARED = _share_compiles()
