@@ -1,9 +1,10 @@
 """How often the geometry advice (``odofuse.status.geometry``) names a wrong wheel radius or track.
 
 Run from any directory: ``python benchmarks/bench_geometry_advice.py [--seeds N] [--first S]
-[--estimators ...]``.
+[--estimators ...] [--laps L]``.
 
-The status benchmark's logs (``bench_status.make_case``: about 94 s, a differential robot with
+The status benchmark's logs (``bench_status.make_case``: about 94 s a lap, ``--laps`` of them
+(default 1), a differential robot with
 a gyro and 1 Hz GPS at sigma 0.5 m or 2 m, the config a user writes) with the wheel radius or
 the track 3 % off (``wheel_radius_3pct``, ``track_width_3pct``), the real robot's logs (radius
 2.5 % off, gyro bias 3 mrad/s, three gross fixes) and the nominal ``gyro_gps`` logs (``E_d``,
@@ -131,7 +132,11 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--estimators", nargs="*", default=["ekf", "ukf", "smoother"], choices=bs.ESTIMATORS
     )
+    ap.add_argument(
+        "--laps", type=int, default=1, help="laps of each log's path (default 1: about 94 s)"
+    )
     args = ap.parse_args(argv)
+    bs.LAPS = args.laps
     t0 = time.perf_counter()
     table = run(args.seeds, args.first, args.estimators)
     print("\n".join(summary(table)))

@@ -76,6 +76,9 @@ BEACONS = [[1, 0.0, 6.0], [2, 0.0, -6.0], [3, 8.0, 0.0], [4, -8.0, 0.0]]
 #: Sensor rates (Hz): a 20 Hz gyro, 1 Hz GPS, 2 Hz ranges; odometry at 50 Hz (dt 0.02 s).
 RATES = {"gyro": 20.0, "gps": 1.0, "ranges": 2.0}
 
+#: Laps of each log's path (one: about 94 s); ``bench_geometry_advice.py --laps`` lengthens them.
+LAPS = 1
+
 #: Fault kind -> (sensor set, what is injected). Sizes (fixed before any run, from the
 #: sensors' own noise): a slip burst loses 40 % of one wheel's travel for 3 s (0.5 m of
 #: travel, 0.2 m unseen by the encoder, against k |ds| noise of mm); a stuck encoder freezes one
@@ -116,14 +119,14 @@ def scenario_dict(seed: int, drive: str, sensors: str, noise: dict, fault: str |
     e_d, e_b = (float(v) for v in 1.0 + rng.normal(0.0, 0.002, 2))
     if drive == "increments":
         robot = {"drive": "increments"}
-        path = {"kind": "figure_eight", "radius": 3.0, "speed": 0.4, "laps": 1}
+        path = {"kind": "figure_eight", "radius": 3.0, "speed": 0.4, "laps": LAPS}
         systematic = {}
     else:
         robot = {"drive": drive, "wheel_radius": 0.04, "track_width": 0.3}
         path = (
-            {"kind": "figure_eight", "radius": 3.0, "speed": 0.4, "laps": 1}
+            {"kind": "figure_eight", "radius": 3.0, "speed": 0.4, "laps": LAPS}
             if drive == "differential"
-            else {"kind": "square", "side": 5.0, "speed": 0.4, "laps": 1}
+            else {"kind": "square", "side": 5.0, "speed": 0.4, "laps": LAPS}
         )
         # systematic errors where the default config models them (an absolute sensor fused:
         # odometry_calibration auto); a config without one says the geometry is exact
