@@ -630,8 +630,11 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
         stage1 = functools.partial(Factors, odometry_robust=False)
         # stage 1 starts from the EKF's poses, and from their Huber optimum when a sensor has
         # Tukey's loss
-        init = None if incremental else filter_start(problem, log, config)
-        start = None if incremental or problem.loops else _convex_start(problem, opts, stage1, init)
+        start = (
+            None
+            if incremental or problem.loops
+            else _convex_start(problem, opts, stage1, filter_start(problem, log, config))
+        )
         fac1, graph, values = build_graph(problem, stage1(problem), start)
         if incremental:
             values, init = incremental_initial_values(problem, values)
@@ -656,8 +659,11 @@ def run_smoother(log, config, error_samples: int = 0) -> EstimateResult:
             "odometry_downweighted": int(np.count_nonzero(weights < 0.5)),
         }
     else:
-        init = None if incremental else filter_start(problem, log, config)
-        start = None if incremental or problem.loops else _convex_start(problem, opts, initial=init)
+        start = (
+            None
+            if incremental or problem.loops
+            else _convex_start(problem, opts, initial=filter_start(problem, log, config))
+        )
         fac, graph, values = build_graph(problem, None, start)
         if incremental:
             values, init = incremental_initial_values(problem, values)
