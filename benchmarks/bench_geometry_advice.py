@@ -52,48 +52,52 @@ def nominal_seeds(first: int, n: int) -> list[int]:
     return out
 
 
+def cases(seeds: int, first: int):
+    """``(kind, seed)`` of every log: ``seeds`` per kind of :data:`KINDS` from ``first`` (the
+    nominal kind, None, from :func:`nominal_seeds`)."""
+    for kind in KINDS:
+        picked = nominal_seeds(first, seeds) if kind is None else range(first, first + seeds)
+        for seed in picked:
+            yield kind, seed
+
+
 def run(seeds: int, first: int, estimators) -> dict:
     from odofuse.log_defaults import apply_log_defaults
     from odofuse.rundir import estimate
 
     table = {}
-    for kind in KINDS:
-        picked = nominal_seeds(first, seeds) if kind is None else range(first, first + seeds)
-        for seed in picked:
-            t0 = time.perf_counter()
-            log, cfg, what = bs.make_case(seed, kind)
-            sc = bs.case_scenario(seed, kind)[0]
-            true_ratio = sc["systematic"].get("E_d", 1.0)  # scores the advice, chooses nothing
-            cfg, log = apply_log_defaults(cfg, log)
-            brief = []
-            for est in estimators:
-                result, _ = estimate(dataclasses.replace(cfg, estimator=est), log, None)
-                extra = result.extra or {}
-                advice = geometry_advice(cfg.robot, extra)
-                cal = calibration_estimates(extra)
-                z = {n: (v - m) / s for n, (v, s, m) in cal.items()}
-                row = table.setdefault((kind or "nominal", est), [])
-                row.append(
-                    {
-                        "radius": any("`robot.wheel_radius`" in a for a in advice),
-                        "track": any("`robot.track_width`" in a for a in advice),
-                        "ratio": any("`robot.wheel_radius_left:" in a for a in advice),
-                        "ratio_error": (
-                            (cal["wheel_radius_ratio"][0] - true_ratio)
-                            / cal["wheel_radius_ratio"][1]
-                            if "wheel_radius_ratio" in cal
-                            else np.nan
-                        ),
-                        "z": z,
-                        "sigma": {n: s for n, (_, s, _) in cal.items()},
-                    }
-                )
-                brief.append(
-                    f"{est}:" + ",".join(f"{SHORT.get(n, n)}{v:+.1f}" for n, v in z.items())
-                )
-            dt = time.perf_counter() - t0
-            print(f"  {kind or 'nominal'} {seed} {what} ({dt:.0f} s): {' '.join(brief)}")
-            sys.stdout.flush()
+    for kind, seed in cases(seeds, first):
+        t0 = time.perf_counter()
+        log, cfg, what = bs.make_case(seed, kind)
+        sc = bs.case_scenario(seed, kind)[0]
+        true_ratio = sc["systematic"].get("E_d", 1.0)  # scores the advice, chooses nothing
+        cfg, log = apply_log_defaults(cfg, log)
+        brief = []
+        for est in estimators:
+            result, _ = estimate(dataclasses.replace(cfg, estimator=est), log, None)
+            extra = result.extra or {}
+            advice = geometry_advice(cfg.robot, extra)
+            cal = calibration_estimates(extra)
+            z = {n: (v - m) / s for n, (v, s, m) in cal.items()}
+            row = table.setdefault((kind or "nominal", est), [])
+            row.append(
+                {
+                    "radius": any("`robot.wheel_radius`" in a for a in advice),
+                    "track": any("`robot.track_width`" in a for a in advice),
+                    "ratio": any("`robot.wheel_radius_left:" in a for a in advice),
+                    "ratio_error": (
+                        (cal["wheel_radius_ratio"][0] - true_ratio) / cal["wheel_radius_ratio"][1]
+                        if "wheel_radius_ratio" in cal
+                        else np.nan
+                    ),
+                    "z": z,
+                    "sigma": {n: s for n, (_, s, _) in cal.items()},
+                }
+            )
+            brief.append(f"{est}:" + ",".join(f"{SHORT.get(n, n)}{v:+.1f}" for n, v in z.items()))
+        dt = time.perf_counter() - t0
+        print(f"  {kind or 'nominal'} {seed} {what} ({dt:.0f} s): {' '.join(brief)}")
+        sys.stdout.flush()
     return table
 
 

@@ -31,20 +31,12 @@ def main(argv=None) -> int:
     ap.add_argument("--first", type=int, default=16000, help="first seed (default 16000)")
     args = ap.parse_args(argv)
     bs.LAPS = args.laps
-    for kind in bg.KINDS:
-        picked = (
-            bg.nominal_seeds(args.first, args.seeds)
-            if kind is None
-            else range(args.first, args.first + args.seeds)
-        )
-        for seed in picked:
-            log, cfg, what = bs.make_case(seed, kind)
-            out = bs.run_log(log, cfg, ["ekf", "smoother"], model_bounds=False)
-            cells = [f"{e} {r[0]} {r[4]:.3f} {r[1]:.2f}/{r[2]:.2f}" for e, r in out.items()]
-            warn = [out["smoother"][3][:60], out["ekf"][3][:70]]
-            print(
-                args.laps, kind or "nominal", seed, what, "|", " | ".join(cells + warn), flush=True
-            )
+    for kind, seed in bg.cases(args.seeds, args.first):
+        log, cfg, what = bs.make_case(seed, kind)
+        out = bs.run_log(log, cfg, ["ekf", "smoother"], model_bounds=False)
+        cells = [f"{e} {r[0]} {r[4]:.3f} {r[1]:.2f}/{r[2]:.2f}" for e, r in out.items()]
+        warn = [out["smoother"][3][:60], out["ekf"][3][:70]]
+        print(args.laps, kind or "nominal", seed, what, "|", " | ".join(cells + warn), flush=True)
     return 0
 
 
