@@ -137,6 +137,31 @@ def test_the_run_nis_test_sees_a_moderate_offset_the_windows_miss():
     assert "nis_run" not in {f.check for f in mon.stream_findings((0.0, 40.0))}
 
 
+def test_whole_run_tests_flag_no_misfit_below_their_tolerance():
+    """On 40,000 readings (25 min of a 25 Hz gyro) the run's NIS quantile is 1.02: a noise
+    model 5 % optimistic would be significant, but it is inside ``RUN_TOLERANCE`` (10 % of
+    the variance), so neither the run's NIS test nor the smoother's variance factor flags
+    it; 15 % is flagged by both. Where the quantile is above the floor (400 readings above)
+    the floor changes nothing."""
+    from odofuse.status.cross_check import variance_factor_excess
+
+    opts = EkfOptions(recovery=False)
+    n = 40_000
+    assert chi2.ppf(1.0 - opts.nis_alpha, n) / n < 1.0 + streaming.RUN_TOLERANCE / 4
+    assert streaming.RUN_TOLERANCE == 0.1
+    for value, fires in ((1.05, False), (1.15, True)):
+        mon = monitors.FilterMonitor(opts, {"gyro": SimpleNamespace(dim=1, gate=0.999)})
+        for k in range(n):
+            mon.observe("gyro", 0.04 * k, True, value)
+        found = {f.check: f for f in mon.stream_findings((0.0, 0.04 * n))}
+        assert ("nis_run" in found) is fires
+        if fires:
+            assert "bound 1.1 at 0.001" in found["nis_run"].message
+        vc = {"variance_factor": value, "redundancy": n}
+        assert (variance_factor_excess(vc, 1e-3) is not None) is fires
+    assert streaming.run_bound(2.33, 2) == 2.33 and streaming.run_bound(1.02) == 1.1
+
+
 def test_a_rejection_run_makes_the_stream_failing_until_its_windows_pass():
     opts = EkfOptions(recovery=False)
     mon = monitors.FilterMonitor(opts, {"gps": SimpleNamespace(dim=2, gate=0.999)})

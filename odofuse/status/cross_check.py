@@ -588,18 +588,20 @@ def variance_factor_excess(vc: dict, alpha: float) -> str | None:
     """``"variance factor ... above its chi-square band (...)"`` when the global variance
     factor of ``vc`` (``extra["variance_components"]``: ``v^T v / (m - n)`` of the noise
     models at the optimum, Koch's global test) is above the ``1 - alpha`` quantile of
-    ``chi2(m - n) / (m - n)``; None when it is inside, or not available."""
+    ``chi2(m - n) / (m - n)`` and above ``1 + RUN_TOLERANCE`` (a whole-run test:
+    :func:`odofuse.status.streaming.run_bound`); None when it is inside, or not available."""
     from odofuse import chi2
+    from odofuse.status.streaming import RUN_TOLERANCE, run_bound
 
     f, r = vc.get("variance_factor"), vc.get("redundancy")
     if f is None or not r or r <= 0:
         return None
-    hi = float(chi2.ppf(1.0 - alpha, r)) / r if alpha > 0 else math.inf
+    hi = run_bound(chi2.ppf(1.0 - alpha, r) / r) if alpha > 0 else math.inf
     if math.isfinite(f) and f <= hi:
         return None
     return (
         f"variance factor {f:.3g} is above its chi-square band ({hi:.3g} at {r} degrees of "
-        f"freedom, false alarm {alpha:.2g})"
+        f"freedom, false alarm {alpha:.2g}; never below 1 + {RUN_TOLERANCE:g})"
     )
 
 
