@@ -141,8 +141,8 @@ def test_whole_run_tests_flag_no_misfit_below_their_tolerance():
     """On 40,000 readings (25 min of a 25 Hz gyro) the run's NIS quantile is 1.02: a noise
     model 5 % optimistic would be significant, but it is inside ``RUN_TOLERANCE`` (10 % of
     the variance), so neither the run's NIS test nor the smoother's variance factor flags
-    it; 15 % is flagged by both. Where the quantile is above the floor (400 readings above)
-    the floor changes nothing."""
+    it; 15 % is flagged by both. Where the quantile is above the floor (the 400 GPS fixes of
+    the test above) the floor changes nothing."""
     from odofuse.status.cross_check import variance_factor_excess
 
     opts = EkfOptions(recovery=False)

@@ -487,10 +487,9 @@ RUN_NIS_MIN_WINDOWS = 2
 #: by at most as much, well inside its chi-square band; but over 25 minutes of a 100 Hz
 #: stream these tests resolve 2-5 %, and the EKF said ``degraded`` on half the 16-lap logs of
 #: the real robot's kind with its NEES within bound (docs/trust.md, "Whole-run tests with a
-#: tolerance"). The floor changes nothing where the quantile is above it (a stream of
-#: ``n`` readings of dimension ``d`` at alpha 1e-3: from about ``2 (3.09 / 0.1)^2 / (n d)``
-#: below ~1,900 readings of a scalar), and on a log that matches its config it only lowers
-#: the false-alarm rate.
+#: tolerance"). The floor changes nothing where the quantile is above it (at alpha 1e-3,
+#: ``n`` readings of dimension ``d`` with ``n d`` below about 2,000), and on a log that
+#: matches its config it only lowers the false-alarm rate.
 RUN_TOLERANCE = 0.1
 
 
@@ -525,9 +524,10 @@ def live_findings(
             )
         )
     mean = st.tsum / st.tn if st.tn else 0.0
-    # the bound is never below d (1 + RUN_TOLERANCE): a mean at or below that passes without
-    # the quantile (5 us a health() call)
-    if st.tn >= RUN_NIS_MIN_WINDOWS * w and mean > d * (1.0 + RUN_TOLERANCE):
+    # the bound is never below the floor: a mean at or below it passes without the quantile
+    # (5 us a health() call)
+    floor = run_bound(0.0, d)
+    if st.tn >= RUN_NIS_MIN_WINDOWS * w and mean > floor:
         from odofuse import chi2
 
         hi = run_bound(chi2.ppf(1.0 - float(opts.nis_alpha), st.tn * d) / st.tn, d)
@@ -537,7 +537,7 @@ def live_findings(
                     "nis_run",
                     f"mean NIS of all {st.tn} accepted readings {_s(mean)} above its band "
                     f"(expected {d}, bound {_s(hi)} at {_s(opts.nis_alpha)}, never below "
-                    f"{_s(d * (1.0 + RUN_TOLERANCE))}): over the run "
+                    f"{_s(floor)}): over the run "
                     f"the filter was overconfident or off{nis_keys(s)}",
                     sensor=s,
                     t_start=st.t_first,
