@@ -10,7 +10,10 @@ suite took 14 min with its 4 min at the end; longest first, 14 min 31 s: the oth
 tests then wait in that worker's share). The order is otherwise the files' own.
 
 GTSAM's reference optima (``benchmarks/gtsam_reference.best``, 47 s for all files) are shared
-between the workers through a folder of the run (:func:`pytest_configure`).
+between the workers through a folder of the run (:func:`pytest_configure`). On an empty numba
+cache (a clean clone, or after an edit of ``kernels.py``) the compiled core is compiled once,
+in two processes, before the workers start (``tests/prewarm.py``), instead of by every worker
+and CLI subprocess that reaches a kernel first.
 """
 
 from __future__ import annotations
@@ -45,6 +48,20 @@ def pytest_configure(config):
     folder = tempfile.mkdtemp(prefix="odofuse-gtsam-best-")
     os.environ["ODOFUSE_GTSAM_BEST_DIR"] = folder
     config._gtsam_best_dir = folder
+    if config.getoption("numprocesses", None):  # xdist's workers are about to start
+        _prewarm()
+
+
+def _prewarm() -> None:
+    """Compile the compiled core into numba's cache (``tests/prewarm.py``) when it is cold."""
+    import sys
+
+    import prewarm  # tests/ is on sys.path: pytest put it there to import this file
+
+    if prewarm.cold():
+        for job, proc in zip(prewarm.JOBS, prewarm.start(), strict=True):
+            if proc.wait():  # costs only time: the tests compile what it did not
+                print(f"tests/prewarm.py {job} failed (exit {proc.returncode})", file=sys.stderr)
 
 
 def pytest_unconfigure(config):
