@@ -22,15 +22,16 @@ from odofuse.status.mde import mean_mde
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 
-def _feed(opts, white, d=None, dt=1.0, rate=False):
+def _feed(opts, white, d=None, dt=1.0, rate=False, end=False):
     """The streaming checks' state after accepted readings with whitened innovations
-    ``white`` (n, d), ``dt`` s apart, each NIS ``|white|^2`` (``rate``: a rate stream's)."""
+    ``white`` (n, d), ``dt`` s apart, each NIS ``|white|^2`` (``rate``: a rate stream's);
+    ``end``: then the end of the run (:func:`~odofuse.status.streaming.end_scan`)."""
     d = white.shape[1] if d is None else d
     st = streaming.StreamState()
     for k, v in enumerate(white.tolist()):
         nis = math.fsum(x * x for x in v)
         st = streaming.advance(st, k * dt, True, nis, math.inf, d, opts, v, rate)
-    return st
+    return streaming.end_scan(st, opts, d, rate) if end else st
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,11 +69,14 @@ def test_whiten_is_the_lower_cholesky_solve():
 @pytest.mark.parametrize("d", [1, 2])
 def test_false_alarm_rate_on_white_innovations_is_within_alpha(d):
     # alpha 0.05 a stream (the option's default is 1e-3: too rare to count here); 400
-    # streams of 150 readings each (28 evaluations)
+    # streams of 153 readings each (27 evaluations on the stride, the 28th at the end of
+    # the run)
     opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05)
     rng = np.random.default_rng(100 + d)
-    n, length = 400, 150
-    fired = sum(_feed(opts, rng.standard_normal((length, d))).mhits > 0 for _ in range(n))
+    n, length = 400, 153
+    states = [_feed(opts, rng.standard_normal((length, d)), end=True) for _ in range(n)]
+    assert {st.mk for st in states} == {28}
+    fired = sum(st.mhits > 0 for st in states)
     assert fired <= binom.ppf(0.99, n, opts.nis_alpha), fired
 
 
@@ -82,9 +86,13 @@ def test_a_rate_streams_blocks_keep_the_false_alarm_rate_within_alpha():
     opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05)
     rng = np.random.default_rng(7)
     n, length = 200, 1500
-    states = [_feed(opts, rng.standard_normal((length, 1)), dt=0.05, rate=True) for _ in range(n)]
+    states = [
+        _feed(opts, rng.standard_normal((length, 1)), dt=0.05, rate=True, end=True)
+        for _ in range(n)
+    ]
     assert {st.blen for st in states} == {21}  # 1 s at 20 Hz, both ends: 21 readings a block
     assert all(st.bk == length // 21 for st in states)
+    assert {st.mk for st in states} == {12}  # 71 blocks: 11 on the stride, 1 at the end
     fired = sum(st.mhits > 0 for st in states)
     assert fired <= binom.ppf(0.99, n, opts.nis_alpha), fired
 
@@ -106,6 +114,39 @@ def test_a_rate_streams_small_bias_is_found_in_its_blocks_not_in_windows_of_read
     assert blocked.mhits > 0 and 40.0 <= blocked.m_t0  # a window (20 s) before the step
     assert _feed(opts, white, dt=0.05).mhits == 0
     assert _feed(opts, white[:1200], dt=0.05, rate=True).mhits == 0  # before the step
+
+
+def test_the_scan_evaluates_its_last_window_at_the_end_of_the_run():
+    # 103 readings of a 2-D stream: the stride evaluates the windows ending at readings 20,
+    # 25, ..., 100 (17 evaluations); the last 20 readings carry a bias of b on one axis. The
+    # window ending at 100 holds 17 of them (|sum|^2 / 20 = 14.45 b^2), the last window all
+    # 20 (20 b^2), and both evaluations are in block 4 (16-31): one bound. With b^2 between
+    # bound / 20 and bound / 14.45 only the end of the run's evaluation sees it.
+    opts = EkfOptions()
+    bound = streaming.mean_bound(17, 2, opts.nis_alpha)[0]
+    assert bound == streaming.mean_bound(18, 2, opts.nis_alpha)[0]
+    b = math.sqrt(bound / 17.0)
+    white = np.zeros((103, 2))
+    white[83:, 0] = b
+    st = _feed(opts, white)
+    assert (st.mk, st.mhits, st.mlast, st.tn) == (17, 0, 100, 103)
+    end = streaming.end_scan(st, opts, 2)
+    assert (end.mk, end.mhits, end.mlast) == (18, 1, 103)
+    assert end.mworst == pytest.approx(20 * b * b / bound) and end.m_t0 == 83.0
+    assert streaming.end_scan(end, opts, 2) == end  # once
+    # a run whose last reading was evaluated on the stride: nothing to add
+    assert streaming.end_scan(_feed(opts, white[:100]), opts, 2) == _feed(opts, white[:100])
+    # through the monitor, as Localizer.finish calls it: the finding appears at the end
+    mon = monitors.FilterMonitor(opts, {"gps": _Gps()})
+    for k, v in enumerate(white.tolist()):
+        mon.observe("gps", float(k), True, v[0] ** 2 + v[1] ** 2, tuple(v))
+
+    def scans():  # (zero innovations elsewhere are a "below its band" note, not tested)
+        return [f for f in mon.stream_findings((0.0, 102.0)) if f.check == "innovation_mean"]
+
+    assert not scans()
+    mon.end()
+    assert len(scans()) == 1 and scans()[0].degrades
 
 
 def test_a_bias_the_nis_windows_miss_is_found_and_clears_a_window_later():

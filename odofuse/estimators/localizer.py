@@ -553,10 +553,13 @@ class Localizer:
 
     # ----------------------------------------------------------------- results
     def finish(self) -> None:
-        """Count measurements still waiting for odometry (after the last step) as dropped."""
+        """The end of the readings: count measurements still waiting for odometry (after the
+        last step) as dropped, and let the innovation-mean scans evaluate their last windows
+        (:meth:`~odofuse.status.monitors.FilterMonitor.end`)."""
         for _, _, stream, _ in self._pending:
             self.dropped_late[stream] += 1
         self._pending.clear()
+        self.monitor.end()
         self._version += 1
         if self.companion is not None:
             self.companion.finish()

@@ -108,7 +108,8 @@ CHECKS: tuple[Check, ...] = (
         "the same as nis, for every fused stream (a gyro's in blocks of >= 1 s)",
         "|sum|^2 / nis_window of the last nis_window whitened innovations (L^-1 y, S = L L^T; "
         "a gyro's summed over blocks of >= MEAN_BLOCK_S, over sqrt(n)), chi-square(dim), every "
-        "nis_window / 4 readings or blocks, alpha spent over the evaluations (Bonferroni)",
+        "nis_window / 4 readings or blocks and on the last window at the end of the run "
+        "(streaming.end_scan), alpha spent over the evaluations (Bonferroni)",
         "nis_alpha per fused stream (1e-3); the estimators that carry an EKF's drift check "
         "(COMPANION) carry its scans too (options.ekf.nis_alpha each)",
         ("innovation_mean", "companion_innovation_mean"),

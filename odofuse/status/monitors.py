@@ -43,7 +43,13 @@ from odofuse.status.pose_checks import (
     learning_findings,
 )
 from odofuse.status.slip import slip_note
-from odofuse.status.streaming import StreamState, advance, live_findings, outage_from_state
+from odofuse.status.streaming import (
+    StreamState,
+    advance,
+    end_scan,
+    live_findings,
+    outage_from_state,
+)
 
 
 # -------------------------------------------------------------------- recovery
@@ -205,6 +211,13 @@ class FilterMonitor:
             st = advance(st, t[j], ok[j] == 1, nis[j], gate, d, opts, white, rate)
         self.live[s] = st
         self._cursor[s] = len(t)
+
+    def end(self) -> None:
+        """The run is over: each stream's innovation-mean scan evaluates its last window
+        (:func:`~odofuse.status.streaming.end_scan`); calling it again changes nothing."""
+        self.catch_up()
+        for s, st in self.live.items():
+            self.live[s] = end_scan(st, self.options, self.dims[s], s in self.rate_streams)
 
     def failing(self) -> list[str]:
         """The streams whose checks are failing now (persistence reached, not recovered)."""

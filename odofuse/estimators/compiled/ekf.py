@@ -381,6 +381,7 @@ def finish(loc, log, streams, args):
     loc._track = Track.from_arrays(t, args["traj_x"], args["traj_P"])
     loc._odom = args["odom"]
     loc.t = float(t[-1])
+    loc.monitor.end()  # the scans' last windows, as Localizer.finish
     return loc.result()
 
 

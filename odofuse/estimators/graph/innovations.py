@@ -236,5 +236,7 @@ def summary(mon) -> dict:
 
 def findings(mon, problem) -> list:
     """The findings of ``mon``'s streaming checks over ``problem``'s keyframe span, without
-    their outage check (the graph has its own)."""
+    their outage check (the graph has its own); the scans evaluate their last windows first
+    (:meth:`~odofuse.status.monitors.FilterMonitor.end`)."""
+    mon.end()
     return mon.stream_findings((float(problem.kt[0]), float(problem.kt[-1])), outage=False)
