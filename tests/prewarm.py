@@ -3,7 +3,7 @@
 On a clean clone the cache is empty. Before this, each xdist worker and each ``odofuse``
 subprocess of the CLI tests that reached a kernel before another process had saved it
 compiled that kernel itself: the same signatures compiled several times at once on two cores
-(clean clone 1,369 s of CPU, the warm working tree about 1,100 s). ``tests/conftest.py`` runs
+(about 115 s of CPU on a clean clone; docs/speed.md, "Session 53"). ``tests/conftest.py`` runs
 this module in the xdist controller before the workers start, when the cache is cold: two
 processes, one per core (:data:`JOBS`), each running short seeded logs through every compiled
 path of its share, so that every later process only loads machine code. Nothing is asserted

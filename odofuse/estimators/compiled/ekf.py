@@ -381,7 +381,7 @@ def finish(loc, log, streams, args):
     loc._track = Track.from_arrays(t, args["traj_x"], args["traj_P"])
     loc._odom = args["odom"]
     loc.t = float(t[-1])
-    loc.monitor.end()  # the scans' last windows, as Localizer.finish
+    loc.finish()  # the end of the readings, as for a fed Localizer (the scans' last windows)
     return loc.result()
 
 
