@@ -245,29 +245,30 @@ def test_the_count_null_adds_the_gross_fraction_to_the_gate():
 
 def test_rejection_count_false_alarm_rate_is_within_alpha():
     # a gate of 0.9 (a reading rejected one time in ten) so that chance counts are common;
-    # alpha 0.05 a stream, 400 streams of 150 readings, no gross readings
+    # alpha 0.05 a stream, 400 streams of 153 readings (off the stride of 5: the end of the
+    # run evaluates the last window too, streaming.end_count), no gross readings
     opts = dataclasses.replace(EkfOptions(), nis_alpha=0.05, gross_fraction=0.0)
     gate = float(chi2.ppf(0.9, 1))
     rng = np.random.default_rng(21)
     fired = 0
     for _ in range(400):
         st = streaming.StreamState()
-        for k, v in enumerate(rng.chisquare(1, 150).tolist()):
+        for k, v in enumerate(rng.chisquare(1, 153).tolist()):
             st = streaming.advance(st, float(k), v <= gate, v, gate, 1, opts)
-        fired += st.rhits > 0
+        fired += streaming.end_count(st, opts, gate, 1).rhits > 0
     assert fired <= binom.ppf(0.99, 400, opts.nis_alpha), fired
 
 
-def _gross_stream_fires(opts, rng, n: int = 150, share: float = 0.03) -> bool:
+def _gross_stream_fires(opts, rng, n: int = 153, share: float = 0.03) -> bool:
     """Whether the count fires on one consistent stream of ``n`` readings (gate 0.999, 2-D)
-    a share ``share`` of which is gross (always rejected)."""
+    a share ``share`` of which is gross (always rejected), the end of its run included."""
     gate = float(chi2.ppf(0.999, 2))
     st = streaming.StreamState()
     gross = rng.random(n) < share
     for k, v in enumerate(rng.chisquare(2, n).tolist()):
         nis = 1e3 if gross[k] else v
         st = streaming.advance(st, float(k), nis <= gate, nis, gate, 2, opts)
-    return st.rhits > 0
+    return streaming.end_count(st, opts, gate, 2).rhits > 0
 
 
 def test_gross_readings_at_their_declared_share_stay_within_alpha():
@@ -280,6 +281,77 @@ def test_gross_readings_at_their_declared_share_stay_within_alpha():
     gaussian = dataclasses.replace(opts, gross_fraction=0.0)
     rng = np.random.default_rng(23)
     assert sum(_gross_stream_fires(gaussian, rng) for _ in range(400)) > 0.5 * 400
+
+
+def _rejected_at_the_end(opts, gate: float):
+    """103 gated readings of a 2-D stream (reading ``i`` at ``i`` s), rejected at 84-87 and
+    101-103 (``rejected``), the others at NIS 1; and the rejection count's bound ``k`` at the
+    17th and 18th evaluations (one block: one bound)."""
+    p = streaming.count_probability(gate, 2, opts.gross_fraction)
+    k = streaming.count_bound(17, 20, p, opts.nis_alpha)[0]
+    assert k == streaming.count_bound(18, 20, p, opts.nis_alpha)[0] == 7
+    rejected = {84, 85, 86, 87, 101, 102, 103}  # never reject_run (5) in a row
+    return k, [
+        (float(i), i in rejected, 2.0 * gate if i in rejected else 1.0) for i in range(1, 104)
+    ]
+
+
+def test_the_rejection_count_evaluates_its_last_window_at_the_end_of_the_run():
+    # The stride evaluates the windows ending at readings 20, 25, ..., 100 (17 evaluations):
+    # the window ending at 100 (81-100) holds 4 rejections, below the bound of 7; the last
+    # window (84-103) holds all 7, seen only at the end of the run (streaming.end_count)
+    opts = EkfOptions()
+    gate = float(chi2.ppf(0.999, 2))
+    k, readings = _rejected_at_the_end(opts, gate)
+    st = streaming.StreamState()
+    for t, bad, nis in readings:
+        st = streaming.advance(st, t, not bad, nis, gate, 2, opts)
+    assert (st.rk, st.rhits, st.n, st.runs) == (17, 0, 103, 0)
+    end = streaming.end_count(st, opts, gate, 2)
+    assert (end.rk, end.rhits, end.rworst, end.rbound) == (18, 1, k, k)
+    assert (end.r_t0, end.r_t1) == (84.0, 103.0)
+    assert streaming.end_count(end, opts, gate, 2) == end  # once
+    # a run whose last reading was evaluated on the stride, or shorter than a window: nothing
+    on_stride, short = streaming.StreamState(), streaming.StreamState()
+    for i, (t, bad, nis) in enumerate(readings[:100]):
+        on_stride = streaming.advance(on_stride, t, not bad, nis, gate, 2, opts)
+        if i < 19:
+            short = on_stride
+    assert (on_stride.rk, on_stride.n, short.n) == (17, 100, 19)
+    for st_ in (on_stride, short):
+        assert streaming.end_count(st_, opts, gate, 2) == st_
+    # through the monitor, as Localizer.finish calls it: the finding appears at the end
+    mon = monitors.FilterMonitor(opts, {"gps": _Gps(gate=0.999)})
+    assert mon.gates["gps"] == pytest.approx(gate)
+    for t, bad, nis in readings:
+        mon.observe("gps", t, not bad, nis)
+
+    def counts():
+        return [f for f in mon.stream_findings((1.0, 103.0)) if f.check == "rejection_count"]
+
+    assert not counts()
+    mon.end()
+    ((f,),) = [counts()]
+    assert f.degrades and f.figure == k and (f.t_start, f.t_end) == (84.0, 103.0)
+
+
+def test_the_smoothers_rejection_count_reads_its_last_window_too():
+    # the same readings as residuals at a batch optimum (status.graph_checks): the windows
+    # on the stride hold at most 4 beyond the gate, the last window 7
+    from types import SimpleNamespace
+
+    from odofuse.estimators.graph.innovations import NIS_OPTIONS
+    from odofuse.status.graph_checks import rejection_count_findings
+
+    gate = float(chi2.ppf(0.999, 2))
+    k, readings = _rejected_at_the_end(NIS_OPTIONS, gate)
+    problem = SimpleNamespace(models={"gps": _Gps(gate=0.999)}, gyro=set())
+    t = np.array([r[0] for r in readings])
+    nis = np.array([r[2] for r in readings])
+    (f,) = rejection_count_findings(problem, {"gps": {"t": t, "chi2": nis}})
+    assert f.check == "rejection_count" and f.figure == k and (f.t_start, f.t_end) == (84.0, 103.0)
+    # the first 100 readings end on the stride: their windows hold at most 4, no finding
+    assert not rejection_count_findings(problem, {"gps": {"t": t[:100], "chi2": nis[:100]}})
 
 
 def test_a_burst_of_rejections_not_in_a_row_is_counted():

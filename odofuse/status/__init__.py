@@ -123,8 +123,8 @@ CHECKS: tuple[Check, ...] = (
         "rejections (the smoother: residuals beyond the gate) among the last nis_window "
         "readings against the binomial bound of the gate's own rejection probability "
         "(1 - gate) plus the gross_fraction a real sensor has (3 %), every nis_window / 4 "
-        "readings, alpha spent over the evaluations "
-        "(Bonferroni)",
+        "readings and on the last window at the end of the run (streaming.end_count), alpha "
+        "spent over the evaluations (Bonferroni)",
         "nis_alpha per fused gated stream (1e-3)",
         ("rejection_count",),
         ("tests/test_innovation_mean.py", "tests/test_graph_innovations.py"),

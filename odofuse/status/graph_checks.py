@@ -251,8 +251,9 @@ def rejection_count_findings(problem, residuals: dict, optimum: bool = True) -> 
     :mod:`odofuse.estimators.graph.innovations`), its factors in time order are scanned as a
     filter's readings are (:func:`odofuse.status.streaming.count_bound`, at the incremental
     graphs' :data:`~odofuse.estimators.graph.innovations.NIS_OPTIONS`): every
-    ``nis_window / 4`` factors, those among the last ``nis_window`` whose whitened chi-square
-    (Gaussian part of the noise model: a robust loss does not hide them) is beyond the gate,
+    ``nis_window / 4`` factors and at the last one, those among the last ``nis_window`` whose
+    whitened chi-square (Gaussian part of the noise model: a robust loss does not hide them)
+    is beyond the gate,
     against the binomial bound of the filters' null
     (:func:`odofuse.status.streaming.count_probability`: the gate's own probability
     ``1 - gate`` plus the ``gross_fraction`` of gross readings a real sensor has, 3 %),
@@ -288,7 +289,10 @@ def rejection_count_findings(problem, residuals: dict, optimum: bool = True) -> 
         t = r["t"][order]
         beyond = np.concatenate([[0], np.cumsum(r["chi2"][order] > gate)])
         hits, worst, bound, span = 0, 0, 0, None
-        for j, end in enumerate(range(w, t.size + 1, stride), start=1):
+        ends = list(range(w, t.size + 1, stride))
+        if ends[-1] != t.size:  # the last window too, as the filters' count ends a run
+            ends.append(t.size)
+        for j, end in enumerate(ends, start=1):
             k, _ = count_bound(j, w, p, alpha)
             count = int(beyond[end] - beyond[end - w])
             if count >= k:

@@ -46,6 +46,7 @@ from odofuse.status.slip import slip_note
 from odofuse.status.streaming import (
     StreamState,
     advance,
+    end_count,
     end_scan,
     live_findings,
     outage_from_state,
@@ -213,11 +214,13 @@ class FilterMonitor:
         self._cursor[s] = len(t)
 
     def end(self) -> None:
-        """The run is over: each stream's innovation-mean scan evaluates its last window
-        (:func:`~odofuse.status.streaming.end_scan`); calling it again changes nothing."""
+        """The run is over: each stream's innovation-mean scan and rejection count evaluate
+        their last windows (:func:`~odofuse.status.streaming.end_scan`,
+        :func:`~odofuse.status.streaming.end_count`); calling it again changes nothing."""
         self.catch_up()
         for s, st in self.live.items():
-            self.live[s] = end_scan(st, self.options, self.dims[s], s in self.rate_streams)
+            st = end_scan(st, self.options, self.dims[s], s in self.rate_streams)
+            self.live[s] = end_count(st, self.options, self.gates[s], self.dims[s])
 
     def failing(self) -> list[str]:
         """The streams whose checks are failing now (persistence reached, not recovered)."""

@@ -261,6 +261,12 @@ def _count(
         kw["rtimes"] = rej
     if n < w or (n - w) % stride:
         return
+    _count_evaluate(st, kw, t, rej, gate, d, w, stride, opts)
+
+
+def _count_evaluate(st: StreamState, kw: dict, t, rej: tuple, gate, d, w, stride, opts):
+    """One evaluation of the rejection count (:func:`_count`): ``rej`` the rejected readings
+    among the last ``w``, the window's last reading at time ``t``, into ``kw``."""
     p = count_probability(gate, d, opts.gross_fraction)
     if p <= 0.0:
         return
@@ -276,6 +282,24 @@ def _count(
             kw["r_t0"] = rej[0][1]
     elif st.rfailing:
         kw["rfailing"], kw["rgood"] = _still_failing(st.rgood, w, stride)
+
+
+def end_count(st: StreamState, opts, gate: float, d: int) -> StreamState:
+    """The rejection count's evaluation at the end of a stream's run, as :func:`end_scan` is
+    the scan's: the window of its last ``nis_window`` readings, when the stride
+    (:func:`mean_stride`) left it unevaluated (a burst in a log's last readings otherwise
+    ends the run between two evaluations). It is the next evaluation of the same spending
+    schedule (:func:`count_bound`), so the count's false-alarm bound holds; a second call
+    changes nothing."""
+    w = max(int(opts.nis_window), 1)
+    stride = mean_stride(w)
+    # the stride's evaluations so far are (n - w) // stride + 1 (rk counts them): the last
+    # reading was one of them, or the end's evaluation is done already
+    if st.n < w or (st.n - w) % stride == 0 or st.rk > (st.n - w) // stride + 1:
+        return st
+    kw: dict = {}
+    _count_evaluate(st, kw, st.t_last, st.rtimes, gate, d, w, stride, opts)
+    return st._replace(**kw) if kw else st
 
 
 def whiten(y, S) -> tuple | None:
