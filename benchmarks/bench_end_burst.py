@@ -3,9 +3,10 @@
 The status benchmark's GPS multipath fault (``bench_status.FAULTS``) lies in the middle of
 its logs. Here the burst ends the log: every other fix of the last 15 is moved 8 m east (8
 fixes, never ``reject_run`` in a row), and the GPS stream ends 1 s early, so that its last
-readings fall between two of the rejection count's strided evaluations (94 fixes; the
-filters gate 93 of them). On the 1 m GPS logs (the even seeds) the gate rejects all 8; on
-the 2 m ones (odd seeds) about half. docs/trust.md, "The rejection count's last window".
+readings fall between two of the rejection count's strided evaluations (94 fixes, the last
+4 past the stride's last evaluation, for the filters' gate and the smoother's residuals).
+On the 1 m GPS logs (the even seeds) the gate rejects all 8; on the 2 m ones (odd seeds)
+about half. docs/trust.md, "The rejection count's last window".
 
     python benchmarks/bench_end_burst.py --first 18100 --seeds 10 --estimators ekf ukf smoother
 """
