@@ -331,7 +331,7 @@ def test_the_rejection_count_evaluates_its_last_window_at_the_end_of_the_run():
 
     assert not counts()
     mon.end()
-    ((f,),) = [counts()]
+    (f,) = counts()
     assert f.degrades and f.figure == k and (f.t_start, f.t_end) == (84.0, 103.0)
 
 
