@@ -181,6 +181,67 @@ def test_advice_never_changes_status():
     assert status_from_findings(m2) == "degraded"
 
 
+def test_what_the_second_opinion_detected_in_the_log_carries_to_the_run():
+    """Seed 18303 (docs/trust.md, "What the second opinion detected carries"): a gyro bias
+    step that the EKF's and UKF's own checks missed (``ok`` at a position NEES of 86) fired
+    the smoother's ``slip_run``, a fault of the log that the smoother still served as a
+    yardstick with. The reference's degrading findings about the log carry to every run it
+    judges; those about its own solution, its notes, streams the run did not fuse and checks
+    the run made itself do not; the budget counts what can fire on a matching log."""
+    from odofuse.status.findings import Finding
+
+    slip = Finding("slip_run", "gyro and wheels disagreed for 2 s", sensor="gyro", t_start=63.0)
+    own = Finding("solver", "did not converge")
+    note = Finding("slip", "widened 4 intervals", sensor="gyro", degrades=False)
+    other = Finding("residual_windows", "window off", sensor="ranges")
+    gps = Finding("rejection_count", "8 of 20", sensor="gps")
+    smoother = EstimateResult(
+        "smoother",
+        _line(21),
+        extra={"variance_components": SANE},
+        findings=(slip, own, note, other, gps),
+    )
+    ref = xc.Reference(smoother, "degraded", 1.0, "c", yardstick_status="degraded")
+    used = {"gps": 20, "gyro": 400}
+    for name in ("ekf", "ukf", "particle", "fixed_lag", "isam2", "dead_reckoning"):
+        mine = (Finding("rejection_count", "its own count", sensor="gps"),)
+        result = EstimateResult(name, _line(), used=used, findings=mine)
+        m = checked_metrics(_config(name), _log(), result, 0.1, ref)
+        carried = [f for f in m["findings"] if f["message"].startswith("seen by the batch")]
+        assert [(f["check"], f["sensor"]) for f in carried] == [("slip_run", "gyro")], name
+        assert carried[0]["degrades"] and carried[0]["t_start"] == 63.0
+        assert m["status"] == "degraded"
+        assert [f["check"] for f in m["findings"]].count("rejection_count") == 1
+        budget = m["alpha"]["checks"]
+        # the smoother's residual windows of the odometry and its gps count, counted once
+        assert budget["reference_status"] >= 2e-3 and not m["alpha"]["overspent"], name
+    # the EKF companion's findings (the smoother's drift check) carry to the UKF, whose
+    # budget then counts them; the EKF's companion is the EKF's own run
+    scan = Finding("innovation_mean", "seen by an EKF of this log and config: off", sensor="gps")
+    ok = EstimateResult("smoother", _line(21), extra={"variance_components": SANE})
+    ref = xc.Reference(ok, "ok", 1.0, "c", drift=lambda: (scan,))
+    runs = {}
+    for name in ("ekf", "ukf"):
+        result = EstimateResult(name, _line(), used=used)
+        runs[name] = checked_metrics(_config(name), _log(), result, 0.1, ref)
+    assert runs["ekf"]["status"] == "ok" and runs["ekf"]["warnings"] == []
+    assert runs["ukf"]["status"] == "degraded"
+    assert runs["ukf"]["warnings"] == ["[innovation_mean] gps: " + scan.message]
+    extra = runs["ukf"]["alpha"]["checks"]["reference_status"]
+    extra -= runs["ekf"]["alpha"]["checks"]["reference_status"]
+    assert extra == pytest.approx(2e-3)  # the EKF's drift_alpha and its scan of the gps
+    # an ok reference carries nothing
+    clean = EstimateResult("smoother", _line(21), extra={"variance_components": SANE})
+    m = checked_metrics(
+        _config(),
+        _log(),
+        EstimateResult("ekf", _line(), used=used),
+        0.1,
+        xc.Reference(clean, "ok", 1.0, "c"),
+    )
+    assert m["status"] == "ok" and m["warnings"] == []
+
+
 def test_the_variance_components_are_bounded_and_report_convergence():
     gtsam = pytest.importorskip("gtsam")
     from odofuse.estimators.graph import variance

@@ -188,9 +188,12 @@ CHECKS: tuple[Check, ...] = (
         ("status/cross_check.py",),
         "the estimators of cross_check_nees",
         "the second opinion could not judge (reason given); degrades only estimators without "
-        "drift evidence of their own (dead reckoning) when the reference failed",
-        "the smoother's window and latency shares (reference_status) and the other half "
-        "(reference_variance)",
+        "drift evidence of their own (dead reckoning) when the reference failed. Whether it "
+        "judges or not, what the reference detected in the log carries to the run under its "
+        "own check name ('seen by the batch smoother of this log', with_reference_findings)",
+        "the carried findings: the smoother's window and rejection-count shares, its latency "
+        "shares where the run has none, the EKF companion's for the UKF (reference_status); "
+        "the other half (reference_variance)",
         ("reference_status", "reference_variance"),
         ("tests/test_cross_check_skipped.py",),
     ),

@@ -35,6 +35,8 @@ smoother's error is orthogonal to ``d`` (``e_f = d + e_s``), so
 
 The check needs the smoother's own ``status`` to be ``ok`` (a degraded yardstick measures
 nothing); a check that does not apply is recorded as ``skipped: <reason>``, not as a warning.
+What the smoother detected in the log carries to the run either way
+(:func:`with_reference_findings`).
 
 The estimators without a calibration drift check of their own (:data:`COMPANION`) also
 carry an EKF's of the same log and config, run once per log with the reference
@@ -102,9 +104,14 @@ ODOMETRY_STREAMS = ("odometry", "wheels", "cmd_vel")
 
 
 #: Findings that report a fault of the log the smoother handled, not a fault of its estimate:
-#: a smoother degraded by them alone is still the yardstick (a slip burst longer than a
-#: second: its robust odometry widened those intervals and its estimate holds).
+#: a smoother degraded by them alone is still the comparison's yardstick (a slip burst longer
+#: than a second: its robust odometry widened those intervals). The finding itself carries to
+#: the run it judges (:func:`with_reference_findings`): a gyro bias step fires it too, and then
+#: the smoother's estimate is as far off as the run's (docs/trust.md, seed 18303).
 DATA_FAULTS = ("slip_run",)
+#: The reference's findings about its own solution, not about the log: they do not carry to
+#: the runs it judges (:func:`with_reference_findings`).
+SOLUTION_CHECKS = ("solver", "covariance", "pose")
 
 
 @dataclass(frozen=True)
@@ -448,14 +455,16 @@ def alpha_budget(config, log) -> dict:
     windows per odometry and gyro stream (``WINDOW_ALPHA``) and rejection count per gated
     sensor stream that is not between poses (``nis_alpha``), the time-stamp test per fused absolute
     stream (``options.status.latency_alpha``: a graph run's own, or the reference's that a
-    filter takes, :func:`with_reference_latency`). What is left of ``alpha_run`` goes to the
+    filter takes, :func:`with_reference_findings`). What is left of ``alpha_run`` goes to the
     second opinion when it applies, half to its consistency test (``cross_check_nees``) and
     half to the sanity of its reference (the smoother's variance factor above its chi-square
     band: a filter's ``variance_factor`` finding, the others' skip); the smoother run as the
     estimate spends half of what is left on the same test of its own residuals
-    (``variance_factor``, :func:`own_test`); an estimator whose skipped check degrades (not
-    in :data:`DRIFT_EVIDENCE`) also carries the smoother's residual windows, rejection counts
-    and time-stamp tests (``reference_status``: a degraded smoother skips the check). The
+    (``variance_factor``, :func:`own_test`); every estimator it judges carries the smoother's
+    findings about the log (:func:`with_reference_findings`), so its residual windows and
+    rejection counts count, and the time-stamp tests for an estimator without its own share
+    of them (dead reckoning, whose skipped check also degrades), and the EKF companion's drift
+    and scans for the UKF (``reference_status``). The
     other checks (a covariance not positive definite, a solver that did not converge, a
     stream mostly rejected or silent, a calibration 5 prior sigmas out, a slip run, ...)
     cannot fire on a matching log, or with a probability below 1e-5 (docs/trust.md); they
@@ -521,10 +530,20 @@ def alpha_budget(config, log) -> dict:
     lat = {f"latency:{n}": lat_alpha for n in latency.streams(config, log)}
     if est in latency.OWN or (applies and est in DRIFT_EVIDENCE):
         checks.update(lat)
-    if applies and est not in DRIFT_EVIDENCE:
-        # the smoother's own degraded status on a matching log skips the check, and that
-        # skip degrades this run (:func:`skipped_finding`): its checks' false alarms count
-        checks["reference_status"] = sum(smoother.values()) + sum(lat.values())
+    if applies:
+        # the smoother's findings about the log carry to this run (with_reference_findings;
+        # for dead reckoning its degraded status also skips the check, and that skip
+        # degrades, skipped_finding): its checks' false alarms count, the time-stamp tests
+        # where this run does not count them already, and the EKF companion's where this run
+        # carries none of its own (the UKF; the EKF's is its own run)
+        carried = sum(smoother.values())
+        carried += 0.0 if est in DRIFT_EVIDENCE else sum(lat.values())
+        if est == "ukf" and companion_applies(
+            dataclasses.replace(config, estimator="smoother"), log
+        ):
+            ekf = config.estimator_options("ekf")
+            carried += float(ekf.drift_alpha) + float(ekf.nis_alpha) * len(scanned)
+        checks["reference_status"] = carried
     in_run = sum(checks.values())
     if applies:
         share = max(a - in_run, 0.0) / 2.0
@@ -733,7 +752,7 @@ def cross_check(config, log, result: EstimateResult, reference=None):
     about = {"smoother_status": ref.status}
     if ref.config != config.source:
         about["smoother_config"] = ref.config
-    result = with_reference_latency(result, ref)
+    result = with_reference_findings(config, log, result, ref)
     if (ref.status if ref.yardstick_status is None else ref.yardstick_status) != "ok":
         why = f"the batch smoother's own status is {ref.status}"
         return _skipped(result, why, {"skipped": why, **about})
@@ -803,19 +822,38 @@ def _with_companion(config, log, result: EstimateResult, ref: Reference | None =
     return dataclasses.replace(result, findings=(*result.findings, *found)) if found else result
 
 
-def with_reference_latency(result: EstimateResult, ref: Reference) -> EstimateResult:
-    """``result`` with the reference's ``latency`` findings on the streams it fused and did
-    not test itself: the time stamps are the log's, and a filter's own residuals cannot see
-    them (:mod:`odofuse.status.latency`)."""
+def with_reference_findings(config, log, result: EstimateResult, ref: Reference):
+    """``result`` with the reference's degrading findings about the log, each said to be
+    seen by the batch smoother of this log: its residual windows, rejection counts, time-stamp
+    tests, slip runs, outages, ... (every check but those about its own solution,
+    :data:`SOLUTION_CHECKS`) and, where it carries one (:func:`companion_applies`), an EKF's
+    drift and innovation-mean findings. They test the log's readings against the config's
+    model, which every estimator of the same log shares: offline, a fault the second opinion
+    detected is a detected fault (shared spec section 3), whatever the run's own checks saw
+    (docs/trust.md, "What the second opinion detected carries": a gyro bias step that the
+    filters' checks missed at a position NEES of 86 while the smoother's ``slip_run`` fired).
+    A finding of the same check and stream that the run made itself is not repeated; an EKF
+    does not take its own companion (the same run)."""
     if result is ref.result:
         return result
-    own = {f.sensor for f in result.findings if f.check == "latency"}
-    fused = set(result.used) | set(result.rejected)
-    found = tuple(
-        dataclasses.replace(f, message=f"seen by the batch smoother of this log: {f.message}")
+    by = "seen by the batch smoother of this log: "
+    theirs = [
+        dataclasses.replace(f, message=by + f.message)
         for f in ref.result.findings
-        if f.check == "latency" and f.degrades and f.sensor in fused and f.sensor not in own
-    )
+        if f.degrades and f.check not in SOLUTION_CHECKS
+    ]
+    smoother = dataclasses.replace(config, estimator="smoother")
+    if ref.drift is not None and result.estimator != "ekf" and companion_applies(smoother, log):
+        theirs += [f for f in ref.drift() if f.degrades]  # they say that an EKF saw them
+    fused = set(result.used) | set(result.rejected)
+    own = {(f.check, f.sensor) for f in result.findings if f.degrades}
+    found, seen = [], set(own)
+    for f in theirs:
+        key = (f.check, f.sensor)
+        if key in seen or (f.sensor is not None and f.sensor not in fused):
+            continue
+        seen.add(key)
+        found.append(f)
     return dataclasses.replace(result, findings=(*result.findings, *found)) if found else result
 
 

@@ -34,7 +34,7 @@ less of the offset). A filter's own residuals cannot: its state follows the late
 (the estimate lags along the path) and its innovations stay white (measured: ``z`` 0.3 and
 -0.9 where the smoother's is -10 and -4, ``benchmarks/bench_status.py`` fault
 ``range_time_shift``), so the filters take the batch smoother's finding through the
-cross-check (:func:`odofuse.status.cross_check.with_reference_latency`): offline only, not in
+cross-check (:func:`odofuse.status.cross_check.with_reference_findings`): offline only, not in
 ``Localizer.health()``. docs/trust.md section 1 lists it with its budget.
 """
 
