@@ -27,10 +27,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_status as bs  # noqa: E402
 
 #: Findings only the offline run can make: the batch smoother's second opinion and what the
-#: filters take from it (docs/trust.md, section 6; ``odofuse.status`` catalog).
+#: filters take from it (docs/trust.md, section 6; ``odofuse.status`` catalog), and since
+#: session 55 any finding the smoother of the log (or its companion EKF) detected, carried
+#: under its own check name with a message starting with one of :data:`CARRIED`.
 SECOND_OPINION = frozenset(
     {"cross_check_nees", "cross_check_skipped", "variance_factor", "latency"}
 )
+CARRIED = ("seen by the batch smoother of this log", "seen by an EKF of this log")
 
 
 def live_health(cfg, log, estimator: str):
@@ -61,7 +64,8 @@ def live_health(cfg, log, estimator: str):
 
 def compare(log, cfg, estimators) -> dict:
     """``{estimator: (verdict, live status, offline status, detail)}`` on one log; verdict
-    ``equal``, ``second opinion`` (offline degraded by :data:`SECOND_OPINION` findings alone)
+    ``equal``, ``second opinion`` (offline degraded by :data:`SECOND_OPINION` and
+    :data:`CARRIED` findings alone)
     or ``differ``."""
     from odofuse.log_defaults import apply_log_defaults
     from odofuse.rundir import checked_metrics, estimate, smoother_reference
@@ -73,11 +77,15 @@ def compare(log, cfg, estimators) -> dict:
         run_cfg = dataclasses.replace(cfg, estimator=est)
         m = checked_metrics(run_cfg, log, *estimate(run_cfg, log, ref), ref)
         h = live_health(cfg, log, est)
-        offline = {f["check"] for f in m["findings"] if f.get("degrades")}
+        degrading = [f for f in m["findings"] if f.get("degrades")]
+        offline = {f["check"] for f in degrading}
         live = {f.check for f in h.findings if f.degrades}
+        alone = all(
+            f["check"] in SECOND_OPINION or f["message"].startswith(CARRIED) for f in degrading
+        )
         if h.run_status == m["status"]:
             verdict = "equal"
-        elif h.run_status == "ok" and offline <= SECOND_OPINION:
+        elif h.run_status == "ok" and alone:
             verdict = "second opinion"
         else:
             verdict = "differ"
