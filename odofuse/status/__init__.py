@@ -155,7 +155,7 @@ CHECKS: tuple[Check, ...] = (
     Check(
         "residual_windows",
         ("status/graph_checks.py",),
-        "batch smoother (odometry and each gyro)",
+        "batch smoother (odometry and each gyro); carried to the runs it judges",
         "summed whitened chi-square of 20 consecutive factors at the optimum against its "
         "chi-square quantile, Bonferroni over the windows",
         "WINDOW_ALPHA per stream (1e-3)",
