@@ -538,9 +538,7 @@ def alpha_budget(config, log) -> dict:
         # carries none of its own (the UKF; the EKF's is its own run)
         carried = sum(smoother.values())
         carried += 0.0 if est in DRIFT_EVIDENCE else sum(lat.values())
-        if est == "ukf" and companion_applies(
-            dataclasses.replace(config, estimator="smoother"), log
-        ):
+        if takes_reference_companion(config, log):
             ekf = config.estimator_options("ekf")
             carried += float(ekf.drift_alpha) + float(ekf.nis_alpha) * len(scanned)
         checks["reference_status"] = carried
@@ -814,6 +812,16 @@ def companion_applies(config, log) -> bool:
     )
 
 
+def takes_reference_companion(config, log) -> bool:
+    """Whether the run takes the EKF companion's findings that its reference carries
+    (:func:`with_reference_findings`, counted in ``reference_status``): the UKF, which has
+    drift and scan checks of its own, where the smoother carries a companion
+    (:func:`companion_applies`). The EKF's companion is its own run, and the estimators of
+    :data:`COMPANION` carry the same findings themselves (:func:`_with_companion`)."""
+    smoother = dataclasses.replace(config, estimator="smoother")
+    return config.estimator == "ukf" and companion_applies(smoother, log)
+
+
 def _with_companion(config, log, result: EstimateResult, ref: Reference | None = None):
     """``result`` with the companion findings: the reference's (shared by the runs on one
     log) when given, else those of an EKF of ``config``."""
@@ -832,8 +840,8 @@ def with_reference_findings(config, log, result: EstimateResult, ref: Reference)
     detected is a detected fault (shared spec section 3), whatever the run's own checks saw
     (docs/trust.md, "What the second opinion detected carries": a gyro bias step that the
     filters' checks missed at a position NEES of 86 while the smoother's ``slip_run`` fired).
-    A finding of the same check and stream that the run made itself is not repeated; an EKF
-    does not take its own companion (the same run)."""
+    A finding of the same check and stream that the run made itself is not repeated; the
+    companion's findings go to the UKF alone (:func:`takes_reference_companion`)."""
     if result is ref.result:
         return result
     by = "seen by the batch smoother of this log: "
@@ -842,12 +850,10 @@ def with_reference_findings(config, log, result: EstimateResult, ref: Reference)
         for f in ref.result.findings
         if f.degrades and f.check not in SOLUTION_CHECKS
     ]
-    smoother = dataclasses.replace(config, estimator="smoother")
-    if ref.drift is not None and result.estimator != "ekf" and companion_applies(smoother, log):
+    if ref.drift is not None and takes_reference_companion(config, log):
         theirs += [f for f in ref.drift() if f.degrades]  # they say that an EKF saw them
     fused = set(result.used) | set(result.rejected)
-    own = {(f.check, f.sensor) for f in result.findings if f.degrades}
-    found, seen = [], set(own)
+    found, seen = [], {(f.check, f.sensor) for f in result.findings if f.degrades}
     for f in theirs:
         key = (f.check, f.sensor)
         if key in seen or (f.sensor is not None and f.sensor not in fused):
