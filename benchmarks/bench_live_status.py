@@ -26,6 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_status as bs  # noqa: E402
 
+from odofuse.status.cross_check import SEEN_BY_REFERENCE  # noqa: E402
+from odofuse.status.drift import SEEN_BY_EKF  # noqa: E402
+
 #: Findings only the offline run can make: the batch smoother's second opinion and what the
 #: filters take from it (docs/trust.md, section 6; ``odofuse.status`` catalog), and since
 #: session 55 any finding the smoother of the log (or its companion EKF) detected, carried
@@ -33,7 +36,7 @@ import bench_status as bs  # noqa: E402
 SECOND_OPINION = frozenset(
     {"cross_check_nees", "cross_check_skipped", "variance_factor", "latency"}
 )
-CARRIED = ("seen by the batch smoother of this log", "seen by an EKF of this log")
+CARRIED = (SEEN_BY_REFERENCE, SEEN_BY_EKF)
 
 
 def live_health(cfg, log, estimator: str):

@@ -112,6 +112,9 @@ DATA_FAULTS = ("slip_run",)
 #: The reference's findings about its own solution, not about the log: they do not carry to
 #: the runs it judges (:func:`with_reference_findings`).
 SOLUTION_CHECKS = ("solver", "covariance", "pose")
+#: How a finding of the reference starts when it is carried to a run it judges
+#: (:func:`with_reference_findings`, :func:`variance_factor_findings`).
+SEEN_BY_REFERENCE = "seen by the batch smoother of this log: "
 
 
 @dataclass(frozen=True)
@@ -645,7 +648,7 @@ def variance_factor_findings(
     excess = variance_factor_excess(vc, alpha)
     if not excess:
         return []
-    by = "seen by the batch smoother of this log: " if seen_by_reference else ""
+    by = SEEN_BY_REFERENCE if seen_by_reference else ""
     return [
         Finding(
             "variance_factor",
@@ -844,7 +847,7 @@ def with_reference_findings(config, log, result: EstimateResult, ref: Reference)
     companion's findings go to the UKF alone (:func:`takes_reference_companion`)."""
     if result is ref.result:
         return result
-    by = "seen by the batch smoother of this log: "
+    by = SEEN_BY_REFERENCE
     theirs = [
         dataclasses.replace(f, message=by + f.message)
         for f in ref.result.findings

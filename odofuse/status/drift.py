@@ -160,6 +160,9 @@ def drift_of(loc) -> Drift | None:
 #: The companion EKF's checks that test its innovations against the config's model (the
 #: log's departure from it, which another estimator of the log shares), not its own failure.
 MODEL = ("nis", "nis_run")
+#: How a companion EKF's finding starts when another estimator carries it
+#: (:func:`seen_by_ekf`).
+SEEN_BY_EKF = "seen by an EKF of this log and config: "
 
 
 def seen_by_ekf(found) -> tuple[Finding, ...]:
@@ -193,10 +196,7 @@ def seen_by_ekf(found) -> tuple[Finding, ...]:
         )
     if other:
         return ()
-    return tuple(
-        dataclasses.replace(f, message=f"seen by an EKF of this log and config: {f.message}")
-        for f in drift + mean
-    )
+    return tuple(dataclasses.replace(f, message=SEEN_BY_EKF + f.message) for f in drift + mean)
 
 
 def cannot_judge(why: str) -> Finding:
